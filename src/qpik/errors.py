@@ -1,0 +1,45 @@
+"""Exception types raised by qpik.
+
+Every error a user can provoke with bad input derives from :class:`QpikError`, so
+the command line can turn it into one line on stderr and exit code 2. Each also
+derives from the built-in type a Python user would expect (``ValueError`` for bad
+input, ``RuntimeError`` for a numerical failure).
+"""
+
+from __future__ import annotations
+
+
+class QpikError(Exception):
+    """Base class of every error qpik raises on purpose."""
+
+
+class InvalidInput(QpikError, ValueError):
+    """An argument has the wrong shape, type, or a non-finite value."""
+
+
+class UnknownName(QpikError, ValueError):
+    """An unknown robot, scenario, solver, site, joint or task name."""
+
+
+class ModelError(QpikError, ValueError):
+    """A missing or malformed MJCF model, or one that lacks what qpik needs."""
+
+
+class UnreachablePose(QpikError, ValueError):
+    """A target pose lies outside the workspace (no admissible joint solution)."""
+
+
+class InfeasibleProblem(QpikError, RuntimeError):
+    """The constraints of a QP (hard tasks and limits) cannot all be met."""
+
+
+class SolverError(QpikError, RuntimeError):
+    """A QP solver failed or returned a non-finite solution."""
+
+
+class ConvergenceError(QpikError, RuntimeError):
+    """An iterative method (Newton, Gauss-Newton, ...) did not converge."""
+
+
+class DivergenceError(QpikError, RuntimeError):
+    """A controller produced a non-finite command (e.g. at a singularity)."""

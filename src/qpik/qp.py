@@ -1,0 +1,106 @@
+r"""QPController: a stack of tasks and limits turned into one QP per control step.
+
+.. math::
+    \min_{\dot q}\ \tfrac12 \sum_{i\,\text{soft}} w_i \|J_i \dot q - v_i\|^2
+                  + \tfrac12 \epsilon \|\dot q\|^2
+    \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
+    lb \le \dot q \le ub \ (\text{limits})
+
+With a hard position task and the manipulability task
+(:math:`\tfrac12\|\dot q - k_0\nabla\sigma\|^2`) the solution is exactly the
+null-space law :math:`J^\dagger v + (I - J^\dagger J) k_0 \nabla\sigma` whenever no
+limit is active (Lagrange conditions of the equality-constrained least squares).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .errors import InvalidInput, SolverError
+from .limits import order_limits
+from .robot import Robot
+from .solvers import make_backend
+from .tasks import DampingTask, ManipulabilityTask, PostureTask, Task
+
+_JOINT_SPACE = (ManipulabilityTask, PostureTask, DampingTask)
+
+
+class QPController:
+    """Differential IK by quadratic programming.
+
+    Args:
+        robot: the robot the tasks and limits read.
+        tasks: tasks; each one's ``hard`` flag chooses equality or weighted cost.
+        limits: joint position/velocity limits (box constraints on q̇).
+        solver: a qpsolvers name (``daqp``, ``osqp``, ``quadprog``, ``proxqp``, ...).
+        dt: control period, used by the position limits.
+        regularization: ε added to the Hessian's diagonal so it is positive definite.
+        native: call DAQP/OSQP directly (True) or always go through qpsolvers.
+
+    Call :meth:`compute_velocity` after ``robot.update_kinematics()``.
+    """
+
+    kind = "qp"
+
+    def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence = (), solver: str = "daqp",
+                 dt: float = 0.002, regularization: float = 1e-12, native: bool = True, **solver_settings):
+        if not tasks:
+            raise InvalidInput("a QPController needs at least one task")
+        if not (np.isfinite(dt) and dt > 0):
+            raise InvalidInput(f"dt must be positive, got {dt}")
+        self.robot = robot
+        self.tasks = list(tasks)
+        self.limits = order_limits(limits)
+        self.dt = float(dt)
+        self.solver = solver
+        nv = robot.nv
+        self._hard = [t for t in self.tasks if t.hard]
+        self._soft = [t for t in self.tasks if not t.hard]
+        self._soft_diagonal = [t for t in self._soft if isinstance(t, _JOINT_SPACE)]
+        self._soft_general = [t for t in self._soft if not isinstance(t, _JOINT_SPACE)]
+        meq = sum(t.dim for t in self._hard)
+        self._rows = []
+        start = 0
+        for t in self._hard:
+            self._rows.append(slice(start, start + t.dim))
+            start += t.dim
+        self.H = np.zeros((nv, nv))
+        self.c = np.zeros(nv)
+        self.A = np.zeros((meq, nv))
+        self.b = np.zeros(meq)
+        self.lb = np.empty(nv)
+        self.ub = np.empty(nv)
+        self._eps = float(regularization)
+        self._diag = self.H.reshape(-1)[:: nv + 1]
+        self._backend = make_backend(solver, nv, meq, native=native, **solver_settings)
+        self.qdot = np.zeros(nv)
+
+    def compute_velocity(self) -> np.ndarray:
+        """Update every task and limit from the current kinematics and solve the QP."""
+        H, c = self.H, self.c
+        H.fill(0.0)
+        c.fill(0.0)
+        self._diag += self._eps
+        for task in self.tasks:
+            task.update()
+        for task in self._soft_diagonal:  # J = I: w on the diagonal, no matrix product
+            self._diag += task.weight
+            c -= task.weight * task.target_velocity
+        for task in self._soft_general:
+            weighted = task.weight[:, None] * task.jacobian
+            H += task.jacobian.T @ weighted
+            c -= weighted.T @ task.target_velocity
+        for task, rows in zip(self._hard, self._rows):
+            self.A[rows] = task.jacobian
+            self.b[rows] = task.target_velocity
+        self.lb.fill(-np.inf)
+        self.ub.fill(np.inf)
+        for limit in self.limits:
+            limit.apply(self.dt, self.lb, self.ub)
+        x = self._backend.solve(H, c, self.A, self.b, self.lb, self.ub)
+        if x is None or not np.all(np.isfinite(x)):
+            raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
+        self.qdot[:] = x
+        return self.qdot

@@ -1,0 +1,166 @@
+r"""Reference trajectories: time laws and paths giving desired position and velocity.
+
+A time law maps t ∈ [0, T] to the path fraction s ∈ [0, 1] with zero end velocities:
+
+- cubic (the source's): s = 3τ² − 2τ³, τ = t/T. On the source's segment of length
+  L = √2 and T = 5 s this is s(t)·L = −(2√2/125) t³ + (3√2/25) t².
+- quintic: s = 10τ³ − 15τ⁴ + 6τ⁵ (zero end accelerations too).
+
+Before t = 0 and after T the reference holds its end point with zero velocity.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from .errors import InvalidInput
+
+
+def _time(t: float) -> float:
+    if not np.isfinite(t):
+        raise InvalidInput(f"time must be finite, got {t}")
+    return float(t)
+
+
+class TimeLaw:
+    """Normalised time law s(τ), ds/dτ on τ ∈ [0, 1], held constant outside."""
+
+    name = "time law"
+
+    def __init__(self, duration: float):
+        if not (np.isfinite(duration) and duration > 0):
+            raise InvalidInput(f"duration must be positive, got {duration}")
+        self.duration = float(duration)
+
+    def _shape(self, tau: float) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def __call__(self, t: float) -> tuple[float, float]:
+        """Path fraction s and its rate ds/dt at time t."""
+        tau = _time(t) / self.duration
+        if tau <= 0.0:
+            return 0.0, 0.0
+        if tau >= 1.0:
+            return 1.0, 0.0
+        s, ds = self._shape(tau)
+        return s, ds / self.duration
+
+
+class CubicTimeLaw(TimeLaw):
+    """s = 3τ² − 2τ³: zero velocity at both ends (the source's law)."""
+
+    name = "cubic"
+
+    def _shape(self, tau: float) -> tuple[float, float]:
+        return tau * tau * (3.0 - 2.0 * tau), 6.0 * tau * (1.0 - tau)
+
+
+class QuinticTimeLaw(TimeLaw):
+    """s = 10τ³ − 15τ⁴ + 6τ⁵: zero velocity and acceleration at both ends."""
+
+    name = "quintic"
+
+    def _shape(self, tau: float) -> tuple[float, float]:
+        t2 = tau * tau
+        return t2 * tau * (10.0 + tau * (-15.0 + 6.0 * tau)), 30.0 * t2 * (1.0 - tau) ** 2
+
+
+TIME_LAWS = {"cubic": CubicTimeLaw, "quintic": QuinticTimeLaw}
+
+
+def make_time_law(name: str, duration: float) -> TimeLaw:
+    if name not in TIME_LAWS:
+        raise InvalidInput(f"unknown time law {name!r}; known: {sorted(TIME_LAWS)}")
+    return TIME_LAWS[name](duration)
+
+
+class Trajectory(Protocol):
+    """Anything that gives a desired position and velocity at time t."""
+
+    dim: int
+    duration: float
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def _point(value, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1 or arr.size == 0:
+        raise InvalidInput(f"{what} must be a vector, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InvalidInput(f"{what} contains NaN or inf: {arr}")
+    return arr
+
+
+class Segment:
+    """Straight segment from ``start`` to ``end`` under a time law."""
+
+    def __init__(self, start, end, duration: float, time_law: str = "cubic"):
+        self.start = _point(start, "segment start")
+        self.end = _point(end, "segment end")
+        if self.start.shape != self.end.shape:
+            raise InvalidInput("segment start and end must have the same size")
+        self.dim = self.start.size
+        self.law = make_time_law(time_law, duration)
+        self.duration = self.law.duration
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s, ds = self.law(t)
+        delta = self.end - self.start
+        return self.start + s * delta, ds * delta
+
+
+class Circle:
+    """Circle of ``radius`` about ``center`` in the plane spanned by unit vectors u, w.
+
+    p = c + r (cos φ u + sin φ w), φ = φ0 + 2π·turns·s(t); the start point is at φ0.
+    """
+
+    def __init__(self, center, radius: float, duration: float, u=(1.0, 0.0, 0.0), w=(0.0, 1.0, 0.0),
+                 start_angle: float = 0.0, turns: float = 1.0, time_law: str = "quintic"):
+        self.center = _point(center, "circle centre")
+        self.u = _point(u, "circle axis u")
+        self.w = _point(w, "circle axis w")
+        if not (self.center.shape == self.u.shape == self.w.shape):
+            raise InvalidInput("circle centre and axes must have the same size")
+        if not (np.isfinite(radius) and radius > 0):
+            raise InvalidInput(f"circle radius must be positive, got {radius}")
+        if abs(np.linalg.norm(self.u) - 1) > 1e-9 or abs(np.linalg.norm(self.w) - 1) > 1e-9 or abs(self.u @ self.w) > 1e-9:
+            raise InvalidInput("circle axes u, w must be orthonormal")
+        self.radius = float(radius)
+        self.start_angle = float(start_angle)
+        self.turns = float(turns)
+        self.dim = self.center.size
+        self.law = make_time_law(time_law, duration)
+        self.duration = self.law.duration
+
+    def angle(self, t: float) -> tuple[float, float]:
+        """φ(t) and φ̇(t)."""
+        s, ds = self.law(t)
+        sweep = 2.0 * np.pi * self.turns
+        return self.start_angle + sweep * s, sweep * ds
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        phi, dphi = self.angle(t)
+        c, s = np.cos(phi), np.sin(phi)
+        position = self.center + self.radius * (c * self.u + s * self.w)
+        velocity = self.radius * dphi * (-s * self.u + c * self.w)
+        return position, velocity
+
+
+class Hold:
+    """A constant target (set-point regulation)."""
+
+    def __init__(self, point, duration: float):
+        self.point = _point(point, "target")
+        self.dim = self.point.size
+        if not (np.isfinite(duration) and duration > 0):
+            raise InvalidInput(f"duration must be positive, got {duration}")
+        self.duration = float(duration)
+        self._zero = np.zeros(self.dim)
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        _time(t)
+        return self.point, self._zero
