@@ -92,6 +92,9 @@ class QPController:
             weighted = task.weight[:, None] * task.jacobian
             H += task.jacobian.T @ weighted
             c -= weighted.T @ task.target_velocity
+            if task.lm_damping:
+                error = task.error
+                self._diag += task.lm_damping * float(error @ (task.weight * error))
         for task, rows in zip(self._hard, self._rows):
             self.A[rows] = task.jacobian
             self.b[rows] = task.target_velocity

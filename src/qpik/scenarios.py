@@ -21,13 +21,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+import mujoco
 import numpy as np
 
 from .errors import InvalidInput, UnknownName
 from .limits import JointPositionLimit, JointVelocityLimit
 from .pinv import JacobianTransposeController, PseudoinverseController
 from .qp import QPController
-from .robot import JointLimits, Robot
+from .robot import BUNDLED_SCENES, JointLimits, Robot, scene_path
 from .solvers import available_solvers
 from .tasks import DampingTask, ManipulabilityTask, PositionTask, SigmaProxy, Task, Yoshikawa
 from .trajectory import Segment
@@ -36,8 +37,12 @@ DT = 0.002
 ARM_GAIN = 500.0
 ARM_K0 = 5.0
 ARM_START = (np.pi / 2, 0.0, 0.0, 0.5)
+ARM_JOINTS = ("theta1", "theta2", "theta3", "d4")
 SEED_PATH = ((0.5, 2.0), (1.5, 1.0))
 SEED_DURATION = 5.0
+# Jacobian-transpose step: α K λmax(JJᵀ) Δt < 2 for stability (λmax ≈ 6.4 at q0).
+JT_ALPHA = 0.1
+LM_DAMPING = 1.0
 
 
 class PositionReference:
@@ -60,6 +65,27 @@ class PositionReference:
         return {"x": robot.site_position(self.task.site_id)[self.task.rows].copy()}
 
 
+@dataclass(frozen=True)
+class JointPlotSpec:
+    """Which joints figures show: names, qpos/qvel columns, limits (inf: none), units."""
+
+    names: tuple[str, ...]
+    qpos_index: tuple[int, ...]
+    dof_index: tuple[int, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    units: tuple[str, ...]
+
+    @classmethod
+    def from_limits(cls, robot: Robot, limits: JointLimits, names=None) -> JointPlotSpec:
+        names = tuple(limits.names if names is None else names)
+        idx = [limits.names.index(n) for n in names]
+        slide = int(mujoco.mjtJoint.mjJNT_SLIDE)
+        units = tuple("m" if int(robot.model.jnt_type[robot.joint_id(n)]) == slide else "rad" for n in names)
+        return cls(names, tuple(int(limits.qpos_index[i]) for i in idx), tuple(int(limits.dof_index[i]) for i in idx),
+                   tuple(float(limits.lower[i]) for i in idx), tuple(float(limits.upper[i]) for i in idx), units)
+
+
 @dataclass
 class Setup:
     """Everything one run of a scenario needs; ``controller()`` builds a controller on it."""
@@ -75,6 +101,7 @@ class Setup:
     manipulability: Callable[[Robot], float]
     manipulability_measure: str
     classical: dict[str, Callable[[], object]]
+    plot_joints: JointPlotSpec
     params: dict = field(default_factory=dict)
     dt: float = DT
 
@@ -106,11 +133,18 @@ def register(name: str, robot: str, description: str):
 
 
 def build_scenario(name: str, robot: str | None = None, **options) -> Setup:
-    """A fresh setup of scenario ``name`` (checking it belongs to ``robot`` if given)."""
+    """A fresh setup of scenario ``name``.
+
+    ``robot`` is checked against the scenario's robot (``"arm"``, ``"hexapod"``); an
+    MJCF path instead replaces the bundled scene (it must define the same names).
+    """
     if name not in SCENARIOS:
         raise UnknownName(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}")
     info = SCENARIOS[name]
-    if robot is not None and robot != info.robot:
+    if robot is not None and robot not in BUNDLED_SCENES:
+        scene_path(robot)  # raises a clear error for an unknown name or a missing file
+        options.setdefault("scene", robot)
+    elif robot is not None and robot != info.robot:
         raise UnknownName(f"scenario {name!r} is for robot {info.robot!r}, not {robot!r}")
     return info.build(**options)
 
@@ -142,13 +176,18 @@ def arm_setup(
     k0: float = ARM_K0,
     gain: float = ARM_GAIN,
     duration: float | None = None,
+    scene: str = "arm",
 ) -> Setup:
     """The arm with its position task (x, y), optional σ task, limits and reference."""
-    robot = Robot.load("arm")
+    robot = Robot.load(scene)
+    for joint in ARM_JOINTS:  # a custom scene must name what the arm scenarios use
+        robot.joint_id(joint)
     robot.set_q(np.array(ARM_START))
     robot.update_kinematics()
     manip = _arm_measure(robot, measure)
-    position = PositionTask(robot, "end_effector", axes="xy", gain=gain, hard=hard)
+    # A soft task gets adaptive Levenberg–Marquardt damping against unreachable targets.
+    position = PositionTask(robot, "end_effector", axes="xy", gain=gain, hard=hard,
+                            lm_damping=0.0 if hard else LM_DAMPING)
     secondary = ManipulabilityTask(robot, manip, gain=k0, weight=1.0) if redundant else None
     # Without a secondary task the QP still needs a (tiny) cost on q̇: the minimum norm.
     regular = secondary if secondary is not None else DampingTask(robot, weight=1e-3)
@@ -167,8 +206,9 @@ def arm_setup(
         manipulability_measure=manip.label,
         classical={
             "pinv": lambda: PseudoinverseController(robot, [position], secondary),
-            "jt": lambda: JacobianTransposeController(robot, [position], alpha=1.0),
+            "jt": lambda: JacobianTransposeController(robot, [position], alpha=JT_ALPHA),
         },
+        plot_joints=JointPlotSpec.from_limits(robot, joint_limits),
         params={"gain": gain, "k0": k0 if redundant else 0.0, "hard": hard, "ranges": ranges or {}},
     )
 
@@ -178,27 +218,27 @@ def _seed_segment() -> Segment:
 
 
 @register("seed-primary", "arm", "source path (0.5,2)->(1.5,1) m, cubic law, 5 s; primary task only")
-def seed_primary(measure: str = "sigma") -> Setup:
-    return arm_setup("seed-primary", _seed_segment(), redundant=False, measure=measure)
+def seed_primary(measure: str = "sigma", scene: str = "arm") -> Setup:
+    return arm_setup("seed-primary", _seed_segment(), redundant=False, measure=measure, scene=scene)
 
 
 @register("seed-redundant", "arm", "source path plus the sigma null-space task, k0 = 5")
-def seed_redundant(measure: str = "sigma") -> Setup:
-    return arm_setup("seed-redundant", _seed_segment(), redundant=True, measure=measure)
+def seed_redundant(measure: str = "sigma", scene: str = "arm") -> Setup:
+    return arm_setup("seed-redundant", _seed_segment(), redundant=True, measure=measure, scene=scene)
 
 
 JOINT_LIMITS_RANGES = {"theta2": (-1.0, 1.0), "theta3": (-1.0, 1.0)}
 
 
 @register("joint-limits", "arm", "seed-redundant with theta2, theta3 limited to [-1, 1] rad")
-def joint_limits(measure: str = "sigma") -> Setup:
-    return arm_setup("joint-limits", _seed_segment(), redundant=True, ranges=JOINT_LIMITS_RANGES, measure=measure)
+def joint_limits(measure: str = "sigma", scene: str = "arm") -> Setup:
+    return arm_setup("joint-limits", _seed_segment(), redundant=True, ranges=JOINT_LIMITS_RANGES, measure=measure, scene=scene)
 
 
 UNREACHABLE_TARGET = (2.4, 2.4)
 
 
 @register("unreachable", "arm", "segment to (2.4, 2.4) m, 3.39 m away, beyond the 3 m reach; soft task")
-def unreachable(measure: str = "sigma") -> Setup:
+def unreachable(measure: str = "sigma", scene: str = "arm") -> Setup:
     trajectory = Segment(SEED_PATH[0], UNREACHABLE_TARGET, 3.0, time_law="cubic")
-    return arm_setup("unreachable", trajectory, redundant=False, hard=False, measure=measure, duration=4.0)
+    return arm_setup("unreachable", trajectory, redundant=False, hard=False, measure=measure, duration=4.0, scene=scene)

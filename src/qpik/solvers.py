@@ -189,4 +189,9 @@ def make_backend(solver: str, nv: int, meq: int, native: bool = True, **settings
     if solver == "osqp":
         settings = {**OsqpBackend.SETTINGS, **settings}
         settings.pop("warm_starting", None)
+    settings = {**_QPSOLVERS_DEFAULTS.get(solver, {}), **settings}
     return QpsolversBackend(nv, meq, solver, **settings)
+
+
+# Tolerances tight enough for the QP to reproduce the closed-form laws (≤ 1e-6).
+_QPSOLVERS_DEFAULTS = {"proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0}}

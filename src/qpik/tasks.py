@@ -57,6 +57,7 @@ class Task:
     """
 
     name = "task"
+    lm_damping = 0.0
 
     def __init__(self, robot: Robot, dim: int, weight=1.0, hard: bool = False):
         self.robot = robot
@@ -79,13 +80,19 @@ class PositionTask(Task):
 
     :math:`v = \\dot p_d + K (p_d - p)` on the masked rows. Targets are given in the
     masked coordinates (length ``len(axes)``).
+
+    ``lm_damping`` μ adds μ w ‖e‖² ‖q̇‖²/2 to the cost of a soft task (adaptive
+    Levenberg–Marquardt, as mink's ``lm_damping``): negligible while tracking, it
+    calms the step when the target is out of reach and the error stays large.
     """
 
     name = "position task"
 
-    def __init__(self, robot: Robot, site: str, axes: str = "xyz", gain=1.0, weight=1.0, hard: bool = False):
+    def __init__(self, robot: Robot, site: str, axes: str = "xyz", gain=1.0, weight=1.0, hard: bool = False,
+                 lm_damping: float = 0.0):
         self.rows = _axis_rows(axes)
         super().__init__(robot, len(self.rows), weight, hard)
+        self.lm_damping = _positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
         self.site = site
         self.site_id = robot.site_id(site)
         self.gain = _positive(gain, self.dim, "position gain", allow_zero=True)
@@ -127,8 +134,10 @@ class FrameTask(Task):
 
     name = "frame task"
 
-    def __init__(self, robot: Robot, site: str, position_gain=1.0, orientation_gain=1.0, weight=1.0, hard: bool = False):
+    def __init__(self, robot: Robot, site: str, position_gain=1.0, orientation_gain=1.0, weight=1.0, hard: bool = False,
+                 lm_damping: float = 0.0):
         super().__init__(robot, 6, weight, hard)
+        self.lm_damping = _positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
         self.site = site
         self.site_id = robot.site_id(site)
         self.position_gain = _positive(position_gain, 3, "position gain", allow_zero=True)
@@ -158,6 +167,10 @@ class FrameTask(Task):
         self.orientation_error[:] = rotation_error(self.target_rotation, self.robot.site_rotation(self.site_id))
         self.target_velocity[:3] = self.target_linear_velocity + self.position_gain * self.position_error
         self.target_velocity[3:] = self.target_angular_velocity + self.orientation_gain * self.orientation_error
+
+    @property
+    def error(self) -> np.ndarray:
+        return np.concatenate([self.position_error, self.orientation_error])
 
 
 class ManipulabilityMeasure(Protocol):
