@@ -33,6 +33,8 @@ class JointPositionLimit:
         damper_rate: ξ in q̇ ≥ −ξ (d − 0)/influence once d < influence, in 1/s.
     """
 
+    constant = False  # depends on q: recomputed every step
+
     def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
                  influence: float = 0.0, damper_rate: float = 20.0):
         self.limits = robot.joint_limits if limits is None else limits
@@ -47,28 +49,51 @@ class JointPositionLimit:
         self.gain = gain
         self.influence = influence
         self.damper_rate = damper_rate
+        n = len(self.limits.names)
+        self._qpos = _as_slice(self.limits.qpos_index)
+        self._dofs = _as_slice(self.limits.dof_index)
+        self._low, self._high = np.empty(n), np.empty(n)
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
-        lim = self.limits
-        q = self.robot.q[lim.qpos_index]
-        to_lower = lim.lower - q  # <= 0 inside the range
-        to_upper = lim.upper - q  # >= 0 inside the range
-        low = self.gain * to_lower / dt
-        high = self.gain * to_upper / dt
+        lim, low, high = self.limits, self._low, self._high
+        q = self.robot.q[self._qpos]
+        scale = self.gain / dt
+        np.subtract(lim.lower, q, out=low)  # <= 0 inside the range
+        np.subtract(lim.upper, q, out=high)  # >= 0 inside the range
         if self.influence > 0.0:
             rate = self.damper_rate / self.influence
-            low = np.maximum(low, np.where(-to_lower < self.influence, rate * to_lower, -np.inf))
-            high = np.minimum(high, np.where(to_upper < self.influence, rate * to_upper, np.inf))
-        dofs = lim.dof_index
-        vel_lo, vel_hi = lb[dofs], ub[dofs]
+            damped_low = np.where(-low < self.influence, rate * low, -np.inf)
+            damped_high = np.where(high < self.influence, rate * high, np.inf)
+            low *= scale
+            high *= scale
+            np.maximum(low, damped_low, out=low)
+            np.minimum(high, damped_high, out=high)
+        else:
+            low *= scale
+            high *= scale
+        vel_lo, vel_hi = lb[self._dofs], ub[self._dofs]  # views when the dofs are contiguous
         # Recovery from outside the range never asks for more than the velocity box.
-        lb[dofs] = np.maximum(vel_lo, np.minimum(low, vel_hi))
-        ub[dofs] = np.minimum(vel_hi, np.maximum(high, vel_lo))
+        np.minimum(low, vel_hi, out=low)
+        np.maximum(high, vel_lo, out=high)
+        np.maximum(vel_lo, low, out=vel_lo)
+        np.minimum(vel_hi, high, out=vel_hi)
+        if not isinstance(self._dofs, slice):
+            lb[self._dofs] = vel_lo
+            ub[self._dofs] = vel_hi
+
+
+def _as_slice(index: np.ndarray):
+    """A slice for consecutive indices (views, no fancy-index copies), else the array."""
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return np.asarray(index, dtype=int)
 
 
 class JointVelocityLimit:
     """|q̇_i| ≤ q̇max_i on the dofs that have a limit (default: the scene's numerics)."""
+
+    constant = True  # the same bounds every step: the controller applies them once
 
     def __init__(self, robot: Robot, max_velocity: np.ndarray | None = None):
         vmax = robot.velocity_limits if max_velocity is None else np.asarray(max_velocity, dtype=float)
@@ -84,5 +109,5 @@ class JointVelocityLimit:
 
 
 def order_limits(limits) -> list:
-    """Velocity limits first, so position bounds are clipped into the velocity box."""
-    return sorted(limits, key=lambda lim: 0 if isinstance(lim, JointVelocityLimit) else 1)
+    """Constant limits (velocity) first, so position bounds are clipped into their box."""
+    return sorted(limits, key=lambda lim: 0 if lim.constant else 1)

@@ -14,6 +14,7 @@ limit is active (Lagrange conditions of the equality-constrained least squares).
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -39,7 +40,9 @@ class QPController:
         regularization: ε added to the Hessian's diagonal so it is positive definite.
         native: call DAQP/OSQP directly (True) or always go through qpsolvers.
 
-    Call :meth:`compute_velocity` after ``robot.update_kinematics()``.
+    Call :meth:`compute_velocity` after ``robot.update_kinematics()``. Task weights
+    and constant limits (velocity bounds) are read once, when the controller is built:
+    their share of the QP is precomputed, the hot path only adds what changes.
     """
 
     kind = "qp"
@@ -57,37 +60,46 @@ class QPController:
         self.solver = solver
         nv = robot.nv
         self._hard = [t for t in self.tasks if t.hard]
-        self._soft = [t for t in self.tasks if not t.hard]
-        self._soft_diagonal = [t for t in self._soft if isinstance(t, _JOINT_SPACE)]
-        self._soft_general = [t for t in self._soft if not isinstance(t, _JOINT_SPACE)]
+        soft = [t for t in self.tasks if not t.hard]
+        self._soft_diagonal = [t for t in soft if isinstance(t, _JOINT_SPACE)]
+        self._soft_general = [t for t in soft if not isinstance(t, _JOINT_SPACE)]
         meq = sum(t.dim for t in self._hard)
         self._rows = []
         start = 0
         for t in self._hard:
             self._rows.append(slice(start, start + t.dim))
             start += t.dim
+        self._backend = make_backend(solver, nv, meq, native=native, **solver_settings)
+        # The problem is written straight into the back-end's arrays.
+        self.A, self.b = self._backend.A, self._backend.b
+        self.lb, self.ub = self._backend.lb, self._backend.ub
+        # Parts that do not change between steps are computed once: the regulariser and
+        # the joint-space tasks' weights on H's diagonal, and the constant bounds.
+        self._H0 = np.eye(nv) * float(regularization)
+        for task in self._soft_diagonal:
+            self._H0.flat[:: nv + 1] += task.weight
+        self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
+        for limit in self.limits:
+            if limit.constant:
+                limit.apply(self.dt, self._lb0, self._ub0)
+        self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
+        self._neg_weights = [-task.weight for task in self._soft_diagonal]
         self.H = np.zeros((nv, nv))
         self.c = np.zeros(nv)
-        self.A = np.zeros((meq, nv))
-        self.b = np.zeros(meq)
-        self.lb = np.empty(nv)
-        self.ub = np.empty(nv)
-        self._eps = float(regularization)
         self._diag = self.H.reshape(-1)[:: nv + 1]
-        self._backend = make_backend(solver, nv, meq, native=native, **solver_settings)
+        self._scratch = np.zeros(nv)
         self.qdot = np.zeros(nv)
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
         H, c = self.H, self.c
-        H.fill(0.0)
-        c.fill(0.0)
-        self._diag += self._eps
         for task in self.tasks:
             task.update()
-        for task in self._soft_diagonal:  # J = I: w on the diagonal, no matrix product
-            self._diag += task.weight
-            c -= task.weight * task.target_velocity
+        H[:] = self._H0
+        c.fill(0.0)
+        for task, neg_weight in zip(self._soft_diagonal, self._neg_weights):  # J = I
+            np.multiply(neg_weight, task.target_velocity, out=self._scratch)
+            c += self._scratch
         for task in self._soft_general:
             weighted = task.weight[:, None] * task.jacobian
             H += task.jacobian.T @ weighted
@@ -98,12 +110,12 @@ class QPController:
         for task, rows in zip(self._hard, self._rows):
             self.A[rows] = task.jacobian
             self.b[rows] = task.target_velocity
-        self.lb.fill(-np.inf)
-        self.ub.fill(np.inf)
-        for limit in self.limits:
+        self.lb[:] = self._lb0
+        self.ub[:] = self._ub0
+        for limit in self._dynamic_limits:
             limit.apply(self.dt, self.lb, self.ub)
-        x = self._backend.solve(H, c, self.A, self.b, self.lb, self.ub)
-        if x is None or not np.all(np.isfinite(x)):
+        x = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+        if x is None or not math.isfinite(x.sum()):
             raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
-        self.qdot[:] = x
-        return self.qdot
+        self.qdot = x
+        return x

@@ -209,9 +209,9 @@ def simulate(
         t = k * dt
         if plant is not robot:
             plant.update_kinematics()
+        reference.apply(t)
         start = time.perf_counter()
         robot.update_kinematics()
-        reference.apply(t)
         try:
             qdot = controller.compute_velocity()
         except (DivergenceError, InfeasibleProblem, SolverError) as exc:

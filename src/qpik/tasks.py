@@ -96,10 +96,20 @@ class PositionTask(Task):
         self.site = site
         self.site_id = robot.site_id(site)
         self.gain = _positive(gain, self.dim, "position gain", allow_zero=True)
+        self._model, self._data = robot.model, robot.data
         self._jacp = np.zeros((3, robot.nv))
-        self.position = np.zeros(self.dim)
+        site_position = robot.data.site_xpos[self.site_id]
+        # With contiguous axes ("xy", "xyz") the Jacobian and position are views that
+        # MuJoCo's own arrays fill: no copies in the loop.
+        self._views = bool(self.rows[-1] - self.rows[0] + 1 == self.dim)
+        if self._views:
+            rows = slice(int(self.rows[0]), int(self.rows[-1]) + 1)
+            self.jacobian = self._jacp[rows]
+            self.position = site_position[rows]
+        else:
+            self.position = site_position[self.rows]
         self.error = np.zeros(self.dim)
-        self.target = robot.site_position(self.site_id)[self.rows].copy()
+        self.target = site_position[self.rows].copy()
         self.target_rate = np.zeros(self.dim)
 
     def set_target(self, position, velocity=None) -> None:
@@ -108,9 +118,10 @@ class PositionTask(Task):
         self.target_rate[:] = 0.0 if velocity is None else _finite_vector(velocity, self.dim, "target velocity")
 
     def update(self) -> None:
-        self.robot.site_jacobian(self.site_id, self._jacp)
-        self.jacobian[:] = self._jacp[self.rows]
-        self.position[:] = self.robot.site_position(self.site_id)[self.rows]
+        mujoco.mj_jacSite(self._model, self._data, self._jacp, None, self.site_id)
+        if not self._views:
+            self.jacobian[:] = self._jacp[self.rows]
+            self.position[:] = self._data.site_xpos[self.site_id][self.rows]
         np.subtract(self.target, self.position, out=self.error)
         np.multiply(self.gain, self.error, out=self.target_velocity)
         self.target_velocity += self.target_rate

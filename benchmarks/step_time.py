@@ -1,0 +1,86 @@
+"""Per-step controller time, side by side in one run (ratios, since machines are noisy).
+
+Each controller rolls out the same scenario ``--rounds`` times, in interleaved order
+(round-robin), so slow phases of the machine hit every controller alike. The step
+time covers the kinematics update and the controller's ``compute_velocity``.
+
+    python benchmarks/step_time.py --robot arm --scenario seed-redundant
+writes benchmarks/results/step_time_<scenario>.json and .md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import platform
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from qpik.files import write_json, write_text
+from qpik.runs import run
+from qpik.scenarios import SCENARIOS
+from qpik.solvers import available_solvers
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def measure(robot: str, scenario: str, solvers: list[str], classical: list[str], rounds: int) -> list[dict]:
+    entries = [("qp", s) for s in solvers] + [(c, "none") for c in classical]
+    times = {e: [] for e in entries}
+    for _ in range(rounds):
+        for controller, solver in entries:
+            gc.collect()
+            gc.disable()  # no collector pauses inside a rollout
+            try:
+                _, log = run(robot, scenario, controller, solver)
+            finally:
+                gc.enable()
+            times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
+    rows = []
+    for (controller, solver), chunks in times.items():
+        t = np.concatenate(chunks) * 1e6
+        rows.append({"controller": controller, "solver": solver, "steps": int(t.size),
+                     "median_us": float(np.median(t)), "p99_us": float(np.percentile(t, 99)),
+                     "mean_us": float(np.mean(t))})
+    return rows
+
+
+def to_markdown(robot: str, scenario: str, rows: list[dict], reference: str) -> str:
+    ref = next(r for r in rows if r["controller"] == reference)
+    lines = [f"Per-step controller time, {robot} / {scenario} (kinematics update + controller), "
+             f"{rows[0]['steps']} steps each; ratio = median / median of `{reference}`.", "",
+             "| controller | solver | median [µs] | p99 [µs] | ratio to " + reference + " |",
+             "|---|---|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | "
+                     f"{r['median_us'] / ref['median_us']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", default="arm")
+    parser.add_argument("--scenario", default="seed-redundant", choices=sorted(SCENARIOS))
+    parser.add_argument("--solvers", default=",".join(available_solvers()))
+    parser.add_argument("--classical", default="pinv,jt")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    solvers = [s for s in args.solvers.split(",") if s]
+    classical = [c for c in args.classical.split(",") if c]
+    rows = measure(args.robot, args.scenario, solvers, classical, args.rounds)
+    reference = "pinv" if "pinv" in classical else rows[0]["controller"]
+    md = to_markdown(args.robot, args.scenario, rows, reference)
+    print(md)
+    meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
+            "rounds": args.rounds}
+    write_json(args.out / f"step_time_{args.scenario}.json",
+               {"robot": args.robot, "scenario": args.scenario, "meta": meta, "rows": rows})
+    write_text(args.out / f"step_time_{args.scenario}.md", md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
