@@ -78,6 +78,9 @@ def test_unreachable_pinv_blows_up_qp_stays_bounded_and_settles(logs):
     assert np.linalg.norm(qp.x[-1] - closest) <= 1e-3
     # Settled: the last 0.2 s barely move.
     assert np.max(np.abs(qp.q[-1] - qp.q[-100])) <= 1e-4
+    # No chattering against the boundary: the joint speeds' total variation stays small
+    # (bang-bang between ±8 rad/s would add 16 rad/s per step).
+    assert np.max(np.sum(np.abs(np.diff(qp.qdot, axis=0)), axis=0)) < 50.0
 
 
 def test_physics_mode_qp_tracks_within_5_mm(logs):

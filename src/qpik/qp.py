@@ -117,5 +117,8 @@ class QPController:
         x = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
         if x is None or not math.isfinite(x.sum()):
             raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
+        if not self._backend.exact_bounds:  # a 1e-13 overshoot of a joint limit is still one
+            np.minimum(x, self.ub, out=x)
+            np.maximum(x, self.lb, out=x)
         self.qdot = x
         return x

@@ -39,6 +39,7 @@ class QPBackend:
     """
 
     name = "qp"
+    exact_bounds = False  # interior-point/ADMM solvers meet bounds only to a tolerance
 
     def __init__(self, nv: int, meq: int):
         self.nv = nv
@@ -69,6 +70,7 @@ class DaqpBackend(QPBackend):
     """
 
     name = "daqp"
+    exact_bounds = True  # active set: an active bound holds exactly
     _EXIT = {-1: "primal infeasible", -2: "cycling detected", -3: "unbounded problem",
              -4: "iteration limit reached", -5: "nonconvex problem", -6: "overdetermined initial active set"}
 
@@ -102,7 +104,7 @@ class OsqpBackend(QPBackend):
     """
 
     name = "osqp"
-    SETTINGS = dict(eps_abs=1e-9, eps_rel=1e-9, polishing=True, max_iter=20000, verbose=False,
+    SETTINGS = dict(eps_abs=1e-9, eps_rel=1e-9, polishing=False, max_iter=20000, verbose=False,
                     warm_starting=True, adaptive_rho=True)
 
     def __init__(self, nv: int, meq: int, **settings):
