@@ -49,7 +49,7 @@ def test_committed_scene_is_the_generated_one():
 
 
 def test_model_names_ranges_and_order(model):
-    assert (model.nq, model.nv, model.nu, model.neq) == (25, 24, 6, 6)
+    assert (model.nq, model.nv, model.nu, model.neq) == (25, 24, 12, 6)  # position + velocity servo per slider
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt)]
     legs = [[f"slider{i}", f"u{i}_a", f"u{i}_b"] for i in range(1, 7)]
     assert names == sum(legs, []) + ["platform"]
@@ -63,6 +63,8 @@ def test_model_names_ranges_and_order(model):
         act = _id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"act{i}")
         assert model.actuator_trnid[act, 0] == slider
         assert model.actuator_ctrlrange[act].tolist() == [0.0, 0.35]
+        rate = _id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"vel{i}")
+        assert model.actuator_trnid[rate, 0] == slider
         numeric = _id(model, mujoco.mjtObj.mjOBJ_NUMERIC, f"qpik_velocity_limit_slider{i}")
         assert model.numeric_size[numeric] == 1 and model.numeric_data[model.numeric_adr[numeric]] == 0.5
         eq = _id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"loop{i}")
@@ -99,7 +101,8 @@ def test_home_keyframe_closes_every_loop(model, hexapod):
     center = _id(model, mujoco.mjtObj.mjOBJ_SITE, "platform_center")
     assert np.allclose(data.site_xpos[center], hexapod.geometry.home_position, atol=1e-12)
     assert np.allclose(data.qpos[[0, 3, 6, 9, 12, 15]], hexapod.home_strokes, atol=1e-15)
-    assert np.allclose(data.ctrl, hexapod.home_strokes, atol=1e-15)
+    assert np.allclose(data.ctrl[0::2], hexapod.home_strokes, atol=1e-15)  # act<i>, then vel<i> = 0
+    assert np.all(data.ctrl[1::2] == 0.0)
 
 
 def test_close_loops_at_random_reachable_poses(model, hexapod):

@@ -18,7 +18,9 @@ Model structure (names are API):
   with sites ``platform_center`` (platform origin) and ``platform_point1..6`` (b_i).
 - equalities ``loop1..6``: site connects ``leg<i>_tip`` ↔ ``platform_point<i>``
   (the spherical joints).
-- position actuators ``act1..6`` on the sliders; keyframe ``home``.
+- servo per slider: position actuator ``act<i>`` (kp, tracks the commanded stroke) and
+  velocity actuator ``vel<i>`` (kv, tracks the commanded stroke rate as feed-forward);
+  keyframe ``home``.
 
 qpos = [slider1, u1_a, u1_b, ..., slider6, u6_a, u6_b, platform x, y, z, qw, qx, qy, qz]
 (nq = 25); qvel = the same 18 scalar dofs, then the platform's v (world) and ω (local)
@@ -95,6 +97,7 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
         sites.append(f'      <site name="platform_point{n}" class="anchor" pos="{_fmt(g.platform_points[i])}"/>')
         loops.append(f'    <connect name="loop{n}" site1="leg{n}_tip" site2="platform_point{n}"/>')
         actuators.append(f'    <position name="act{n}" joint="slider{n}" class="drive"/>')
+        actuators.append(f'    <velocity name="vel{n}" joint="slider{n}" class="drive_rate"/>')
     radius = np.max(np.linalg.norm(g.platform_points[:, :2], axis=1))
     nl = "\n"
     return f"""<!--
@@ -111,7 +114,8 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
   qpos = [slider1, u1_a, u1_b, ..., slider6, u6_a, u6_b, platform xyz, platform quat wxyz].
 
   Physics: platform 0.3 kg, legs 0.02 kg, carriages 0.05 kg; slider armature 0.5 kg (the
-  drive's reflected inertia) lets the servos be stiff (kp 2e5 N/m, kv 4e3 N s/m) and stable
+  drive's reflected inertia) lets the servos be stiff (kp 2e5 N/m on the stroke, kv 4e3 N s/m on
+  the stroke rate, with the commanded rate as feed-forward so a moving slider does not lag) and stable
   at dt = 2 ms; loops at the stiffest stable soft setting (solref 2 dt, solimp 0.99-0.999).
   Under gravity the platform settles within about 0.5 mm / 0.3 deg of its kinematic pose
   near home; near low-manipulability poses (SPEC pose 1) the error grows to about 1 cm.
@@ -142,7 +146,10 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
       <site size="0.008" rgba="0.9 0.1 0.1 1"/>
     </default>
     <default class="drive">
-      <position kp="200000" kv="4000" ctrlrange="{stroke}"/>
+      <position kp="200000" ctrlrange="{stroke}"/>
+    </default>
+    <default class="drive_rate">
+      <velocity kv="4000" ctrlrange="{_fmt(-2 * SLIDER_VELOCITY_LIMIT, 2 * SLIDER_VELOCITY_LIMIT)}"/>
     </default>
   </default>
 
@@ -181,7 +188,7 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
   </actuator>
 
   <keyframe>
-    <key name="home" qpos="{_fmt(home_qpos)}" ctrl="{_fmt(home_q)}"/>
+    <key name="home" qpos="{_fmt(home_qpos)}" ctrl="{_fmt(np.column_stack([home_q, np.zeros(N_LEGS)]).ravel())}"/>
   </keyframe>
 </mujoco>
 """

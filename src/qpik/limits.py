@@ -31,12 +31,14 @@ class JointPositionLimit:
         influence: distance to a bound below which the velocity damper acts
             (0 disables the damper).
         damper_rate: ξ in q̇ ≥ −ξ (d − 0)/influence once d < influence, in 1/s.
+        margin: the bounds are pulled in by this much (joint units), so that rounding in
+            q + q̇Δt never lands a hair outside the range.
     """
 
     constant = False  # depends on q: recomputed every step
 
     def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
-                 influence: float = 0.0, damper_rate: float = 20.0):
+                 influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
         self.limits = robot.joint_limits if limits is None else limits
         if not 0.0 < gain <= 1.0:
             raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
@@ -49,6 +51,8 @@ class JointPositionLimit:
         self.gain = gain
         self.influence = influence
         self.damper_rate = damper_rate
+        self._lower = self.limits.lower + margin
+        self._upper = self.limits.upper - margin
         n = len(self.limits.names)
         self._qpos = _as_slice(self.limits.qpos_index)
         self._dofs = _as_slice(self.limits.dof_index)
@@ -56,11 +60,11 @@ class JointPositionLimit:
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
-        lim, low, high = self.limits, self._low, self._high
+        low, high = self._low, self._high
         q = self.robot.q[self._qpos]
         scale = self.gain / dt
-        np.subtract(lim.lower, q, out=low)  # <= 0 inside the range
-        np.subtract(lim.upper, q, out=high)  # >= 0 inside the range
+        np.subtract(self._lower, q, out=low)  # <= 0 inside the range
+        np.subtract(self._upper, q, out=high)  # >= 0 inside the range
         if self.influence > 0.0:
             rate = self.damper_rate / self.influence
             damped_low = np.where(-low < self.influence, rate * low, -np.inf)

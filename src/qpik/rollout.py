@@ -3,13 +3,20 @@
 Two modes, both at the control period Δt (2 ms):
 
 - ``kinematic`` (the source's scheme): q ← q ⊕ q̇Δt with ``mj_integratePos``, then
-  held inside the model's joint ranges, the hardware end stops (the scenario's
-  limits given to the controllers may be tighter; violations are measured on those).
+  held inside the model's joint ranges, the hardware end stops.
 - ``physics``: the controller integrates its own commanded configuration (as IK
   front-ends do) and the plant, a second MjData on the same model, tracks it with
   its position actuators (velocity actuators, if the scene has them, get q̇ as
-  feed-forward) through ``mj_step``. Everything logged (x, error, q, limits) is
-  measured on the plant.
+  feed-forward) through ``mj_step``. Everything logged (x, error, q) is measured on
+  the plant.
+
+``limit_violation`` is that of the commanded configuration q ⊕ q̇Δt, before the end
+stops act, against the limits the controllers were given (a scenario may tighten the
+model's ranges): it shows what a controller asks for, which the stops would hide.
+
+A controller with ``actuated_only = True`` (the hexapod's classical law) moves only the
+actuated joints; ``closure`` then places the rest (the platform and the passive joints
+of a closed chain) after each step, as the mechanism itself does.
 
 Per step the controller time covers the kinematics update and
 ``compute_velocity``: the work of the control step, nothing of the logging.
@@ -74,6 +81,7 @@ class RolloutLog:
     limit_violation: np.ndarray
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     manipulability_measure: str = "sigma"
+    speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
     completed: bool = True
     failure: str = ""
 
@@ -97,7 +105,8 @@ class RolloutLog:
             "manipulability_mean": float(np.mean(self.manipulability)),
             "manipulability_final": float(self.manipulability[-1]),
             "limit_violation_max": float(np.max(self.limit_violation)),
-            "peak_joint_speed": float(np.max(np.abs(self.qdot))),
+            "peak_joint_speed": float(np.max(np.abs(self.qdot if self.speed_dofs is None
+                                                     else self.qdot[:, self.speed_dofs]))),
             "step_time_median_us": float(np.median(st)),
             "step_time_p99_us": float(np.percentile(st, 99)),
             "q_final": [float(v) for v in self.q[-1]],
@@ -164,6 +173,8 @@ def simulate(
     robot_name: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     on_failure: str = "raise",
+    closure: Callable[[Robot], None] | None = None,
+    speed_dofs=None,
 ) -> RolloutLog:
     """Run ``controller`` along ``reference`` for ``duration`` seconds at period ``dt``.
 
@@ -180,6 +191,9 @@ def simulate(
         raise InvalidInput(f"duration and dt must be positive, got {duration}, {dt}")
     robot = controller.robot
     limits = robot.joint_limits if joint_limits is None else joint_limits
+    actuated_only = getattr(controller, "actuated_only", False)
+    if actuated_only and closure is None:
+        raise InvalidInput(f"controller {controller.kind!r} moves only the actuated joints: give a loop closure")
     stops = robot.joint_limits
     stop_buffer = np.zeros(len(stops.names))
     steps = int(round(duration / dt)) + 1
@@ -228,14 +242,17 @@ def simulate(
         t_log[k] = t
         q_log[k] = plant.q
         qdot_log[k] = qdot
-        viol_log[k] = limits.violation(plant.q)
         manip_log[k] = manipulability(plant) if manipulability else np.nan
         done = k + 1
         if k == steps - 1:
             break
         robot.integrate(qdot, dt)
+        # The violation is that of the commanded configuration, before the end stops act.
+        viol_log[k] = limits.violation(robot.q)
         np.clip(robot.q[stops.qpos_index], stops.lower, stops.upper, out=stop_buffer)
         robot.q[stops.qpos_index] = stop_buffer
+        if actuated_only:
+            closure(robot)
         if actuation is not None:
             actuation.write(plant.data, robot.q, qdot)
             for _ in range(substeps):
@@ -272,6 +289,7 @@ def simulate(
         limit_violation=viol_log[:done],
         extras={name: np.array(v) for name, v in extras.items()},
         manipulability_measure=manipulability_measure,
+        speed_dofs=None if speed_dofs is None else np.asarray(speed_dofs, dtype=int),
         completed=not failure,
         failure=failure,
     )

@@ -27,7 +27,7 @@ def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp",
     log = simulate(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
                    manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
                    joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
-                   on_failure=on_failure)
+                   on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index)
     return setup, log
 
 

@@ -109,6 +109,7 @@ class Setup:
     plot_joints: JointPlotSpec
     params: dict = field(default_factory=dict)
     dt: float = DT
+    closure: Callable[[Robot], None] | None = None  # closes the loops of a closed chain
 
     def controller(self, kind: str = "qp", solver: str = "daqp", **options):
         if kind == "qp":
@@ -247,3 +248,7 @@ UNREACHABLE_TARGET = (2.4, 2.4)
 def unreachable(measure: str = "sigma", scene: str = "arm") -> Setup:
     trajectory = Segment(SEED_PATH[0], UNREACHABLE_TARGET, 3.0, time_law="cubic")
     return arm_setup("unreachable", trajectory, redundant=False, hard=False, measure=measure, duration=4.0, scene=scene)
+
+
+# The hexapod's scenarios register themselves on import (after the arm's, for the listing).
+from . import hexapod_scenarios  # noqa: E402,F401

@@ -121,6 +121,11 @@ class PositionTask(Task):
         mujoco.mj_jacSite(self._model, self._data, self._jacp, None, self.site_id)
         if not self._views:
             self.jacobian[:] = self._jacp[self.rows]
+        self.update_target_velocity()
+
+    def update_target_velocity(self) -> None:
+        """Error and v only (what a law without the Jacobian needs)."""
+        if not self._views:
             self.position[:] = self._data.site_xpos[self.site_id][self.rows]
         np.subtract(self.target, self.position, out=self.error)
         np.multiply(self.gain, self.error, out=self.target_velocity)
@@ -174,6 +179,10 @@ class FrameTask(Task):
 
     def update(self) -> None:
         self.robot.site_jacobian(self.site_id, self.jacobian[:3], self.jacobian[3:])
+        self.update_target_velocity()
+
+    def update_target_velocity(self) -> None:
+        """Errors and v only (what a law without the Jacobian needs)."""
         np.subtract(self.target_position, self.robot.site_position(self.site_id), out=self.position_error)
         self.orientation_error[:] = rotation_error(self.target_rotation, self.robot.site_rotation(self.site_id))
         self.target_velocity[:3] = self.target_linear_velocity + self.position_gain * self.position_error
@@ -321,8 +330,8 @@ class LoopClosureTask(Task):
     """Closed kinematic chains: MuJoCo ``connect`` equalities as hard rows J_c q̇ = −K_c e_c.
 
     The residual e_c = p1 − p2 (the two anchor points in world) and its Jacobian
-    J_c = J(p1) − J(p2) are computed from the kinematics update alone (``mj_jac``),
-    without running MuJoCo's constraint pipeline.
+    J_c = J(p1) − J(p2) are computed from the kinematics update alone (``mj_jacSite`` /
+    ``mj_jac``), without running MuJoCo's constraint pipeline.
     """
 
     name = "loop closure"
@@ -343,44 +352,46 @@ class LoopClosureTask(Task):
         for eq in ids:
             if model.eq_type[eq] != mujoco.mjtEq.mjEQ_CONNECT:
                 raise ModelError(f"equality {eq} is not a 'connect' constraint")
-        super().__init__(robot, 3 * len(ids), weight=1.0, hard=True)
+        n = len(ids)
+        super().__init__(robot, 3 * n, weight=1.0, hard=True)
         self.gain = float(gain)
-        self._anchors = []
-        for eq in ids:
-            objtype = model.eq_objtype[eq]
-            is_site = objtype == mujoco.mjtObj.mjOBJ_SITE
-            a, b = int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])
-            if is_site:
-                self._anchors.append((True, a, None, b, None))
-            else:
-                data = model.eq_data[eq]
-                self._anchors.append((False, a, data[0:3].copy(), b, data[3:6].copy()))
+        self._sites = all(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in ids)
+        self._obj1 = np.array([model.eq_obj1id[eq] for eq in ids], dtype=int)
+        self._obj2 = np.array([model.eq_obj2id[eq] for eq in ids], dtype=int)
+        if not self._sites and any(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in ids):
+            raise ModelError("mixing site- and body-based connect constraints is not supported")
+        # Body-based connects: the anchors in each body's frame (MuJoCo's eq_data layout).
+        self._anchor1 = np.array([model.eq_data[eq][0:3] for eq in ids])
+        self._anchor2 = np.array([model.eq_data[eq][3:6] for eq in ids])
         self.error = np.zeros(self.dim)
-        self._jac = np.zeros((3, robot.nv))
+        self._jac1 = np.zeros((n, 3, robot.nv))
+        self._jac2 = np.zeros((n, 3, robot.nv))
+        self._jac_rows = self.jacobian.reshape(n, 3, robot.nv)
+        self._error_rows = self.error.reshape(n, 3)
 
-    def _point(self, is_site: bool, obj: int, anchor) -> np.ndarray:
-        d = self.robot.data
-        if is_site:
-            return d.site_xpos[obj]
-        return d.xpos[obj] + d.xmat[obj].reshape(3, 3) @ anchor
-
-    def _point_jacobian(self, is_site: bool, obj: int, point: np.ndarray) -> np.ndarray:
-        if is_site:
-            mujoco.mj_jacSite(self.robot.model, self.robot.data, self._jac, None, obj)
-        else:
-            mujoco.mj_jac(self.robot.model, self.robot.data, self._jac, None, point, obj)
-        return self._jac
+    def _points(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        if self._sites:
+            return data.site_xpos[self._obj1], data.site_xpos[self._obj2]
+        p1 = data.xpos[self._obj1] + np.einsum("kij,kj->ki", data.xmat[self._obj1].reshape(-1, 3, 3), self._anchor1)
+        p2 = data.xpos[self._obj2] + np.einsum("kij,kj->ki", data.xmat[self._obj2].reshape(-1, 3, 3), self._anchor2)
+        return p1, p2
 
     def update(self) -> None:
-        for k, (is_site, a, anchor_a, b, anchor_b) in enumerate(self._anchors):
-            rows = slice(3 * k, 3 * k + 3)
-            pa = self._point(is_site, a, anchor_a)
-            pb = self._point(is_site, b, anchor_b)
-            self.error[rows] = pa - pb
-            self.jacobian[rows] = self._point_jacobian(is_site, a, pa)
-            self.jacobian[rows] -= self._point_jacobian(is_site, b, pb)
+        model, data = self.robot.model, self.robot.data
+        p1, p2 = self._points(data)
+        np.subtract(p1, p2, out=self._error_rows)
+        if self._sites:
+            for k in range(len(self._obj1)):
+                mujoco.mj_jacSite(model, data, self._jac1[k], None, self._obj1[k])
+                mujoco.mj_jacSite(model, data, self._jac2[k], None, self._obj2[k])
+        else:
+            for k in range(len(self._obj1)):
+                mujoco.mj_jac(model, data, self._jac1[k], None, p1[k], self._obj1[k])
+                mujoco.mj_jac(model, data, self._jac2[k], None, p2[k], self._obj2[k])
+        np.subtract(self._jac1, self._jac2, out=self._jac_rows)
         np.multiply(-self.gain, self.error, out=self.target_velocity)
 
-    def residual_norm(self) -> float:
-        """Largest loop-closure residual (m) at the last update."""
-        return float(np.max(np.linalg.norm(self.error.reshape(-1, 3), axis=1)))
+    def max_residual(self, robot: Robot | None = None) -> float:
+        """Largest loop-closure gap (m) on the bound robot, or another of the same model."""
+        p1, p2 = self._points((robot or self.robot).data)
+        return float(np.max(np.linalg.norm(p1 - p2, axis=1)))

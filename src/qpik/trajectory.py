@@ -164,3 +164,62 @@ class Hold:
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         _time(t)
         return self.point, self._zero
+
+
+def rpy_rotation_and_rate(rpy_deg: np.ndarray, rpy_rate_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R = Rz(θz) Ry(θy) Rx(θx) and its world angular velocity from the angle rates.
+
+    ω = θ̇z e_z + θ̇y Rz e_y + θ̇x Rz Ry e_x (degrees in, radians out).
+    """
+    a, b, c = np.radians(rpy_deg)
+    da, db, dc = np.radians(rpy_rate_deg)
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    Rz = np.array([[cc, -sc, 0.0], [sc, cc, 0.0], [0.0, 0.0, 1.0]])
+    Ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+    omega = dc * np.array([0.0, 0.0, 1.0]) + db * Rz[:, 1] + da * (Rz @ Ry)[:, 0]
+    return Rz @ Ry @ Rx, omega
+
+
+class CircularTilt:
+    """A tilt that follows a circle's phase: [θx, θy, θz] = A (sin Δφ, 1 − cos Δφ, 0).
+
+    Zero at the circle's start and end, so the pose path starts and stops at rest.
+    """
+
+    def __init__(self, circle: Circle, amplitude_deg: float):
+        if not np.isfinite(amplitude_deg):
+            raise InvalidInput(f"tilt amplitude must be finite, got {amplitude_deg}")
+        self.circle = circle
+        self.amplitude = float(amplitude_deg)
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        phi, dphi = self.circle.angle(t)
+        delta = phi - self.circle.start_angle
+        rpy = self.amplitude * np.array([np.sin(delta), 1.0 - np.cos(delta), 0.0])
+        rate = self.amplitude * dphi * np.array([np.cos(delta), np.sin(delta), 0.0])
+        return rpy, rate
+
+
+class PoseTrajectory:
+    """A position trajectory plus an orientation given as [θx, θy, θz] (deg) and rates."""
+
+    def __init__(self, position: Trajectory, rpy=None):
+        if position.dim != 3:
+            raise InvalidInput(f"a pose trajectory needs a 3-D position path, got {position.dim}-D")
+        self.position = position
+        self.rpy = rpy
+        self.dim = 3
+        self.duration = position.duration
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.position.sample(t)
+
+    def sample_pose(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, linear velocity, rotation matrix, angular velocity (world)."""
+        p, v = self.position.sample(t)
+        if self.rpy is None:
+            return p, v, np.eye(3), np.zeros(3)
+        rpy, rate = self.rpy(t)
+        R, omega = rpy_rotation_and_rate(rpy, rate)
+        return p, v, R, omega
