@@ -173,8 +173,9 @@ class HexapodClassicalController:
 class StrokeDrivenClosure:
     """The classical law's mechanism: after the strokes moved, the platform and hinges follow.
 
-    Forward kinematics from the current pose (Newton converges in a couple of iterations
-    for one step of motion) places the platform, then the universal joints. If the new
+    Forward kinematics from the current pose (Newton with a short continuation, so it
+    follows the assembly branch the mechanism is on) places the platform, then the
+    universal joints. If the new
     strokes admit no assembly (a slider held at its end stop while the others move on),
     the mechanism jams: it stays where it was, as position-controlled drives fighting a
     closed chain would.
@@ -190,7 +191,7 @@ class StrokeDrivenClosure:
         q = robot.q[model.slider_qpos]
         position, R = model.platform_pose(robot)
         try:
-            p, Rn = model.hexapod.forward_kinematics(q, initial=(position, R), steps=1)
+            p, Rn = model.hexapod.forward_kinematics(q, initial=(position, R), steps=4)
         except (ConvergenceError, ValueError):
             self.jams += 1
             robot.q[:] = self._last
