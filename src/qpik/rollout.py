@@ -10,9 +10,10 @@ Two modes, both at the control period Δt (2 ms):
   feed-forward) through ``mj_step``. Everything logged (x, error, q) is measured on
   the plant.
 
-``limit_violation`` is that of the commanded configuration q ⊕ q̇Δt, before the end
-stops act, against the limits the controllers were given (a scenario may tighten the
-model's ranges): it shows what a controller asks for, which the stops would hide.
+``limit_violation`` is, per step, the larger excursion beyond the limits the controllers
+were given (a scenario may tighten the model's ranges) of the measured configuration
+and of the commanded one q ⊕ q̇Δt, before the end stops act: a controller is charged
+with what it asks for, which the stops would hide, and with what the plant does.
 
 A controller with ``actuated_only = True`` (the hexapod's classical law) moves only the
 actuated joints; ``closure`` then places the rest (the platform and the passive joints
@@ -241,14 +242,16 @@ def simulate(
             extras.setdefault(name, []).append(float(value))
         t_log[k] = t
         q_log[k] = plant.q
+        viol_log[k] = limits.violation(plant.q)
         qdot_log[k] = qdot
         manip_log[k] = manipulability(plant) if manipulability else np.nan
         done = k + 1
         if k == steps - 1:
             break
         robot.integrate(qdot, dt)
-        # The violation is that of the commanded configuration, before the end stops act.
-        viol_log[k] = limits.violation(robot.q)
+        # Worst of the measured configuration and the commanded one (before the end stops
+        # act): a controller is charged with what it asks for, and with what the plant does.
+        viol_log[k] = max(viol_log[k], limits.violation(robot.q))
         np.clip(robot.q[stops.qpos_index], stops.lower, stops.upper, out=stop_buffer)
         robot.q[stops.qpos_index] = stop_buffer
         if actuated_only:

@@ -47,6 +47,13 @@ JT_ALPHA = 0.1
 # boundary (tuned with /benchmarks, see README: 0.01 and 10 keep the tracking error
 # at 4e-5 m while reachable and settle smoothly once not).
 SOFT_DAMPING = 1e-2
+# Velocity damper on the joint limits: within 0.8 (rad or m) of a bound the speed toward
+# it is at most 2.0 × distance / 0.8 (2.5 1/s), so a joint slows down before it arrives
+# instead of stopping dead in one step, which a physical servo cannot follow (on
+# joint-limits in physics mode: 5.7 mrad overshoot and 22 mm tracking error without it,
+# none and 2.8 mm with it). It binds on no joint of the seed scenarios.
+DAMPER_INFLUENCE = 0.8
+DAMPER_RATE = 2.0
 LM_DAMPING = 10.0
 
 
@@ -198,7 +205,8 @@ def arm_setup(
     # Without a secondary task the QP still needs a (tiny) cost on q̇: the minimum norm.
     regular = secondary if secondary is not None else DampingTask(robot, weight=1e-3 if hard else SOFT_DAMPING)
     joint_limits = robot.joint_limits.tightened(ranges or {})
-    limits = [JointPositionLimit(robot, joint_limits), JointVelocityLimit(robot)]
+    limits = [JointPositionLimit(robot, joint_limits, influence=DAMPER_INFLUENCE, damper_rate=DAMPER_RATE),
+              JointVelocityLimit(robot)]
     return Setup(
         scenario=scenario,
         robot_name="arm",
