@@ -63,7 +63,7 @@ def test_primary_only_qp_is_the_minimum_norm_solution(solver):
 
 def test_native_and_qpsolvers_paths_agree():
     q = np.array([1.2, -0.4, 0.3, 0.5])
-    for solver in ("daqp", "osqp"):
+    for solver in ("daqp", "osqp", "proxqp"):
         results = []
         for native in (True, False):
             robot = _arm_at(q)
@@ -100,7 +100,7 @@ def test_hard_task_against_limits_is_reported_infeasible():
     robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.5])
     task = PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)
     task.set_target([0.6, 1.9])  # needs 50 m/s at K = 500; joints allow 8 rad/s
-    for solver in ("daqp", "osqp"):
+    for solver in ("daqp", "osqp", "proxqp"):
         qp = QPController(robot, [task, DampingTask(robot)], [JointVelocityLimit(robot)], solver=solver)
         with pytest.raises(InfeasibleProblem):
             qp.compute_velocity()

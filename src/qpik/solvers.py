@@ -7,9 +7,9 @@ Every back-end solves
 
 with fixed sizes (nv variables, meq equalities) decided once. DAQP and OSQP are
 called through their own Python interfaces so the control loop pays no per-call
-conversion: DAQP takes the dense arrays as they are (bounds as simple bounds), and
-one OSQP workspace is set up once with a fixed sparsity pattern, then updated and
-warm-started every step. Any other solver that qpsolvers knows runs through
+conversion: DAQP takes the dense arrays as they are (bounds as simple bounds), one
+OSQP workspace is set up once with a fixed sparsity pattern, and one ProxQP dense
+workspace (native box constraints); both are updated and warm-started every step. Any other solver that qpsolvers knows runs through
 ``qpsolvers.solve_problem``.
 """
 
@@ -177,6 +177,42 @@ class OsqpBackend(QPBackend):
         return self._sp.csc_matrix((data, rows, np.cumsum(indptr)), shape=(m, n))
 
 
+class ProxqpBackend(QPBackend):
+    """One ProxQP dense workspace (box constraints native), updated and warm-started."""
+
+    name = "proxqp"
+
+    def __init__(self, nv: int, meq: int, eps_abs: float = 1e-10, eps_rel: float = 0.0, **settings):
+        super().__init__(nv, meq)
+        import proxsuite
+
+        self._proxqp = proxsuite.proxqp
+        self._qp = proxsuite.proxqp.dense.QP(nv, meq, 0, True)
+        self._qp.settings.eps_abs = eps_abs
+        self._qp.settings.eps_rel = eps_rel
+        self._qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
+        for key, value in settings.items():
+            setattr(self._qp.settings, key, value)
+        self._ready = False
+        self._no_rows = np.zeros((0, nv))
+
+    def solve(self, H, c, hessian_changed: bool = True) -> np.ndarray:
+        lb = np.maximum(self.lb, -_BIG)
+        ub = np.minimum(self.ub, _BIG)
+        A, b = (self.A, self.b) if self.meq else (self._no_rows, self.b)
+        if not self._ready:
+            self._qp.init(H, c, A, b, None, None, None, lb, ub)
+            self._ready = True
+        else:
+            self._qp.update(H if hessian_changed else None, c, A, b, None, None, None, lb, ub)
+        self._qp.solve()
+        status = self._qp.results.info.status
+        Output = self._proxqp.QPSolverOutput
+        if status != Output.PROXQP_SOLVED:
+            self._fail(str(status).rsplit(".", 1)[-1], status == Output.PROXQP_PRIMAL_INFEASIBLE)
+        return np.array(self._qp.results.x)
+
+
 class QpsolversBackend(QPBackend):
     """Any solver qpsolvers supports (quadprog, proxqp, clarabel, ...), called per step."""
 
@@ -208,6 +244,8 @@ def make_backend(solver: str, nv: int, meq: int, native: bool = True, **settings
         return DaqpBackend(nv, meq, **settings)
     if native and solver == "osqp":
         return OsqpBackend(nv, meq, **settings)
+    if native and solver == "proxqp":
+        return ProxqpBackend(nv, meq, **settings)
     if solver == "osqp":
         settings = {**OsqpBackend.SETTINGS, **settings}
         settings.pop("warm_starting", None)
