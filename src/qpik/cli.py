@@ -120,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
 # Other modules add subcommands here: each a function taking the subparsers object.
 EXTRA_COMMANDS: list[Callable] = []
 
+from .calibration_cli import register as _register_calibrate  # noqa: E402
+
+EXTRA_COMMANDS.append(_register_calibrate)
+
 
 def main(argv: Sequence[str] | None = None) -> int:
     try:
