@@ -166,7 +166,7 @@ class Robot:
         return self.data.site_xpos[site_id]
 
     def site_rotation(self, site_id: int) -> np.ndarray:
-        """World rotation matrix of a site (3x3 copy)."""
+        """World rotation matrix of a site (a 3x3 view of ``site_xmat``)."""
         return self.data.site_xmat[site_id].reshape(3, 3)
 
     def site_jacobian(self, site_id: int, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:

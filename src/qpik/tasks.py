@@ -39,7 +39,11 @@ def _finite_vector(value, size: int, what: str) -> np.ndarray:
 
 
 def _positive(value, size: int, what: str, allow_zero: bool = False) -> np.ndarray:
-    arr = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy() if np.ndim(value) == 0 else _finite_vector(value, size, what)
+    """A scalar (broadcast) or a (size,) vector of positive (or >= 0) finite values."""
+    if np.ndim(value) == 0:
+        arr = np.full(size, float(value))
+    else:
+        arr = _finite_vector(value, size, what)
     ok = arr >= 0 if allow_zero else arr > 0
     if not np.all(np.isfinite(arr)) or not np.all(ok):
         raise InvalidInput(f"{what} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value}")
