@@ -26,9 +26,11 @@ from qpik.solvers import available_solvers
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def measure(robot: str, scenario: str, solvers: list[str], classical: list[str], rounds: int) -> list[dict]:
-    entries = [("qp", s) for s in solvers] + [(c, "none") for c in classical]
+def measure(robot: str, scenario: str, entries: list[tuple[str, str]], rounds: int) -> list[dict]:
+    """Step times of each (controller, solver) over ``rounds`` interleaved rollouts; each
+    row also keeps the summary of the controller's last rollout."""
     times = {e: [] for e in entries}
+    summaries = {}
     for _ in range(rounds):
         for controller, solver in entries:
             gc.collect()
@@ -38,12 +40,13 @@ def measure(robot: str, scenario: str, solvers: list[str], classical: list[str],
             finally:
                 gc.enable()
             times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
+            summaries[(controller, solver)] = log.summary()
     rows = []
     for (controller, solver), chunks in times.items():
         t = np.concatenate(chunks) * 1e6
         rows.append({"controller": controller, "solver": solver, "steps": int(t.size),
                      "median_us": float(np.median(t)), "p99_us": float(np.percentile(t, 99)),
-                     "mean_us": float(np.mean(t))})
+                     "mean_us": float(np.mean(t)), "summary": summaries[(controller, solver)]})
     return rows
 
 
@@ -70,7 +73,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     solvers = [s for s in args.solvers.split(",") if s]
     classical = [c for c in args.classical.split(",") if c]
-    rows = measure(args.robot, args.scenario, solvers, classical, args.rounds)
+    rows = measure(args.robot, args.scenario, [("qp", s) for s in solvers] + [(c, "none") for c in classical],
+                   args.rounds)
     reference = "pinv" if "pinv" in classical else rows[0]["controller"]
     md = to_markdown(args.robot, args.scenario, rows, reference)
     print(md)

@@ -1,7 +1,7 @@
 """The ``qpik`` command.
 
     qpik scenarios
-    qpik run ROBOT --controller {qp,pinv,jt} --scenario NAME [--solver S]
+    qpik run ROBOT --controller {qp,pinv,jt,mink,placo} --scenario NAME [--solver S]
              [--mode {kinematic,physics}] [--out DIR] [--plot]
     qpik compare ROBOT --scenario NAME [--solvers daqp,osqp,...] [--mode M] [--out DIR] [--plot]
 
@@ -104,13 +104,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="roll one controller out on a scenario")
     common(p)
-    p.add_argument("--controller", default="qp", help="qp, pinv (classical law) or jt (Jacobian transpose)")
+    p.add_argument("--controller", default="qp",
+                   help="qp, pinv (classical law), jt (Jacobian transpose), or the peers mink, placo")
     p.add_argument("--solver", default="daqp", help="QP solver (qpsolvers name)")
     p.set_defaults(handler=cmd_run)
 
     p = sub.add_parser("compare", help="every controller side by side on one scenario")
     common(p)
-    p.add_argument("--solvers", type=_solver_list, help="comma-separated QP solvers (default: all installed)")
+    p.add_argument("--solvers", type=_solver_list,
+                   help="comma-separated QP solvers for qp and mink (default: all installed)")
     p.set_defaults(handler=cmd_compare)
     for register in EXTRA_COMMANDS:
         register(sub)

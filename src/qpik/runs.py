@@ -1,5 +1,6 @@
 """Running scenarios: one controller (``qpik run``) or all of them side by side
-(``qpik compare``), with their tables and output files."""
+(``qpik compare``), with their tables and output files. The peer libraries (mink,
+placo) run as controllers too, when installed (:mod:`qpik.peers`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from typing import Sequence
 
 from .errors import InvalidInput
 from .files import write_json
+from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from .rollout import MODES, RolloutLog, simulate
 from .scenarios import Setup, build_scenario, check_solver
 from .solvers import available_solvers
@@ -20,10 +22,10 @@ def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp",
     """Build the scenario and roll one controller out on it."""
     if mode not in MODES:
         raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-    if controller == "qp":
+    if controller in ("qp", "mink"):
         check_solver(solver)
     setup = setup or build_scenario(scenario, robot)
-    ctrl = setup.controller(controller, solver)
+    ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
     log = simulate(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
                    manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
                    joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
@@ -32,8 +34,10 @@ def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp",
 
 
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
-            classical: Sequence[str] = CLASSICAL_KINDS) -> tuple[Setup, list[RolloutLog], list[str]]:
-    """qp with each solver, then the classical laws, on identical fresh setups.
+            classical: Sequence[str] = CLASSICAL_KINDS,
+            peers: Sequence[str] = PEERS) -> tuple[Setup, list[RolloutLog], list[str]]:
+    """qp with each solver, the classical laws, then the peers (mink with each solver,
+    placo with its own), on identical fresh setups.
 
     A controller that fails mid-run (an infeasible QP, a singular pseudoinverse) is
     kept with ``completed = False`` and the reason, so the table can say why.
@@ -53,6 +57,17 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
             continue
         setup, log = run(robot, scenario, kind, "none", mode, on_failure="stop", setup=probe)
         logs.append(log)
+    for kind in peers:
+        if not peer_installed(kind):
+            notes.append(f"{kind} not installed: skipped")
+            continue
+        for solver in peer_solvers(kind, solvers):
+            try:
+                setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop")
+            except PeerUnsupported as exc:
+                notes.append(f"{kind} skipped: {exc}")
+                break
+            logs.append(log)
     return setup, logs, notes
 
 

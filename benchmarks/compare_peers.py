@@ -1,0 +1,123 @@
+"""qpik beside the peers: per-step time and tracking of qp, the classical law, mink, placo.
+
+On the arm's ``seed-redundant`` and, when it exists and the peers can run it, the
+hexapod's ``hexapod-circle``: qp with each solver, the classical law (pinv), mink with
+each solver and placo roll out the same scenario ``--rounds`` times in interleaved order
+(``step_time.measure``), so the ratios of medians come from one run on one machine state.
+
+    python benchmarks/compare_peers.py [--rounds 5] [--solvers daqp,osqp,proxqp,quadprog]
+
+writes benchmarks/results/peers_<scenario>.json and .md: median / p99 step time, tracking
+error, final-q agreement with qp (daqp), the ratios qp(daqp)/mink(daqp),
+qp(osqp)/mink(osqp), qp(daqp)/pinv, qp(daqp)/placo and whether each bound holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+from pathlib import Path
+
+import numpy as np
+from step_time import RESULTS, measure
+
+from qpik.files import write_json, write_text
+from qpik.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
+from qpik.scenarios import SCENARIOS, build_scenario
+from qpik.solvers import available_solvers
+
+RUNS = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
+TRACKING = 1e-3  # max error every controller must keep
+# (label, numerator, denominator, bound or None): the issue's must-show ratios of medians.
+RATIOS = (
+    ("qp(daqp) / mink(daqp)", ("qp", "daqp"), ("mink", "daqp"), 0.5),
+    ("qp(osqp) / mink(osqp)", ("qp", "osqp"), ("mink", "osqp"), 0.25),
+    ("qp(daqp) / pinv", ("qp", "daqp"), ("pinv", "none"), 1.5),
+    ("qp(daqp) / placo", ("qp", "daqp"), ("placo", PLACO_SOLVER), None),
+)
+
+
+def entries_for(robot: str, scenario: str, solvers: list[str]) -> tuple[list[tuple[str, str]], list[str]]:
+    """Every controller that can run the scenario, and a note for each that cannot."""
+    entries = [("qp", s) for s in solvers] + [("pinv", "none")]
+    notes = []
+    for kind in PEERS:
+        if not peer_installed(kind):
+            notes.append(f"{kind} not installed: skipped")
+            continue
+        try:
+            peer_controller(kind, build_scenario(scenario, robot), peer_solvers(kind, solvers)[0])
+        except PeerUnsupported as exc:
+            notes.append(f"{kind} skipped: {exc}")
+            continue
+        entries += [(kind, s) for s in peer_solvers(kind, solvers)]
+    return entries, notes
+
+
+def ratios(rows: list[dict]) -> list[dict]:
+    by_key = {(r["controller"], r["solver"]): r for r in rows}
+    out = []
+    for label, num, den, bound in RATIOS:
+        if num in by_key and den in by_key:
+            value = by_key[num]["median_us"] / by_key[den]["median_us"]
+            out.append({"ratio": label, "value": value, "bound": bound,
+                        "holds": None if bound is None else bool(value <= bound)})
+    return out
+
+
+def agreement(rows: list[dict]) -> None:
+    """Each row's largest |q_final − q_final of qp(daqp)| (the same problem: same motion)."""
+    ref = next(np.array(r["summary"]["q_final"]) for r in rows if (r["controller"], r["solver"]) == ("qp", "daqp"))
+    for r in rows:
+        r["q_final_vs_qp_daqp"] = float(np.max(np.abs(np.array(r["summary"]["q_final"]) - ref)))
+
+
+def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict], notes: list[str]) -> str:
+    lines = [f"### {robot} / {scenario}", "",
+             f"Per-step time (kinematics update + controller), {rows[0]['steps']} steps per controller, "
+             f"interleaved rounds; tracking from the last round; Δq_final = max |q_final − q_final of qp (daqp)|.", "",
+             "| controller | solver | median [µs] | p99 [µs] | max error [m] | tracks (≤ 1e-3) | limit viol. | Δq_final |",
+             "|---|---|---:|---:|---:|:---:|---:|---:|"]
+    for r in rows:
+        s = r["summary"]
+        tracks = "yes" if s["completed"] and s["max_error"] <= TRACKING else f"no: {s.get('failure', 'error')}"
+        lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | "
+                     f"{s['max_error']:.2e} | {tracks} | {s['limit_violation_max']:.1e} | "
+                     f"{r['q_final_vs_qp_daqp']:.1e} |")
+    lines += ["", "| ratio of medians | value | bound | holds |", "|---|---:|---:|:---:|"]
+    for c in checks:
+        bound = "-" if c["bound"] is None else f"≤ {c['bound']}"
+        holds = "-" if c["holds"] is None else ("yes" if c["holds"] else "**no**")
+        lines.append(f"| {c['ratio']} | {c['value']:.3f} | {bound} | {holds} |")
+    lines += [""] + [f"- {n}" for n in notes]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--solvers", default=",".join(available_solvers()))
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    solvers = [s for s in args.solvers.split(",") if s]
+    meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
+            "rounds": args.rounds}
+    for robot, scenario in RUNS:
+        if scenario not in SCENARIOS:
+            print(f"{scenario}: no such scenario here, skipped")
+            continue
+        entries, notes = entries_for(robot, scenario, solvers)
+        rows = measure(robot, scenario, entries, args.rounds)
+        agreement(rows)
+        checks = ratios(rows)
+        md = to_markdown(robot, scenario, rows, checks, notes)
+        print(md)
+        write_json(args.out / f"peers_{scenario}.json", {"robot": robot, "scenario": scenario, "meta": meta,
+                                                          "rows": rows, "ratios": checks, "notes": notes})
+        write_text(args.out / f"peers_{scenario}.md", md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
