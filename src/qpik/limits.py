@@ -30,7 +30,9 @@ class JointPositionLimit:
         gain: fraction in (0, 1] of the remaining distance that one step may cover.
         influence: distance to a bound below which the velocity damper acts
             (0 disables the damper).
-        damper_rate: ξ in q̇ ≥ −ξ (d − 0)/influence once d < influence, in 1/s.
+        damper_rate: ξ (joint units/s): once the distance d to a bound is below
+            ``influence``, the speed toward it is at most ξ d / influence, so the joint
+            slows down exponentially as it arrives.
         margin: the bounds are pulled in by this much (joint units), so that rounding in
             q + q̇Δt never lands a hair outside the range.
     """
@@ -51,31 +53,30 @@ class JointPositionLimit:
         self.gain = gain
         self.influence = influence
         self.damper_rate = damper_rate
-        self._lower = self.limits.lower + margin
-        self._upper = self.limits.upper - margin
-        n = len(self.limits.names)
+        # Rows: lower then upper bound, pulled in by the margin.
+        self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
         self._qpos = _as_slice(self.limits.qpos_index)
         self._dofs = _as_slice(self.limits.dof_index)
-        self._low, self._high = np.empty(n), np.empty(n)
+        self._steps = np.empty_like(self._bounds)
+        self._low, self._high = self._steps  # row views, made once
+        self._rate = damper_rate / influence if influence > 0 else 0.0
+        self._factor = np.empty_like(self._bounds)
+        self._near = np.empty(self._bounds.shape, dtype=bool)
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
-        low, high = self._low, self._high
-        q = self.robot.q[self._qpos]
-        scale = self.gain / dt
-        np.subtract(self._lower, q, out=low)  # <= 0 inside the range
-        np.subtract(self._upper, q, out=high)  # >= 0 inside the range
+        steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
+        np.subtract(self._bounds, self.robot.q[self._qpos], out=steps)
         if self.influence > 0.0:
-            rate = self.damper_rate / self.influence
-            damped_low = np.where(-low < self.influence, rate * low, -np.inf)
-            damped_high = np.where(high < self.influence, rate * high, np.inf)
-            low *= scale
-            high *= scale
-            np.maximum(low, damped_low, out=low)
-            np.minimum(high, damped_high, out=high)
+            # Within the influence distance of a bound the speed toward it is rate x
+            # distance; elsewhere the step limit q + q̇Δt in range applies.
+            np.less(np.abs(steps, out=self._factor), self.influence, out=self._near)
+            self._factor.fill(self.gain / dt)
+            np.copyto(self._factor, self._rate, where=self._near)
+            steps *= self._factor
         else:
-            low *= scale
-            high *= scale
+            steps *= self.gain / dt
+        low, high = self._low, self._high
         vel_lo, vel_hi = lb[self._dofs], ub[self._dofs]  # views when the dofs are contiguous
         # Recovery from outside the range never asks for more than the velocity box.
         np.minimum(low, vel_hi, out=low)
