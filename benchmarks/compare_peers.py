@@ -1,15 +1,17 @@
 """qpik beside the peers: per-step time and tracking of qp, the classical law, mink, placo.
 
-On the arm's ``seed-redundant`` and, when it exists and the peers can run it, the
-hexapod's ``hexapod-circle``: qp with each solver, the classical law (pinv), mink with
-each solver and placo roll out the same scenario ``--rounds`` times in interleaved order
-(``step_time.measure``), so the ratios of medians come from one run on one machine state.
+On the arm's ``seed-redundant`` and the hexapod's ``hexapod-circle`` (platform pose task,
+six loop closures, stroke limits): qp with each solver, the classical law (pinv), mink
+with each solver and placo roll out the same scenario ``--rounds`` times in interleaved
+order (``step_time.measure``), so the ratios of medians come from one run on one machine
+state. A peer that cannot map a scenario is listed with its reason instead.
 
     python benchmarks/compare_peers.py [--rounds 5] [--solvers daqp,osqp,proxqp,quadprog]
 
 writes benchmarks/results/peers_<scenario>.json and .md: median / p99 step time, tracking
-error, final-q agreement with qp (daqp), the ratios qp(daqp)/mink(daqp),
-qp(osqp)/mink(osqp), qp(daqp)/pinv, qp(daqp)/placo and whether each bound holds.
+error (and, on the hexapod, the largest loop-closure residual), final-q agreement with
+qp (daqp), the ratios qp(daqp)/mink(daqp), qp(osqp)/mink(osqp), qp(daqp)/pinv,
+qp(daqp)/placo and whether each bound holds.
 """
 
 from __future__ import annotations
@@ -74,16 +76,19 @@ def agreement(rows: list[dict]) -> None:
 
 
 def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict], notes: list[str]) -> str:
+    loops = all("constraint_violation_max" in r["summary"] for r in rows)
     lines = [f"### {robot} / {scenario}", "",
              f"Per-step time (kinematics update + controller), {rows[0]['steps']} steps per controller, "
              f"interleaved rounds; tracking from the last round; Δq_final = max |q_final − q_final of qp (daqp)|.", "",
-             "| controller | solver | median [µs] | p99 [µs] | max error [m] | tracks (≤ 1e-3) | limit viol. | Δq_final |",
-             "|---|---|---:|---:|---:|:---:|---:|---:|"]
+             "| controller | solver | median [µs] | p99 [µs] | max error [m] | tracks (≤ 1e-3) | limit viol. | "
+             + ("loop resid. [m] | " if loops else "") + "Δq_final |",
+             "|---|---|---:|---:|---:|:---:|---:|" + ("---:|" if loops else "") + "---:|"]
     for r in rows:
         s = r["summary"]
         tracks = "yes" if s["completed"] and s["max_error"] <= TRACKING else f"no: {s.get('failure', 'error')}"
+        loop = f"{s['constraint_violation_max']:.1e} | " if loops else ""
         lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | "
-                     f"{s['max_error']:.2e} | {tracks} | {s['limit_violation_max']:.1e} | "
+                     f"{s['max_error']:.2e} | {tracks} | {s['limit_violation_max']:.1e} | {loop}"
                      f"{r['q_final_vs_qp_daqp']:.1e} |")
     lines += ["", "| ratio of medians | value | bound | holds |", "|---|---:|---:|:---:|"]
     for c in checks:

@@ -1,4 +1,4 @@
-"""The peers (mink, placo) on the arm: same problem as the QP, hence the same motion.
+"""The peers (mink, placo) on the arm and the hexapod: same problem as the QP, hence the same motion.
 
 Why the q tolerances are tight: each peer is given the QP's problem exactly (weights,
 gain and feed-forward through the shifted target, σ task, bounds, regulariser; see
@@ -6,6 +6,12 @@ qpik.peers.problem), only scaled to the step Δq = q̇Δt. With exact active-set
 (DAQP, placo's eiquadprog) both sides reach the same minimiser up to rounding, so the
 trajectories agree to ~1e-13 rad; 1e-8 leaves room for rounding drift over 2500 steps
 while still catching any mapping error (a dropped feed-forward alone moves q by ~1e-3).
+
+On the hexapod the strokes agree to 1e-9 m (HEXAPOD_STROKES). Measured over the 4 s
+circle: 5e-12 m for mink (its SE(3) log Jacobian rounds at small rotation steps), 2e-11 m
+for placo (its loop rows differ from the QP's at second order, |e_c| |ω|Δt). The target a
+first-order mapping would give mink, the desired pose shifted by the feed-forward
+T_d ⊕ (ṗd, ωd)/K instead of T exp(u), already moves them by 3e-8 m: 1e-9 tells the two apart.
 """
 
 import json
@@ -150,7 +156,177 @@ def test_missing_peer_is_skipped_with_a_note(monkeypatch):
     assert [log.controller for log in logs] == ["qp", "placo"]
 
 
-@pytest.mark.skipif("hexapod-circle" not in SCENARIOS, reason="no hexapod scenarios")
-def test_unmapped_scenario_is_reported_not_crashed():
-    with pytest.raises(PeerUnsupported):
-        PeerProblem.from_setup(build_scenario("hexapod-circle"), "mink")
+
+
+# --- The hexapod --------------------------------------------------------------------
+
+HEXAPOD_STROKES = 1e-9  # m, see the module docstring
+STROKES = slice(0, 18, 3)  # qpos of slider1..6 (each followed by its two hinges)
+hexapod_only = pytest.mark.skipif("hexapod-circle" not in SCENARIOS, reason="no hexapod scenarios")
+
+
+@pytest.fixture(scope="module")
+def hexapod_qp_logs():
+    logs = {}
+    for name in ("hexapod-circle", "hexapod-stroke-limits", "hexapod-position-only"):
+        setup = build_scenario(name)
+        logs[name] = rollout(setup, setup.controller("qp", "daqp"))
+    return logs
+
+
+def hexapod_log(kind: str, scenario: str, solver: str = "daqp"):
+    setup = build_scenario(scenario)
+    return setup, rollout(setup, peer_controller(kind, setup, solver))
+
+
+def random_hexapod_state(setup, seed: int, closed: bool) -> None:
+    """A random assembly near home (closed loops, or every joint nudged by ~1e-5 so the
+    loops are open by ~1e-5 m), a random target near the platform and a random twist."""
+    from scipy.spatial.transform import Rotation
+
+    from qpik.hexapod import Hexapod
+    from qpik.hexapod_scene import close_loops, platform_pose
+    from qpik.tasks import FrameTask
+
+    rng = np.random.default_rng(seed)
+    robot = setup.robot
+    home, _ = platform_pose(robot.model, robot.data)
+    pose = home + rng.uniform(-0.01, 0.01, 3), Rotation.from_rotvec(rng.uniform(-0.05, 0.05, 3)).as_matrix()
+    close_loops(robot.model, robot.data, Hexapod().inverse_kinematics_matrix(*pose))
+    if not closed:
+        mujoco.mj_integratePos(robot.model, robot.data.qpos, rng.normal(scale=1e-5, size=robot.nv), 1.0)
+    robot.update_kinematics()
+    task = setup.reference.task
+    p = robot.site_position(task.site_id) + rng.normal(scale=1e-5, size=3)
+    if isinstance(task, FrameTask):
+        R = Rotation.from_rotvec(rng.normal(scale=1e-4, size=3)).as_matrix() @ robot.site_rotation(task.site_id)
+        task.set_target(p, R, rng.normal(scale=0.03, size=3), rng.normal(scale=0.1, size=3))
+    else:
+        task.set_target(p, rng.normal(scale=0.03, size=3))
+
+
+@hexapod_only
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("closed", [True, False], ids=["closed", "open-loops"])
+@pytest.mark.parametrize("scenario", ["hexapod-circle", "hexapod-position-only"])
+def test_one_mink_step_is_one_qp_step(scenario, closed, seed):
+    """mink's Δq/Δt equals QPController.compute_velocity at the same state.
+
+    Pose task (hard, 6-D, with the loop rows: 24 equalities on 24 dofs): the only
+    difference is mink's rounding of its SE(3) log Jacobian at rotation steps of ~1e-4 rad
+    (its coefficient (1 − θ²/2 − cos θ)/θ⁴ cancels), ~1e-10 m/s on speeds of ~0.3 m/s.
+    Position task + manipulability: mink's log Jacobian is the identity there, ~1e-14.
+    """
+    setup = build_scenario(scenario)
+    random_hexapod_state(setup, seed, closed)
+    qp = setup.controller("qp", "daqp").compute_velocity().copy()
+    mink_qdot = peer_controller("mink", setup, "daqp").compute_velocity()
+    tolerance = 1e-9 if scenario == "hexapod-circle" else 1e-12
+    np.testing.assert_allclose(mink_qdot, qp, atol=tolerance, rtol=0)
+
+
+@hexapod_only
+@pytest.mark.parametrize("seed", range(3))
+def test_one_placo_step_is_one_qp_step(seed):
+    """placo on a closed assembly: the same step (its loop rows differ from the QP's only
+    by a term proportional to the loop residual, zero here)."""
+    setup = build_scenario("hexapod-circle")
+    random_hexapod_state(setup, seed, closed=True)
+    qp = setup.controller("qp", "daqp").compute_velocity().copy()
+    np.testing.assert_allclose(peer_controller("placo", setup).compute_velocity(), qp, atol=1e-10, rtol=0)
+
+
+@hexapod_only
+@pytest.mark.parametrize("kind", ["mink", "placo"])
+def test_peer_tracks_the_hexapod_circle_like_the_qp(kind, hexapod_qp_logs):
+    _, log = hexapod_log(kind, "hexapod-circle")
+    ref = hexapod_qp_logs["hexapod-circle"]
+    assert log.completed and log.error.max() <= 1e-4
+    assert log.extras["constraint_violation"].max() <= 1e-6
+    assert log.extras["orientation_error"].max() <= 1e-5
+    assert log.limit_violation.max() == 0.0
+    np.testing.assert_allclose(log.q[:, STROKES], ref.q[:, STROKES], atol=HEXAPOD_STROKES, rtol=0)
+
+
+@hexapod_only
+@pytest.mark.parametrize("kind", ["mink", "placo"])
+def test_peer_keeps_the_strokes_in_range(kind, hexapod_qp_logs):
+    """hexapod-stroke-limits: soft pose task, strokes would reach 0.41 m.
+
+    placo gets the QP's LM damping exactly and its orientation rows are the QP's: same
+    rest point. mink weighs the residual through its SE(3) log Jacobian J_l⁻¹(u), u ≈ the
+    3.5 cm error at the stall, and its LM term includes the feed-forward share: it stalls
+    1e-5 m (strokes) from the QP, 5e-7 m in tracking error.
+    """
+    setup, log = hexapod_log(kind, "hexapod-stroke-limits")
+    ref = hexapod_qp_logs["hexapod-stroke-limits"]
+    strokes = log.q[:, STROKES]
+    assert log.completed and log.limit_violation.max() == 0.0
+    assert strokes.min() >= 0.0 and strokes.max() <= 0.35
+    assert strokes[-1].max() > 0.35 - 1e-6  # the limit is reached, and held
+    assert log.extras["constraint_violation"].max() <= 1e-6
+    assert abs(log.error[-1] - ref.error[-1]) <= (1e-12 if kind == "placo" else 1e-6)
+    np.testing.assert_allclose(strokes[-1], ref.q[-1, STROKES], atol=1e-12 if kind == "placo" else 1e-4, rtol=0)
+
+
+@hexapod_only
+@pytest.mark.parametrize("kind", ["mink", "placo"])
+def test_peer_runs_the_manipulability_task(kind, hexapod_qp_logs):
+    """hexapod-position-only: the platform's free rotations serve k0 ∇θ m as in the QP."""
+    _, log = hexapod_log(kind, "hexapod-position-only")
+    ref = hexapod_qp_logs["hexapod-position-only"]
+    assert log.completed and log.error.max() <= 1e-4
+    np.testing.assert_allclose(log.q[:, STROKES], ref.q[:, STROKES], atol=HEXAPOD_STROKES, rtol=0)
+    assert log.manipulability[-1] > 0.085  # 0.060 without the task
+
+
+@hexapod_only
+def test_generated_hexapod_urdf_matches_the_mjcf():
+    """Frames (platform centre, platform points, leg tips) and the platform's Jacobian
+    agree with MuJoCo's at random configurations (pinocchio's free-flyer velocity is in
+    the body frame: its linear columns are MuJoCo's times R)."""
+    from qpik.peers.placo_peer import _JointMap
+    from qpik.peers.urdf import mjcf_to_urdf
+
+    robot = Robot.load("hexapod")
+    model, data = robot.model, robot.data
+    wrapper = placo.RobotWrapper(".", placo.Flags.ignore_collisions,
+                                 mjcf_to_urdf(model, robot.velocity_limits, "hexapod"))
+    joints = _JointMap(model, wrapper)
+    sites = ["platform_center"] + [f"platform_point{i}" for i in range(1, 7)] + [f"leg{i}_tip" for i in range(1, 7)]
+    jacp, jacr = np.zeros((3, robot.nv)), np.zeros((3, robot.nv))
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = robot.q.copy()
+        mujoco.mj_integratePos(model, q, rng.normal(scale=0.3, size=robot.nv), 1.0)
+        robot.set_q(q)
+        robot.update_kinematics()
+        joints.to_placo(robot.q, wrapper.state.q)
+        wrapper.update_kinematics()
+        for site in sites:
+            pose = wrapper.get_T_world_frame(site)
+            np.testing.assert_allclose(pose[:3, 3], data.site(site).xpos, atol=1e-12, rtol=0)
+            np.testing.assert_allclose(pose[:3, :3].ravel(), data.site(site).xmat, atol=1e-12, rtol=0)
+        mujoco.mj_jacSite(model, data, jacp, jacr, robot.site_id("platform_center"))
+        jacobian = wrapper.frame_jacobian("platform_center", "local_world_aligned")
+        mapped = np.zeros((6, robot.nv))
+        for k in range(robot.nv):  # each MuJoCo dof's unit velocity, as placo's step
+            unit = np.zeros(robot.nv)
+            unit[k] = 1.0
+            step = np.zeros(wrapper.model.nv)
+            step[joints.placo_v] = unit[joints.dofs]
+            for _, dof, body, _, voff in joints.free_map:
+                step[voff:voff + 3] = data.xmat[body].reshape(3, 3).T @ unit[dof:dof + 3]
+                step[voff + 3:voff + 6] = unit[dof + 3:dof + 6]
+            mapped[:, k] = jacobian @ step
+        np.testing.assert_allclose(mapped, np.vstack([jacp, jacr]), atol=1e-12, rtol=0)
+
+
+@hexapod_only
+@pytest.mark.parametrize("kind", ["mink", "placo"])
+def test_unmappable_gains_are_reported_not_crashed(kind):
+    """One gain per task is all either peer can express (mink's ``gain``, placo's dead-beat)."""
+    setup = build_scenario("hexapod-circle")
+    setup.reference.task.orientation_gain[:] = 250.0
+    with pytest.raises(PeerUnsupported, match="same on every axis"):
+        peer_controller(kind, setup)
