@@ -21,8 +21,15 @@ percentiles over the runs, step time median / p99 over all steps.
     python benchmarks/monte_carlo.py [--n 1000] [--seed 0] [--priority hard,soft]
         [--controllers qp:daqp,qp:osqp,pinv,mink:daqp,mink:osqp,placo]
 
-writes benchmarks/results/monte_carlo_arm.{json,md,npz,png}. The hexapod has no sampler
-here yet (nor peer mappings): only ``--robot arm``.
+Hexapod: poses drawn as for the calibration (uniform in home ± (8, 6, 4) cm and ±10° in
+roll, pitch, yaw; kept if every leg reaches within its stroke and the manipulability is
+at least 0.02); the platform goes there from home along a straight segment while its
+roll-pitch-yaw angles move linearly, both under the quintic law in 1 s, then holds
+0.5 s. ``hard``: the 6-D pose task as an equality (as ``hexapod-circle``); ``soft``: as a
+weighted cost with Levenberg–Marquardt damping (as ``hexapod-stroke-limits``). Success as
+for the arm, the error being the platform position error.
+
+writes benchmarks/results/monte_carlo_<robot>.{json,md,npz,png}.
 """
 
 from __future__ import annotations
@@ -37,12 +44,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from qpik.files import save_figure, write_json, write_text
+from qpik.calibration import sample_poses
+from qpik.files import save_figure, write_json, write_npz, write_text
+from qpik.hexapod import HexapodGeometry
+from qpik.hexapod_scenarios import hexapod_setup
 from qpik.peers import PEERS, PLACO_SOLVER, peer_installed
 from qpik.robot import Robot
 from qpik.runs import run
-from qpik.scenarios import ARM_START, SEED_PATH, Setup, arm_setup
-from qpik.trajectory import Segment
+from qpik.scenarios import SEED_PATH, Setup, arm_setup
+from qpik.trajectory import PoseTrajectory, RpyPath, Segment
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MOVE, HOLD = 1.0, 0.5  # s: quintic segment, then the target held
@@ -80,7 +90,22 @@ def arm_trial(target: np.ndarray, hard: bool) -> Setup:
                      duration=MOVE + HOLD)
 
 
-def sweep(targets: np.ndarray, hard: bool, controllers: list[tuple[str, str]]) -> dict:
+def hexapod_targets(n: int, seed: int) -> np.ndarray:
+    """n reachable, well-conditioned platform poses [x, y, z (m), θx, θy, θz (deg)]."""
+    return sample_poses(n, np.random.default_rng(seed), [HexapodGeometry.default()])[0]
+
+
+def hexapod_trial(pose: np.ndarray, hard: bool) -> Setup:
+    home = HexapodGeometry.default().home_position
+    trajectory = PoseTrajectory(Segment(home, pose[:3], MOVE, time_law="quintic"),
+                                RpyPath(np.zeros(3), pose[3:], MOVE, time_law="quintic"), duration=MOVE + HOLD)
+    return hexapod_setup(f"monte-carlo-{'hard' if hard else 'soft'}", trajectory, orientation=True, hard=hard)
+
+
+ROBOTS = {"arm": (arm_targets, arm_trial), "hexapod": (hexapod_targets, hexapod_trial)}
+
+
+def sweep(robot: str, targets: np.ndarray, hard: bool, controllers: list[tuple[str, str]]) -> dict:
     """Roll every controller out on every target; per-run metrics and step times."""
     n = len(targets)
     metrics = {c: {key: np.zeros(n) for key in ("completed", "max_error", "final_error", "limit", "speed")}
@@ -88,14 +113,15 @@ def sweep(targets: np.ndarray, hard: bool, controllers: list[tuple[str, str]]) -
     times = {c: [] for c in controllers}
     failures = {c: [] for c in controllers}
     label = "hard" if hard else "soft"
-    bar = tqdm(total=n * len(controllers), desc=f"arm, {label} task", unit="run")
+    trial = ROBOTS[robot][1]
+    bar = tqdm(total=n * len(controllers), desc=f"{robot}, {label} task", unit="run")
     for k, target in enumerate(targets):
         for controller, solver in controllers:
-            setup = arm_trial(target, hard)
+            setup = trial(target, hard)
             gc.collect()
             gc.disable()  # no collector pauses inside a rollout
             try:
-                _, log = run("arm", setup.scenario, controller, solver, on_failure="stop", setup=setup)
+                _, log = run(robot, setup.scenario, controller, solver, on_failure="stop", setup=setup)
             finally:
                 gc.enable()
             m = metrics[(controller, solver)]
@@ -136,13 +162,13 @@ def summarize(result: dict) -> list[dict]:
     return rows
 
 
-def to_markdown(n: int, seed: int, tables: dict[str, list[dict]]) -> str:
-    lines = [f"Monte Carlo on the arm: {n} random reachable targets (seed {seed}), quintic segment "
+def to_markdown(robot: str, n: int, seed: int, tables: dict[str, list[dict]]) -> str:
+    lines = [f"Monte Carlo on the {robot}: {n} random reachable targets (seed {seed}), quintic segment "
              f"{MOVE:g} s + hold {HOLD:g} s. Success: completed, final error ≤ {SUCCESS_ERROR:g} m, no joint "
              f"beyond its range and no speed beyond its limit (to {VIOLATION_TOL:g}). Failures: stopped early / "
              "final error / range / speed (a run may count in several)."]
     for priority, rows in tables.items():
-        lines += ["", f"**{priority} position task**", "",
+        lines += ["", f"**{priority} {'position' if robot == 'arm' else 'pose'} task**", "",
                   "| controller | solver | success | failures | max range viol. | max speed viol. | "
                   "max error p50 / p95 / p99 [m] | step median / p99 [µs] |",
                   "|---|---|---:|---|---:|---:|---|---|"]
@@ -196,7 +222,7 @@ def plot(results: dict[str, dict], path: Path) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="arm", choices=["arm"])
+    parser.add_argument("--robot", default="arm,hexapod", help="arm, hexapod or both (comma-separated)")
     parser.add_argument("--n", type=int, default=1000, help="random targets per robot")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--priority", default="hard,soft", help="hard, soft or both (comma-separated)")
@@ -209,19 +235,23 @@ def main(argv=None) -> int:
             print(f"{kind} not installed: skipped")
             continue
         controllers.append((kind, solver))
-    targets = arm_targets(args.n, args.seed)
-    results = {p: sweep(targets, p == "hard", controllers) for p in args.priority.split(",") if p}
-    tables = {p: summarize(r) for p, r in results.items()}
-    md = to_markdown(args.n, args.seed, tables)
-    print(md)
-    stem = args.out / f"monte_carlo_{args.robot}"
-    meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor()}
-    write_json(stem.with_suffix(".json"), {"robot": args.robot, "n": args.n, "seed": args.seed, "meta": meta,
-                                           "move_s": MOVE, "hold_s": HOLD, "results": tables})
-    write_text(stem.with_suffix(".md"), md)
-    np.savez_compressed(stem.with_suffix(".npz"), targets=targets, **{
-        f"{p}/{c}:{s}/{key}": v for p, r in results.items() for (c, s), m in r["metrics"].items() for key, v in m.items()})
-    plot(results, stem.with_suffix(".png"))
+    for robot in filter(None, args.robot.split(",")):
+        if robot not in ROBOTS:
+            parser.error(f"unknown robot {robot!r}; choose from {', '.join(ROBOTS)}")
+        targets = ROBOTS[robot][0](args.n, args.seed)
+        results = {p: sweep(robot, targets, p == "hard", controllers) for p in args.priority.split(",") if p}
+        tables = {p: summarize(r) for p, r in results.items()}
+        md = to_markdown(robot, args.n, args.seed, tables)
+        print(md)
+        stem = args.out / f"monte_carlo_{robot}"
+        meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor()}
+        write_json(stem.with_suffix(".json"), {"robot": robot, "n": args.n, "seed": args.seed, "meta": meta,
+                                               "move_s": MOVE, "hold_s": HOLD, "results": tables})
+        write_text(stem.with_suffix(".md"), md)
+        write_npz(stem.with_suffix(".npz"), targets=targets, **{
+            f"{p}/{c}:{s}/{key}": v for p, r in results.items() for (c, s), m in r["metrics"].items()
+            for key, v in m.items()})
+        plot(results, stem.with_suffix(".png"))
     return 0
 
 

@@ -44,18 +44,6 @@ SOFT_DAMPING = 1e-4
 LM_DAMPING = 10.0
 
 
-class _Concatenated:
-    """A segment followed by a hold of its end point."""
-
-    def __init__(self, segment: Segment, hold: float):
-        self.segment = segment
-        self.dim = segment.dim
-        self.duration = segment.duration + hold
-
-    def sample(self, t: float):
-        return self.segment.sample(t)
-
-
 def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: bool, hard: bool,
                   k0: float = 0.0, scene: str = "hexapod") -> Setup:
     """The hexapod with its platform task, loop closures, limits and reference."""
@@ -111,7 +99,7 @@ def hexapod_circle(scene: str = "hexapod") -> Setup:
 def hexapod_stroke_limits(scene: str = "hexapod") -> Setup:
     home = _home()
     segment = Segment(home, home + [STROKE_TRAVEL, 0.0, 0.0], 2.0, time_law="quintic")
-    return hexapod_setup("hexapod-stroke-limits", PoseTrajectory(_Concatenated(segment, 1.0)),
+    return hexapod_setup("hexapod-stroke-limits", PoseTrajectory(segment, duration=3.0),
                          orientation=True, hard=False, scene=scene)
 
 

@@ -201,16 +201,37 @@ class CircularTilt:
         return rpy, rate
 
 
-class PoseTrajectory:
-    """A position trajectory plus an orientation given as [θx, θy, θz] (deg) and rates."""
+class RpyPath:
+    """[θx, θy, θz] (deg) from ``start`` to ``end`` under a time law, then held."""
 
-    def __init__(self, position: Trajectory, rpy=None):
+    def __init__(self, start, end, duration: float, time_law: str = "quintic"):
+        self.start = _point(start, "start angles")
+        self.end = _point(end, "end angles")
+        if self.start.shape != (3,) or self.end.shape != (3,):
+            raise InvalidInput("roll-pitch-yaw angles must have 3 components")
+        self.law = make_time_law(time_law, duration)
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s, ds = self.law(t)
+        delta = self.end - self.start
+        return self.start + s * delta, ds * delta
+
+
+class PoseTrajectory:
+    """A position trajectory plus an orientation given as [θx, θy, θz] (deg) and rates.
+
+    ``duration`` may exceed the position path's: the pose is then held.
+    """
+
+    def __init__(self, position: Trajectory, rpy=None, duration: float | None = None):
         if position.dim != 3:
             raise InvalidInput(f"a pose trajectory needs a 3-D position path, got {position.dim}-D")
         self.position = position
         self.rpy = rpy
         self.dim = 3
-        self.duration = position.duration
+        self.duration = position.duration if duration is None else float(duration)
+        if not (np.isfinite(self.duration) and self.duration > 0):
+            raise InvalidInput(f"duration must be positive, got {duration}")
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self.position.sample(t)
