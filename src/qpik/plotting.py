@@ -72,9 +72,11 @@ def plot_logs(logs: Sequence[RolloutLog], joints: JointPlotSpec, out_dir: str | 
                 series = log.q[:, joints.qpos_index[j]] if kind == "q" else log.qdot[:, joints.dof_index[j]]
                 ax.plot(log.t, series, label=_label(log), **_style(i))
             if kind == "q":
-                for bound in (joints.lower[j], joints.upper[j]):
-                    if np.isfinite(bound):
-                        ax.axhline(bound, color="r", linewidth=0.8, linestyle=":")
+                finite = [b for b in (joints.lower[j], joints.upper[j]) if np.isfinite(b)]
+                for k, bound in enumerate(finite):
+                    # grey, not a controller colour: the controllers' cycle includes red dotted
+                    ax.axhline(bound, color="0.4", linewidth=1.0, linestyle=(0, (1, 1)),
+                               label="limit" if k == 0 else None)
             unit = joints.units[j] + ("/s" if kind == "qdot" else "")
             ax.set_ylabel(f"{joints.names[j]} [{unit}]")
             ax.grid(alpha=0.3)
