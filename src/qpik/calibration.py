@@ -54,6 +54,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from scipy.linalg import block_diag
 from scipy.optimize import least_squares
 
 from .errors import ConvergenceError, InvalidInput, UnreachablePose
@@ -200,24 +201,17 @@ class StrokeModel:
         for pose, R in zip(self.poses, self.rotations):
             q = hexapod.inverse_kinematics_matrix(pose[:3], R)
             L = hexapod.legs(q, pose[:3], R)[0]
+            along = np.einsum("ij,ij->i", L, g.slider_axes)  # L_i·s_i
             per_group = {
-                "legs": np.diag(hexapod.stroke_sensitivity_to_leg_length(pose[:3], R)),
+                # ∂q_i/∂l_i = −l_i/(L_i·s_i), as Hexapod.stroke_sensitivity_to_leg_length
+                "legs": np.diag(-g.leg_lengths / along),
                 "offsets": -np.eye(N_LEGS),
                 # Row i holds (RᵀL_i)ᵀ/(L_i·s_i) in columns 3i..3i+2.
-                "points": _block_diagonal(L @ R / np.einsum("ij,ij->i", L, g.slider_axes)[:, None]),
+                "points": block_diag(*(L @ R / along[:, None])),
                 "zeros": np.eye(N_LEGS),
             }
             blocks.append(np.hstack([per_group[name] for name in self.params.groups]))
         return np.vstack(blocks)
-
-
-def _block_diagonal(rows: np.ndarray) -> np.ndarray:
-    """(6, k) → (6, 6k) with row i placed in columns k·i … k·i + k − 1."""
-    n, k = rows.shape
-    out = np.zeros((n, n * k))
-    for i in range(n):
-        out[i, k * i:k * (i + 1)] = rows[i]
-    return out
 
 
 @dataclass(frozen=True)
