@@ -99,6 +99,19 @@ def test_position_limit_keeps_the_next_configuration_in_range():
     assert 0.999 + qdot[3] * 0.002 <= 1.0 + 1e-9
 
 
+
+@pytest.mark.parametrize("influence", [0.01, 0.5])
+def test_velocity_damper_never_steps_past_a_bound(influence):
+    """rate/influence = 2000 1/s (influence 1 cm) exceeds the step limit gain/Δt = 500 1/s:
+    the tighter of the two must hold, or the ram would step 1.5 cm past d4 = 1."""
+    dt = 0.002
+    robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.995])
+    limit = JointPositionLimit(robot, influence=influence, damper_rate=20.0)
+    lb, ub = np.full(4, -8.0), np.full(4, 8.0)
+    limit.apply(dt, lb, ub)
+    assert 0.995 + ub[3] * dt <= 1.0
+    assert ub[3] == pytest.approx(min(20.0 / influence, 1.0 / dt) * (1.0 - 1e-10 - 0.995), rel=1e-9)
+
 def test_hard_task_against_limits_is_reported_infeasible():
     robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.5])
     task = PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)

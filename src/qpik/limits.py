@@ -69,10 +69,11 @@ class JointPositionLimit:
         np.subtract(self._bounds, self.robot.q[self._qpos], out=steps)
         if self.influence > 0.0:
             # Within the influence distance of a bound the speed toward it is rate x
-            # distance; elsewhere the step limit q + q̇Δt in range applies.
+            # distance, but never more than the step limit (a damper faster than gain/Δt
+            # would step past the bound); elsewhere the step limit q + q̇Δt in range applies.
             np.less(np.abs(steps, out=self._factor), self.influence, out=self._near)
             self._factor.fill(self.gain / dt)
-            np.copyto(self._factor, self._rate, where=self._near)
+            np.copyto(self._factor, min(self._rate, self.gain / dt), where=self._near)
             steps *= self._factor
         else:
             steps *= self.gain / dt
