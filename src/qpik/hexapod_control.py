@@ -24,13 +24,12 @@ central difference over three small rotations.
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import ConvergenceError, DivergenceError
 from .hexapod import N_LEGS, Hexapod
-from .hexapod_scene import universal_joint_angles
+from .hexapod_scene import assembly_qpos
 from .robot import Robot
 from .tasks import FrameTask, LoopClosureTask, PositionTask, Task, rotation_error
 
@@ -52,6 +51,9 @@ class HexapodModel:
         self.slider_dofs = np.array([robot.joint_dof_index(f"slider{i}") for i in n])
         self.hinge_qpos = np.array([[robot.joint_qpos_index(f"u{i}_a"), robot.joint_qpos_index(f"u{i}_b")] for i in n])
         self.platform_qpos = robot.joint_qpos_index("platform")
+        # Where each entry of hexapod_scene.assembly_qpos goes in this robot's q.
+        self.assembly_index = np.concatenate([np.column_stack([self.slider_qpos, self.hinge_qpos]).ravel(),
+                                              self.platform_qpos + np.arange(7)])
         self.center_site = robot.site_id("platform_center")
         self.loop_names = tuple(f"loop{i}" for i in n)
         g = self.hexapod.geometry
@@ -125,8 +127,7 @@ class PlatformManipulabilityTask(Task):
         self.gain = float(gain)
 
     def update(self) -> None:
-        robot = self.robot
-        mujoco.mj_jacSite(robot.model, robot.data, None, self.jacobian, self.model.center_site)
+        self.robot.site_jacobian(self.model.center_site, None, self.jacobian)
         position, R = self.model.platform_pose()
         self.target_velocity[:] = self.gain * self.model.manipulability_gradient(position, R)
 
@@ -197,13 +198,7 @@ class StrokeDrivenClosure:
             robot.q[:] = self._last
             robot.update_kinematics()
             return
-        angles = universal_joint_angles(model.hexapod, q, p, Rn)
-        robot.q[model.hinge_qpos.ravel()] = angles.ravel()
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, Rn.ravel())
-        adr = model.platform_qpos
-        robot.q[adr:adr + 3] = p
-        robot.q[adr + 3:adr + 7] = quat
+        robot.q[model.assembly_index] = assembly_qpos(model.hexapod, q, p, Rn)
         robot.update_kinematics()
         self._last[:] = robot.q
 

@@ -60,8 +60,9 @@ def universal_joint_angles(hexapod: Hexapod, q, position, R) -> np.ndarray:
                      np.arcsin(np.clip(-sigma * u[:, 2], -1.0, 1.0))], axis=1)
 
 
-def _qpos(hexapod: Hexapod, q: np.ndarray, position: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The full qpos (25,) of a closed assembly, in the scene's order."""
+def assembly_qpos(hexapod: Hexapod, q: np.ndarray, position: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The full qpos (25,) of a closed assembly, in the scene's order: per leg (stroke,
+    u_a, u_b), then the platform's free joint (position, quaternion w x y z)."""
     legs = np.column_stack([q, universal_joint_angles(hexapod, q, position, R)]).ravel()
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
@@ -73,7 +74,7 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
     hexapod = Hexapod(geometry)
     g = hexapod.geometry
     home_q = hexapod.home_strokes
-    home_qpos = _qpos(hexapod, home_q, g.home_position, np.eye(3))
+    home_qpos = assembly_qpos(hexapod, home_q, g.home_position, np.eye(3))
     stroke = _fmt(g.stroke_min, g.stroke_max)
     hinge = _fmt(-np.pi / 2, np.pi / 2)
     numerics, rails, legs, sites, loops, actuators = [], [], [], [], [], []
@@ -220,7 +221,7 @@ def close_loops(model: mujoco.MjModel, data: mujoco.MjData, strokes, *, hexapod:
     hexapod = Hexapod() if hexapod is None else hexapod
     q = np.asarray(strokes, dtype=float)
     position, R = hexapod.forward_kinematics(q, initial=initial)
-    full = _qpos(hexapod, q, position, R)
+    full = assembly_qpos(hexapod, q, position, R)
     for i in range(N_LEGS):
         n = i + 1
         for k, name in enumerate((f"slider{n}", f"u{n}_a", f"u{n}_b")):
