@@ -103,11 +103,8 @@ class QpikTask(mink.Task):
         return -self.dt * self.task.target_velocity
 
     def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
-        return self.task.jacobian  # filled by the update in compute_error
-
-    def compute_qp_residual(self, configuration: mink.Configuration) -> tuple[np.ndarray, np.ndarray, float]:
-        error = self.compute_error(configuration)  # updates J and v together
-        return self._weighted_residual(error, self.task.jacobian)
+        # Filled by the update in compute_error, which mink's compute_qp_residual calls first.
+        return self.task.jacobian
 
 
 def _check_limited_joints(limit: mink.ConfigurationLimit, problem: PeerProblem) -> None:
