@@ -359,6 +359,7 @@ class LoopClosureTask(Task):
         n = len(ids)
         super().__init__(robot, 3 * n, weight=1.0, hard=True)
         self.gain = float(gain)
+        self.equalities = tuple(ids)  # model equality ids, in row order
         self._sites = all(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in ids)
         self._obj1 = np.array([model.eq_obj1id[eq] for eq in ids], dtype=int)
         self._obj2 = np.array([model.eq_obj2id[eq] for eq in ids], dtype=int)

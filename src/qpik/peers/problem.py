@@ -186,16 +186,7 @@ class PeerProblem:
 
     def loop_equalities(self) -> list[int]:
         """The ids of the model's ``connect`` equalities the loop-closure task closes."""
-        if self.loops is None:
-            return []
-        model = self.robot.model
-        pairs = list(zip(self.loops._obj1.tolist(), self.loops._obj2.tolist()))
-        ids = [eq for eq in range(model.neq) if model.eq_type[eq] == mujoco.mjtEq.mjEQ_CONNECT
-               and (int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])) in pairs]
-        if len(ids) != len(pairs):
-            raise PeerUnsupported("the loop-closure task's anchors do not match the model's connect equalities")
-        return ids
-
+        return [] if self.loops is None else list(self.loops.equalities)
 
 def _gains(task: PositionTask | FrameTask) -> np.ndarray:
     if isinstance(task, FrameTask):
