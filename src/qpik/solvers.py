@@ -197,12 +197,11 @@ class ProxqpBackend(QPBackend):
         for key, value in settings.items():
             setattr(self._qp.settings, key, value)
         self._ready = False
-        self._no_rows = np.zeros((0, nv))
 
     def solve(self, H, c, hessian_changed: bool = True) -> np.ndarray:
         lb = np.maximum(self.lb, -_BIG)
         ub = np.minimum(self.ub, _BIG)
-        A, b = (self.A, self.b) if self.meq else (self._no_rows, self.b)
+        A, b = self.A, self.b  # (0, nv) and (0,) without equalities
         Output = self._proxqp.QPSolverOutput
         if self._ready:
             self._qp.update(H if hessian_changed else None, c, A, b, None, None, None, lb, ub)
