@@ -35,7 +35,6 @@ writes benchmarks/results/monte_carlo_<robot>.{json,md,npz,png}.
 from __future__ import annotations
 
 import argparse
-import gc
 import platform
 import sys
 from collections import Counter
@@ -50,9 +49,9 @@ from qpik.hexapod import HexapodGeometry
 from qpik.hexapod_scenarios import hexapod_setup
 from qpik.peers import PEERS, PLACO_SOLVER, peer_installed
 from qpik.robot import Robot
-from qpik.runs import run
 from qpik.scenarios import SEED_PATH, Setup, arm_setup
 from qpik.trajectory import PoseTrajectory, RpyPath, Segment
+from step_time import timed_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MOVE, HOLD = 1.0, 0.5  # s: quintic segment, then the target held
@@ -118,12 +117,7 @@ def sweep(robot: str, targets: np.ndarray, hard: bool, controllers: list[tuple[s
     for k, target in enumerate(targets):
         for controller, solver in controllers:
             setup = trial(target, hard)
-            gc.collect()
-            gc.disable()  # no collector pauses inside a rollout
-            try:
-                _, log = run(robot, setup.scenario, controller, solver, on_failure="stop", setup=setup)
-            finally:
-                gc.enable()
+            _, log = timed_run(robot, setup.scenario, controller, solver, on_failure="stop", setup=setup)
             m = metrics[(controller, solver)]
             m["completed"][k] = log.completed
             m["max_error"][k] = log.error.max()

@@ -26,27 +26,33 @@ from qpik.solvers import available_solvers
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def timed_run(*args, **kwargs):
+    """``qpik.runs.run`` with the garbage collector off, so no collector pause lands in a
+    measured step."""
+    gc.collect()
+    gc.disable()
+    try:
+        return run(*args, **kwargs)
+    finally:
+        gc.enable()
+
+
 def measure(robot: str, scenario: str, entries: list[tuple[str, str]], rounds: int) -> list[dict]:
     """Step times of each (controller, solver) over ``rounds`` interleaved rollouts; each
     row also keeps the summary of the controller's last rollout."""
     times = {e: [] for e in entries}
-    summaries = {}
+    last_logs = {}
     for _ in range(rounds):
         for controller, solver in entries:
-            gc.collect()
-            gc.disable()  # no collector pauses inside a rollout
-            try:
-                _, log = run(robot, scenario, controller, solver)
-            finally:
-                gc.enable()
+            _, log = timed_run(robot, scenario, controller, solver)
             times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
-            summaries[(controller, solver)] = log.summary()
+            last_logs[(controller, solver)] = log
     rows = []
     for (controller, solver), chunks in times.items():
         t = np.concatenate(chunks) * 1e6
         rows.append({"controller": controller, "solver": solver, "steps": int(t.size),
                      "median_us": float(np.median(t)), "p99_us": float(np.percentile(t, 99)),
-                     "mean_us": float(np.mean(t)), "summary": summaries[(controller, solver)]})
+                     "mean_us": float(np.mean(t)), "summary": last_logs[(controller, solver)].summary()})
     return rows
 
 
