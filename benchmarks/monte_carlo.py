@@ -50,7 +50,7 @@ from qpik.hexapod_scenarios import hexapod_setup
 from qpik.peers import PEERS, PLACO_SOLVER, peer_installed
 from qpik.robot import Robot
 from qpik.scenarios import SEED_PATH, Setup, arm_setup
-from qpik.trajectory import PoseTrajectory, RpyPath, Segment
+from qpik.trajectory import PoseTrajectory, Segment
 from step_time import timed_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -97,7 +97,7 @@ def hexapod_targets(n: int, seed: int) -> np.ndarray:
 def hexapod_trial(pose: np.ndarray, hard: bool) -> Setup:
     home = HexapodGeometry.default().home_position
     trajectory = PoseTrajectory(Segment(home, pose[:3], MOVE, time_law="quintic"),
-                                RpyPath(np.zeros(3), pose[3:], MOVE, time_law="quintic"), duration=MOVE + HOLD)
+                                Segment(np.zeros(3), pose[3:], MOVE, time_law="quintic"), duration=MOVE + HOLD)
     return hexapod_setup(f"monte-carlo-{'hard' if hard else 'soft'}", trajectory, orientation=True, hard=hard)
 
 

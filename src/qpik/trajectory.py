@@ -192,8 +192,10 @@ class CircularTilt:
             raise InvalidInput(f"tilt amplitude must be finite, got {amplitude_deg}")
         self.circle = circle
         self.amplitude = float(amplitude_deg)
+        self.dim = 3
+        self.duration = circle.duration
 
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         phi, dphi = self.circle.angle(t)
         delta = phi - self.circle.start_angle
         rpy = self.amplitude * np.array([np.sin(delta), 1.0 - np.cos(delta), 0.0])
@@ -201,31 +203,18 @@ class CircularTilt:
         return rpy, rate
 
 
-class RpyPath:
-    """[θx, θy, θz] (deg) from ``start`` to ``end`` under a time law, then held."""
-
-    def __init__(self, start, end, duration: float, time_law: str = "quintic"):
-        self.start = _point(start, "start angles")
-        self.end = _point(end, "end angles")
-        if self.start.shape != (3,) or self.end.shape != (3,):
-            raise InvalidInput("roll-pitch-yaw angles must have 3 components")
-        self.law = make_time_law(time_law, duration)
-
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        s, ds = self.law(t)
-        delta = self.end - self.start
-        return self.start + s * delta, ds * delta
-
-
 class PoseTrajectory:
-    """A position trajectory plus an orientation given as [θx, θy, θz] (deg) and rates.
+    """A position trajectory plus an orientation path of [θx, θy, θz] (deg) and rates: any
+    3-D trajectory (a :class:`Segment` of angles, a :class:`CircularTilt`).
 
     ``duration`` may exceed the position path's: the pose is then held.
     """
 
-    def __init__(self, position: Trajectory, rpy=None, duration: float | None = None):
+    def __init__(self, position: Trajectory, rpy: Trajectory | None = None, duration: float | None = None):
         if position.dim != 3:
             raise InvalidInput(f"a pose trajectory needs a 3-D position path, got {position.dim}-D")
+        if rpy is not None and rpy.dim != 3:
+            raise InvalidInput(f"roll-pitch-yaw angles must have 3 components, got {rpy.dim}")
         self.position = position
         self.rpy = rpy
         self.dim = 3
@@ -241,6 +230,6 @@ class PoseTrajectory:
         p, v = self.position.sample(t)
         if self.rpy is None:
             return p, v, np.eye(3), np.zeros(3)
-        rpy, rate = self.rpy(t)
+        rpy, rate = self.rpy.sample(t)
         R, omega = rpy_rotation_and_rate(rpy, rate)
         return p, v, R, omega
