@@ -97,8 +97,9 @@ def hexapod_targets(n: int, seed: int) -> np.ndarray:
 def hexapod_trial(pose: np.ndarray, hard: bool) -> Setup:
     home = HexapodGeometry.default().home_position
     trajectory = PoseTrajectory(Segment(home, pose[:3], MOVE, time_law="quintic"),
-                                Segment(np.zeros(3), pose[3:], MOVE, time_law="quintic"), duration=MOVE + HOLD)
-    return hexapod_setup(f"monte-carlo-{'hard' if hard else 'soft'}", trajectory, orientation=True, hard=hard)
+                                Segment(np.zeros(3), pose[3:], MOVE, time_law="quintic"))
+    return hexapod_setup(f"monte-carlo-{'hard' if hard else 'soft'}", trajectory, orientation=True, hard=hard,
+                         duration=MOVE + HOLD)
 
 
 ROBOTS = {"arm": (arm_targets, arm_trial), "hexapod": (hexapod_targets, hexapod_trial)}

@@ -45,8 +45,9 @@ LM_DAMPING = 10.0
 
 
 def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: bool, hard: bool,
-                  k0: float = 0.0, scene: str = "hexapod") -> Setup:
-    """The hexapod with its platform task, loop closures, limits and reference."""
+                  k0: float = 0.0, duration: float | None = None, scene: str = "hexapod") -> Setup:
+    """The hexapod with its platform task, loop closures, limits and reference; ``duration``
+    (default the trajectory's) may exceed the trajectory's, which then holds its end pose."""
     robot = Robot.load(scene)
     model = HexapodModel(robot)
     loops = LoopClosureTask(robot, model.loop_names, gain=LOOP_GAIN)
@@ -66,7 +67,7 @@ def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: boo
         scenario=scenario,
         robot_name="hexapod",
         robot=robot,
-        duration=trajectory.duration,
+        duration=trajectory.duration if duration is None else duration,
         reference=PlatformReference(model, task, trajectory, loops),
         qp_tasks=tasks,
         limits=[JointPositionLimit(robot, joint_limits), JointVelocityLimit(robot)],
@@ -99,7 +100,7 @@ def hexapod_circle(scene: str = "hexapod") -> Setup:
 def hexapod_stroke_limits(scene: str = "hexapod") -> Setup:
     home = _home()
     segment = Segment(home, home + [STROKE_TRAVEL, 0.0, 0.0], 2.0, time_law="quintic")
-    return hexapod_setup("hexapod-stroke-limits", PoseTrajectory(segment, duration=3.0),
+    return hexapod_setup("hexapod-stroke-limits", PoseTrajectory(segment), duration=3.0,
                          orientation=True, hard=False, scene=scene)
 
 

@@ -205,12 +205,11 @@ class CircularTilt:
 
 class PoseTrajectory:
     """A position trajectory plus an orientation path of [θx, θy, θz] (deg) and rates: any
-    3-D trajectory (a :class:`Segment` of angles, a :class:`CircularTilt`).
-
-    ``duration`` may exceed the position path's: the pose is then held.
+    3-D trajectory (a :class:`Segment` of angles, a :class:`CircularTilt`). Past its
+    duration (the position path's) each part holds its end, as every time law does.
     """
 
-    def __init__(self, position: Trajectory, rpy: Trajectory | None = None, duration: float | None = None):
+    def __init__(self, position: Trajectory, rpy: Trajectory | None = None):
         if position.dim != 3:
             raise InvalidInput(f"a pose trajectory needs a 3-D position path, got {position.dim}-D")
         if rpy is not None and rpy.dim != 3:
@@ -218,9 +217,7 @@ class PoseTrajectory:
         self.position = position
         self.rpy = rpy
         self.dim = 3
-        self.duration = position.duration if duration is None else float(duration)
-        if not (np.isfinite(self.duration) and self.duration > 0):
-            raise InvalidInput(f"duration must be positive, got {duration}")
+        self.duration = position.duration
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self.position.sample(t)
