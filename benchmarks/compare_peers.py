@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 from step_time import RESULTS, measure
 
-from qpik.files import write_json, write_text
-from qpik.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
-from qpik.scenarios import SCENARIOS, build_scenario
+from qpik.io import write_json, write_text
+from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
+from qpik.scenario import build_scenario, scenarios
 from qpik.solvers import available_solvers
 
 RUNS = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
             "rounds": args.rounds}
     for robot, scenario in RUNS:
-        if scenario not in SCENARIOS:
+        if scenario not in scenarios():
             print(f"{scenario}: no such scenario here, skipped")
             continue
         entries, notes = entries_for(robot, scenario, solvers)

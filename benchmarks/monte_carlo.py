@@ -43,14 +43,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from qpik.calibration import sample_poses
-from qpik.files import save_figure, write_json, write_npz, write_text
-from qpik.hexapod import HexapodGeometry
-from qpik.hexapod_scenarios import hexapod_setup
-from qpik.peers import PEERS, PLACO_SOLVER, peer_installed
+from qpik.robots.hexapod.calibration import sample_poses
+from qpik.io import save_figure, write_json, write_npz, write_text
+from qpik.robots.hexapod.kinematics import HexapodGeometry
+from qpik.robots.hexapod.scenarios import hexapod_setup
+from qpik.app.peers import PEERS, PLACO_SOLVER, peer_installed
 from qpik.robot import Robot
-from qpik.scenarios import SEED_PATH, Setup, arm_setup
-from qpik.trajectory import PoseTrajectory, Segment
+from qpik.robots.arm.scenarios import SEED_PATH, arm_setup
+from qpik.scenario import Setup
+from qpik.trajectories import PoseTrajectory, Segment
 from step_time import timed_run
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -11,9 +11,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from qpik.files import write_json, write_text
-from qpik.runs import compare, run
-from qpik.scenarios import SCENARIOS, build_scenario
+from qpik.io import write_json, write_text
+from qpik.app.runs import compare, run
+from qpik.scenario import build_scenario, scenarios
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PHYSICS = ("seed-redundant", "hexapod-circle")
@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     rows = []
-    for name, info in SCENARIOS.items():
+    for name, info in scenarios().items():
         _, logs, _ = compare(info.robot, name, ["daqp"])
         rows += [log.summary() for log in logs]
         if name in PHYSICS:

@@ -18,16 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from qpik.files import write_json, write_text
-from qpik.runs import run
-from qpik.scenarios import SCENARIOS
+from qpik.io import write_json, write_text
+from qpik.app.runs import run
+from qpik.scenario import scenarios
 from qpik.solvers import available_solvers
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def timed_run(*args, **kwargs):
-    """``qpik.runs.run`` with the garbage collector off, so no collector pause lands in a
+    """``qpik.app.runs.run`` with the garbage collector off, so no collector pause lands in a
     measured step."""
     gc.collect()
     gc.disable()
@@ -71,7 +71,7 @@ def to_markdown(robot: str, scenario: str, rows: list[dict], reference: str) -> 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="arm")
-    parser.add_argument("--scenario", default="seed-redundant", choices=sorted(SCENARIOS))
+    parser.add_argument("--scenario", default="seed-redundant", choices=sorted(scenarios()))
     parser.add_argument("--solvers", default=",".join(available_solvers()))
     parser.add_argument("--classical", default="pinv,jt")
     parser.add_argument("--rounds", type=int, default=5)

@@ -1,5 +1,111 @@
-"""qpik: QP-based differential inverse kinematics on MuJoCo models."""
+"""qpik: QP-based differential inverse kinematics on MuJoCo models.
+
+The public API is importable from here (``from qpik import Robot, FrameTask, QPController``).
+Names load on first use, so ``import qpik`` (and the ``qpik`` command's help) does not pay
+for MuJoCo, SciPy or the solvers until they are needed.
+"""
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
+
+# Public name -> module that defines it.
+_EXPORTS = {
+    # robot and errors
+    "Robot": "qpik.robot",
+    "JointLimits": "qpik.robot",
+    "load_model": "qpik.robot",
+    "QpikError": "qpik.errors",
+    "InvalidInput": "qpik.errors",
+    "UnknownName": "qpik.errors",
+    "ModelError": "qpik.errors",
+    "UnreachablePose": "qpik.errors",
+    "InfeasibleProblem": "qpik.errors",
+    "SolverError": "qpik.errors",
+    "ConvergenceError": "qpik.errors",
+    "DivergenceError": "qpik.errors",
+    # tasks
+    "Task": "qpik.tasks",
+    "JointSpaceTask": "qpik.tasks",
+    "PositionTask": "qpik.tasks",
+    "FrameTask": "qpik.tasks",
+    "PostureTask": "qpik.tasks",
+    "DampingTask": "qpik.tasks",
+    "ManipulabilityTask": "qpik.tasks",
+    "ManipulabilityMeasure": "qpik.tasks",
+    "SigmaProxy": "qpik.tasks",
+    "Yoshikawa": "qpik.tasks",
+    "LoopClosureTask": "qpik.tasks",
+    # limits
+    "Limit": "qpik.limits",
+    "JointPositionLimit": "qpik.limits",
+    "JointVelocityLimit": "qpik.limits",
+    # controllers and solvers
+    "QPController": "qpik.controllers",
+    "PseudoinverseController": "qpik.controllers",
+    "JacobianTransposeController": "qpik.controllers",
+    "available_solvers": "qpik.solvers",
+    # trajectories, rollouts, scenarios
+    "Segment": "qpik.trajectories",
+    "Circle": "qpik.trajectories",
+    "Hold": "qpik.trajectories",
+    "PoseTrajectory": "qpik.trajectories",
+    "simulate": "qpik.rollout",
+    "RolloutLog": "qpik.rollout",
+    "PositionReference": "qpik.rollout",
+    "Setup": "qpik.scenario",
+    "build_scenario": "qpik.scenario",
+    "scenarios": "qpik.scenario",
+}
+
+__all__ = sorted(_EXPORTS) + ["__version__"]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'qpik' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:  # static type checkers see the real imports
+    from .controllers import JacobianTransposeController, PseudoinverseController, QPController
+    from .errors import (
+        ConvergenceError,
+        DivergenceError,
+        InfeasibleProblem,
+        InvalidInput,
+        ModelError,
+        QpikError,
+        SolverError,
+        UnknownName,
+        UnreachablePose,
+    )
+    from .limits import JointPositionLimit, JointVelocityLimit, Limit
+    from .robot import JointLimits, Robot, load_model
+    from .rollout import PositionReference, RolloutLog, simulate
+    from .scenario import Setup, build_scenario, scenarios
+    from .solvers import available_solvers
+    from .tasks import (
+        DampingTask,
+        FrameTask,
+        JointSpaceTask,
+        LoopClosureTask,
+        ManipulabilityMeasure,
+        ManipulabilityTask,
+        PositionTask,
+        PostureTask,
+        SigmaProxy,
+        Task,
+        Yoshikawa,
+    )
+    from .trajectories import Circle, Hold, PoseTrajectory, Segment

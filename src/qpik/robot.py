@@ -19,9 +19,8 @@ import mujoco
 import numpy as np
 
 from .errors import InvalidInput, ModelError, UnknownName
+from .robots import BUNDLED
 
-SCENES_DIR = Path(__file__).resolve().parent / "scenes"
-BUNDLED_SCENES = {"arm": "arm.xml", "hexapod": "hexapod.xml"}
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
 _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
@@ -30,12 +29,12 @@ _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SL
 def scene_path(scene: str | Path) -> Path:
     """Resolve a bundled scene name (``"arm"``, ``"hexapod"``) or an MJCF path."""
     key = str(scene)
-    if key in BUNDLED_SCENES:
-        return SCENES_DIR / BUNDLED_SCENES[key]
+    if key in BUNDLED:
+        return BUNDLED[key][0]
     path = Path(scene)
     if path.suffix.lower() != ".xml" and not path.exists():
         raise UnknownName(
-            f"unknown robot {key!r}: expected one of {sorted(BUNDLED_SCENES)} or a path to an MJCF file"
+            f"unknown robot {key!r}: expected one of {sorted(BUNDLED)} or a path to an MJCF file"
         )
     if not path.is_file():
         raise ModelError(f"MJCF file not found: {path}")
@@ -111,7 +110,7 @@ class Robot:
     @classmethod
     def load(cls, scene: str | Path, keyframe: str | None = "home") -> Robot:
         """Load a bundled scene by name (``"arm"``, ``"hexapod"``) or an MJCF path."""
-        name = str(scene) if str(scene) in BUNDLED_SCENES else None
+        name = str(scene) if str(scene) in BUNDLED else None
         return cls(load_model(scene), name=name, keyframe=keyframe)
 
     # Configuration ---------------------------------------------------------------
@@ -139,6 +138,12 @@ class Robot:
         mujoco.mj_integratePos(self.model, self.data.qpos, qdot, dt)
 
     # Names -------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Every joint's name, in the model's order (``joint<i>`` for an unnamed one)."""
+        m = self.model
+        return tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(m.njnt))
+
     def _id(self, kind: mujoco.mjtObj, name: str, label: str) -> int:
         idx = mujoco.mj_name2id(self.model, kind, name)
         if idx < 0:

@@ -1,0 +1,7 @@
+"""``python -m qpik`` is the ``qpik`` command."""
+
+import sys
+
+from qpik.app.cli import main
+
+sys.exit(main())

@@ -1,0 +1,110 @@
+"""Running scenarios: one controller (``qpik run``) or all of them side by side
+(``qpik compare``), with their tables and output files. The peer libraries (mink,
+placo) run as controllers too, when installed (:mod:`qpik.app.peers`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from ..errors import InvalidInput
+from ..io import write_json
+from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
+from ..rollout import MODES, RolloutLog, simulate
+from ..scenario import Setup, build_scenario, check_solver
+from ..solvers import available_solvers
+
+CLASSICAL_KINDS = ("pinv", "jt")
+
+
+def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
+        on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, RolloutLog]:
+    """Build the scenario and roll one controller out on it."""
+    if mode not in MODES:
+        raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+    if controller in ("qp", "mink"):
+        check_solver(solver)
+    setup = setup or build_scenario(scenario, robot)
+    ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
+    log = simulate(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
+                   manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
+                   joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
+                   on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index)
+    return setup, log
+
+
+def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
+            classical: Sequence[str] = CLASSICAL_KINDS,
+            peers: Sequence[str] = PEERS) -> tuple[Setup, list[RolloutLog], list[str]]:
+    """qp with each solver, the classical laws, then the peers (mink with each solver,
+    placo with its own), on identical fresh setups.
+
+    A controller that fails mid-run (an infeasible QP, a singular pseudoinverse) is
+    kept with ``completed = False`` and the reason, so the table can say why.
+    Returns the last setup, the logs and notes (e.g. skipped peers).
+    """
+    solvers = list(solvers) if solvers else available_solvers()
+    for solver in solvers:
+        check_solver(solver)
+    logs, notes = [], []
+    setup = None
+    for solver in solvers:
+        setup, log = run(robot, scenario, "qp", solver, mode, on_failure="stop")
+        logs.append(log)
+    for kind in classical:
+        probe = build_scenario(scenario, robot)
+        if kind not in probe.classical:
+            continue
+        setup, log = run(robot, scenario, kind, "none", mode, on_failure="stop", setup=probe)
+        logs.append(log)
+    for kind in peers:
+        if not peer_installed(kind):
+            notes.append(f"{kind} not installed: skipped")
+            continue
+        for solver in peer_solvers(kind, solvers):
+            try:
+                setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop")
+            except PeerUnsupported as exc:
+                notes.append(f"{kind} skipped: {exc}")
+                break
+            logs.append(log)
+    return setup, logs, notes
+
+
+_COLUMNS = (
+    ("controller", "controller", "{}"),
+    ("solver", "solver", "{}"),
+    ("max_error", "max err [m]", "{:.2e}"),
+    ("final_error", "final err [m]", "{:.2e}"),
+    ("limit_violation_max", "limit viol.", "{:.2e}"),
+    ("peak_joint_speed", "peak |q̇|", "{:.3g}"),
+    ("manipulability_final", "manip. final", "{:.4f}"),
+    ("step_time_median_us", "step med [µs]", "{:.1f}"),
+    ("step_time_p99_us", "step p99 [µs]", "{:.1f}"),
+)
+
+
+def format_table(summaries: Sequence[dict], extra: Sequence[tuple[str, str, str]] = ()) -> str:
+    """A plain-text table of summaries, one row per run; failed runs say why."""
+    columns = list(_COLUMNS) + list(extra)
+    for key, label, fmt in (("orientation_error_max", "orient. err [rad]", "{:.2e}"),
+                            ("constraint_violation_max", "loop resid. [m]", "{:.2e}")):
+        if any(key in s for s in summaries) and key not in [c[0] for c in columns]:
+            columns.insert(4, (key, label, fmt))
+    rows = [[label for _, label, _ in columns]]
+    for s in summaries:
+        rows.append([fmt.format(s[key]) if key in s else "-" for key, _, fmt in columns])
+    widths = [max(len(r[i]) for r in rows) for i in range(len(columns))]
+    lines = ["  ".join(cell.rjust(w) if i > 1 else cell.ljust(w) for i, (cell, w) in enumerate(zip(r, widths)))
+             for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    for s in summaries:
+        if not s.get("completed", True):
+            lines.append(f"note: {s['controller']} ({s['solver']}) stopped early: {s.get('failure', '')}")
+    return "\n".join(lines)
+
+
+def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Sequence[dict], mode: str) -> Path:
+    path = Path(out_dir) / "compare.json"
+    write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": list(summaries)})
+    return path

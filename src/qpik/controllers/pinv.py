@@ -1,0 +1,117 @@
+r"""Classical closed-loop inverse kinematics on the same task objects as the QP.
+
+- :class:`PseudoinverseController` (the source's law):
+  :math:`\dot q = J^\dagger v + (I - J^\dagger J)\,\dot q_0` with
+  :math:`J^\dagger = J^T (J J^T + \lambda^2 I)^{-1}` (λ = 0: the right
+  pseudoinverse; λ > 0: damped least squares), ``v`` and ``J`` stacked from the
+  primary tasks and :math:`\dot q_0` the target velocity of a joint-space secondary
+  task (e.g. :math:`k_0\nabla\sigma`).
+- :class:`JacobianTransposeController`: :math:`\dot q = J^T (\dot x_d + K e)`, the
+  gradient method of the lecture notes; it never inverts J and never diverges, but
+  tracks with a lag.
+
+Neither enforces limits: that is the point of the comparison.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import DivergenceError, InvalidInput
+from ..robot import Robot
+from ..tasks import Task
+
+
+class _StackedTasks:
+    """Stacks the primary tasks' Jacobians and velocities into preallocated arrays."""
+
+    def __init__(self, robot: Robot, primary: Sequence[Task]):
+        if not primary:
+            raise InvalidInput("the controller needs at least one primary task")
+        self.robot = robot
+        self.primary = list(primary)
+        m = sum(t.dim for t in self.primary)
+        self.J = np.zeros((m, robot.nv))
+        self.v = np.zeros(m)
+        self._rows = []
+        start = 0
+        for t in self.primary:
+            self._rows.append(slice(start, start + t.dim))
+            start += t.dim
+
+    def stack(self) -> None:
+        for task, rows in zip(self.primary, self._rows):
+            task.update()
+            self.J[rows] = task.jacobian
+            self.v[rows] = task.target_velocity
+
+
+class PseudoinverseController(_StackedTasks):
+    """CLIK with the right pseudoinverse and optional null-space secondary task.
+
+    Args:
+        robot: the robot.
+        primary: tasks stacked into the primary task (J, v).
+        secondary: a joint-space task whose ``target_velocity`` is q̇0 (optional).
+        damping: λ of damped least squares (0: the exact pseudoinverse).
+    """
+
+    kind = "pinv"
+    solver = "none"
+
+    def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Task | None = None, damping: float = 0.0):
+        super().__init__(robot, primary)
+        if secondary is not None and not secondary.joint_space:
+            raise InvalidInput(f"the secondary task must be a joint-space task (J = I[dofs]), not a {secondary.name}")
+        if not (np.isfinite(damping) and damping >= 0):
+            raise InvalidInput(f"damping must be finite and >= 0, got {damping}")
+        self.secondary = secondary
+        self.damping = float(damping)
+        self._gram = np.zeros((len(self.v), len(self.v)))
+        self.qdot = np.zeros(robot.nv)
+        self._qdot0 = np.zeros(robot.nv)  # q̇0 = I[dofs]ᵀ v of the secondary task
+
+    def compute_velocity(self) -> np.ndarray:
+        self.stack()
+        J, v = self.J, self.v
+        # q̇ = q̇0 + J†(v − J q̇0) = J†v + (I − J†J) q̇0, one linear solve with J Jᵀ.
+        rhs = v
+        if self.secondary is not None:
+            self.secondary.update()
+            self._qdot0[self.secondary.dofs] = self.secondary.target_velocity
+            rhs = v - J @ self._qdot0
+        np.matmul(J, J.T, out=self._gram)
+        if self.damping:
+            self._gram.flat[:: len(v) + 1] += self.damping**2
+        try:
+            y = np.linalg.solve(self._gram, rhs)
+        except np.linalg.LinAlgError:
+            raise DivergenceError("pseudoinverse: J Jᵀ is singular (the arm is at a singularity)") from None
+        np.matmul(J.T, y, out=self.qdot)
+        if self.secondary is not None:
+            self.qdot += self._qdot0
+        if not np.all(np.isfinite(self.qdot)):
+            raise DivergenceError("pseudoinverse produced a non-finite joint velocity (singularity)")
+        return self.qdot
+
+
+class JacobianTransposeController(_StackedTasks):
+    """q̇ = α Jᵀ v: the gradient (Jacobian transpose) law, a further baseline."""
+
+    kind = "jt"
+    solver = "none"
+
+    def __init__(self, robot: Robot, primary: Sequence[Task], alpha: float = 1.0):
+        super().__init__(robot, primary)
+        if not (np.isfinite(alpha) and alpha > 0):
+            raise InvalidInput(f"alpha must be positive, got {alpha}")
+        self.alpha = float(alpha)
+        self.qdot = np.zeros(robot.nv)
+
+    def compute_velocity(self) -> np.ndarray:
+        self.stack()
+        np.matmul(self.J.T, self.v, out=self.qdot)
+        self.qdot *= self.alpha
+        return self.qdot

@@ -1,0 +1,128 @@
+r"""QPController: a stack of tasks and limits turned into one QP per control step.
+
+.. math::
+    \min_{\dot q}\ \tfrac12 \sum_{i\,\text{soft}} w_i \|J_i \dot q - v_i\|^2
+                  + \tfrac12 \epsilon \|\dot q\|^2
+    \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
+    lb \le \dot q \le ub \ (\text{limits})
+
+With a hard position task and the manipulability task
+(:math:`\tfrac12\|\dot q - k_0\nabla\sigma\|^2`) the solution is exactly the
+null-space law :math:`J^\dagger v + (I - J^\dagger J) k_0 \nabla\sigma` whenever no
+limit is active (Lagrange conditions of the equality-constrained least squares).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InvalidInput, SolverError
+from ..limits import order_limits
+from ..limits.limit import as_slice
+from ..robot import Robot
+from ..solvers import make_backend
+from ..tasks import Task
+
+
+class QPController:
+    """Differential IK by quadratic programming.
+
+    Args:
+        robot: the robot the tasks and limits read.
+        tasks: tasks; each one's ``hard`` flag chooses equality or weighted cost.
+        limits: joint position/velocity limits (box constraints on q̇).
+        solver: a qpsolvers name (``daqp``, ``osqp``, ``quadprog``, ``proxqp``, ...).
+        dt: control period, used by the position limits.
+        regularization: ε added to the Hessian's diagonal so it is positive definite.
+        native: call DAQP/OSQP directly (True) or always go through qpsolvers.
+
+    Call :meth:`compute_velocity` after ``robot.update_kinematics()``. Task weights
+    and constant limits (velocity bounds) are read once, when the controller is built:
+    their share of the QP is precomputed, the hot path only adds what changes.
+    """
+
+    kind = "qp"
+
+    def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence = (), solver: str = "daqp",
+                 dt: float = 0.002, regularization: float = 1e-12, native: bool = True, **solver_settings):
+        if not tasks:
+            raise InvalidInput("a QPController needs at least one task")
+        if not (np.isfinite(dt) and dt > 0):
+            raise InvalidInput(f"dt must be positive, got {dt}")
+        self.robot = robot
+        self.tasks = list(tasks)
+        self.limits = order_limits(limits)
+        self.dt = float(dt)
+        self.solver = solver
+        nv = robot.nv
+        self._hard = [t for t in self.tasks if t.hard]
+        soft = [t for t in self.tasks if not t.hard]
+        # Joint-space tasks (J = I[dofs], as each task itself says) go on H's diagonal.
+        self._soft_diagonal = [t for t in soft if t.joint_space]
+        self._soft_general = [t for t in soft if not t.joint_space]
+        meq = sum(t.dim for t in self._hard)
+        self._rows = []
+        start = 0
+        for t in self._hard:
+            self._rows.append(slice(start, start + t.dim))
+            start += t.dim
+        self._backend = make_backend(solver, nv, meq, native=native, **solver_settings)
+        # The problem is written straight into the back-end's arrays.
+        self.A, self.b = self._backend.A, self._backend.b
+        self.lb, self.ub = self._backend.lb, self._backend.ub
+        # Parts that do not change between steps are computed once: the regulariser and
+        # the joint-space tasks' weights on H's diagonal, and the constant bounds.
+        self._H0 = np.eye(nv) * float(regularization)
+        self._diagonal_dofs = [as_slice(task.dofs) for task in self._soft_diagonal]
+        for task, dofs in zip(self._soft_diagonal, self._diagonal_dofs):
+            self._H0.reshape(-1)[:: nv + 1][dofs] += task.weight
+        self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
+        for limit in self.limits:
+            if limit.constant:
+                limit.apply(self.dt, self._lb0, self._ub0)
+        self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
+        self._neg_weights = [-task.weight for task in self._soft_diagonal]
+        self.H = np.zeros((nv, nv))
+        self.c = np.zeros(nv)
+        self._diag = self.H.reshape(-1)[:: nv + 1]
+        self._scratch = np.zeros(nv)
+        self.qdot = np.zeros(nv)
+
+    def compute_velocity(self) -> np.ndarray:
+        """Update every task and limit from the current kinematics and solve the QP."""
+        H, c = self.H, self.c
+        for task in self.tasks:
+            task.update()
+        H[:] = self._H0
+        c.fill(0.0)
+        for task, neg_weight, dofs in zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs):
+            if not task.joint_space:
+                raise InvalidInput(f"{task.name}: its Jacobian changed after the controller was built")
+            scratch = self._scratch[: task.dim]
+            np.multiply(neg_weight, task.target_velocity, out=scratch)
+            c[dofs] += scratch
+        for task in self._soft_general:
+            weighted = task.weight[:, None] * task.jacobian
+            H += task.jacobian.T @ weighted
+            c -= weighted.T @ task.target_velocity
+            if task.lm_damping:
+                error = task.error
+                self._diag += task.lm_damping * float(error @ (task.weight * error))
+        for task, rows in zip(self._hard, self._rows):
+            self.A[rows] = task.jacobian
+            self.b[rows] = task.target_velocity
+        self.lb[:] = self._lb0
+        self.ub[:] = self._ub0
+        for limit in self._dynamic_limits:
+            limit.apply(self.dt, self.lb, self.ub)
+        x = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+        if x is None or not math.isfinite(x.sum()):
+            raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
+        if not self._backend.exact_bounds:  # a 1e-13 overshoot of a joint limit is still one
+            np.minimum(x, self.ub, out=x)
+            np.maximum(x, self.lb, out=x)
+        self.qdot = x
+        return x

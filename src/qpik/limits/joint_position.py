@@ -1,0 +1,77 @@
+"""Joint position limits with a velocity damper near the bounds."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidInput
+from ..robot import JointLimits, Robot
+from .limit import Limit, as_slice
+
+
+class JointPositionLimit(Limit):
+    """Keep limited joints inside their range at the end of the step.
+
+    Args:
+        robot: the robot.
+        limits: the ranges to enforce (default: the model's ``range`` attributes).
+        gain: fraction in (0, 1] of the remaining distance that one step may cover.
+        influence: distance to a bound below which the velocity damper acts
+            (0 disables the damper).
+        damper_rate: ξ (joint units/s): once the distance d to a bound is below
+            ``influence``, the speed toward it is at most ξ d / influence, so the joint
+            slows down exponentially as it arrives.
+        margin: the bounds are pulled in by this much (joint units), so that rounding in
+            q + q̇Δt never lands a hair outside the range.
+    """
+
+    constant = False  # depends on q: recomputed every step
+
+    def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
+                 influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
+        self.limits = robot.joint_limits if limits is None else limits
+        if not 0.0 < gain <= 1.0:
+            raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
+        if np.any(self.limits.lower >= self.limits.upper):
+            bad = [n for n, lo, hi in zip(self.limits.names, self.limits.lower, self.limits.upper) if lo >= hi]
+            raise InvalidInput(f"empty joint range for {bad}")
+        if influence < 0 or damper_rate <= 0:
+            raise InvalidInput("damper influence must be >= 0 and its rate > 0")
+        self.robot = robot
+        self.gain = gain
+        self.influence = influence
+        self.damper_rate = damper_rate
+        # Rows: lower then upper bound, pulled in by the margin.
+        self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
+        self._qpos = as_slice(self.limits.qpos_index)
+        self._dofs = as_slice(self.limits.dof_index)
+        self._steps = np.empty_like(self._bounds)
+        self._low, self._high = self._steps  # row views, made once
+        self._rate = damper_rate / influence if influence > 0 else 0.0
+        self._factor = np.empty_like(self._bounds)
+        self._near = np.empty(self._bounds.shape, dtype=bool)
+
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+        """Tighten the velocity box [lb, ub] (nv,) in place."""
+        steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
+        np.subtract(self._bounds, self.robot.q[self._qpos], out=steps)
+        if self.influence > 0.0:
+            # Within the influence distance of a bound the speed toward it is rate x
+            # distance, but never more than the step limit (a damper faster than gain/Δt
+            # would step past the bound); elsewhere the step limit q + q̇Δt in range applies.
+            np.less(np.abs(steps, out=self._factor), self.influence, out=self._near)
+            self._factor.fill(self.gain / dt)
+            np.copyto(self._factor, min(self._rate, self.gain / dt), where=self._near)
+            steps *= self._factor
+        else:
+            steps *= self.gain / dt
+        low, high = self._low, self._high
+        vel_lo, vel_hi = lb[self._dofs], ub[self._dofs]  # views when the dofs are contiguous
+        # Recovery from outside the range never asks for more than the velocity box.
+        np.minimum(low, vel_hi, out=low)
+        np.maximum(high, vel_lo, out=high)
+        np.maximum(vel_lo, low, out=vel_lo)
+        np.minimum(vel_hi, high, out=vel_hi)
+        if not isinstance(self._dofs, slice):
+            lb[self._dofs] = vel_lo
+            ub[self._dofs] = vel_hi

@@ -1,0 +1,1 @@
+"""The 6-PUS Gough–Stewart hexapod: kinematics, MJCF scene, control, scenarios, calibration."""

@@ -1,0 +1,234 @@
+r"""Control of the hexapod on its full MuJoCo coordinates, and its classical comparator.
+
+The QP controller works on all 24 dofs (6 sliders, 12 universal-joint hinges, the
+platform's free joint): the platform task, the six ``connect`` loop closures as hard
+equalities :math:`J_c\dot q = -K_c e_c`, stroke and hinge limits as bounds. The
+classical law works on the strokes only:
+
+- 6-D task: :math:`\dot q_s = J_{inv}(p, R)\,[\dot p_d + K e_p;\ \omega_d + K e_o]`
+  (the hexapod is square for a pose task, so the inverse Jacobian is the CLIK law);
+- position only: the platform twist is the pseudoinverse solution of the position
+  task, :math:`[I\ 0]^\dagger = [I; 0]`, plus the null-space term
+  :math:`(I - [I;0][I\ 0])\,[0; k_0\nabla_\theta m]`, i.e. ω = k0 ∇θ m; then
+  :math:`\dot q_s = J_{inv}\,[v; \omega]`.
+
+The classical law moves the sliders; the platform and the passive joints follow, as on
+the machine: its rollout closes the loops by forward kinematics after each step
+(:class:`StrokeDrivenClosure`).
+
+The hexapod's manipulability (see :meth:`qpik.robots.hexapod.kinematics.Hexapod.manipulability`): the
+inverse condition number of the forward Jacobian with its angular rows scaled by the
+platform radius (0.1 m). Its gradient with respect to the platform orientation is a
+central difference over three small rotations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ...errors import ConvergenceError, DivergenceError
+from .kinematics import N_LEGS, Hexapod
+from .scene import assembly_qpos
+from ...robot import Robot
+from ...tasks import FrameTask, LoopClosureTask, PositionTask, Task, rotation_error
+
+CHARACTERISTIC_LENGTH = 0.1  # m, the platform radius: makes rotations commensurate
+_GRADIENT_STEP = 1e-5  # rad
+# exp(+h e_k), exp(−h e_k) for k = x, y, z: the central differences' rotations (6, 3, 3).
+_SMALL_ROTATIONS = Rotation.from_rotvec(np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]
+                                        * _GRADIENT_STEP).as_matrix()
+
+
+class HexapodModel:
+    """The hexapod's analytic kinematics bound to its MuJoCo scene (index maps, pose I/O)."""
+
+    def __init__(self, robot: Robot, hexapod: Hexapod | None = None):
+        self.robot = robot
+        self.hexapod = Hexapod() if hexapod is None else hexapod
+        n = range(1, N_LEGS + 1)
+        self.slider_qpos = np.array([robot.joint_qpos_index(f"slider{i}") for i in n])
+        self.slider_dofs = np.array([robot.joint_dof_index(f"slider{i}") for i in n])
+        self.hinge_qpos = np.array([[robot.joint_qpos_index(f"u{i}_a"), robot.joint_qpos_index(f"u{i}_b")] for i in n])
+        self.platform_qpos = robot.joint_qpos_index("platform")
+        # Where each entry of hexapod_scene.assembly_qpos goes in this robot's q.
+        self.assembly_index = np.concatenate([np.column_stack([self.slider_qpos, self.hinge_qpos]).ravel(),
+                                              self.platform_qpos + np.arange(7)])
+        self.center_site = robot.site_id("platform_center")
+        self.loop_names = tuple(f"loop{i}" for i in n)
+        g = self.hexapod.geometry
+        self._side = g.leg_side
+        self._scale = np.repeat([1.0, 1.0 / CHARACTERISTIC_LENGTH], 3)
+        self._common_axis = bool(np.all(g.slider_axes == g.slider_axes[0]))
+
+    def strokes(self, robot: Robot | None = None) -> np.ndarray:
+        return (robot or self.robot).q[self.slider_qpos]
+
+    def platform_pose(self, robot: Robot | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Platform position and rotation from the site (valid after a kinematics update)."""
+        robot = robot or self.robot
+        return robot.site_position(self.center_site).copy(), robot.site_rotation(self.center_site).copy()
+
+    def scaled_inverse_jacobian(self, position: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Jinv diag(I, I/c) at a pose, or at a batch of rotations R (B, 3, 3) -> (B, 6, 6).
+
+        The hot-path twin of :meth:`Hexapod.inverse_jacobian` (tested against it): the
+        strokes come from IK on each leg's side, q = s·d + side·√disc, since every slider
+        runs along +x; NaN rows where a leg cannot reach.
+        """
+        g = self.hexapod.geometry
+        r = np.matmul(g.platform_points, np.swapaxes(R, -1, -2))  # (..., 6, 3)
+        d = position + r - g.slider_origins
+        sd = d @ g.slider_axes[0] if self._common_axis else np.einsum("ij,...ij->...i", g.slider_axes, d)
+        disc = sd * sd - (np.einsum("...ij,...ij->...i", d, d) - g.leg_lengths**2)
+        q = sd + self._side * np.sqrt(np.maximum(disc, 0.0))
+        L = d - q[..., None] * g.slider_axes
+        rows = np.empty(L.shape[:-1] + (6,))
+        rows[..., :3] = L
+        # r x L, written out: np.cross costs ~10x more on 6 x 3 arrays.
+        rows[..., 3] = r[..., 1] * L[..., 2] - r[..., 2] * L[..., 1]
+        rows[..., 4] = r[..., 2] * L[..., 0] - r[..., 0] * L[..., 2]
+        rows[..., 5] = r[..., 0] * L[..., 1] - r[..., 1] * L[..., 0]
+        along = np.einsum("...ij,ij->...i", L, g.slider_axes)
+        rows *= self._scale / np.where(disc >= 0, along, np.nan)[..., None]
+        return rows
+
+    def manipulability(self, position: np.ndarray, R: np.ndarray) -> float | np.ndarray:
+        """σmin/σmax of the scaled forward Jacobian (0 where IK fails); batched over R."""
+        scaled = self.scaled_inverse_jacobian(position, R)
+        bad = ~np.all(np.isfinite(scaled), axis=(-2, -1))
+        sigma = np.linalg.svd(np.where(bad[..., None, None], 1.0, scaled), compute_uv=False)
+        ratio = np.where(bad, 0.0, sigma[..., -1] / sigma[..., 0])
+        return float(ratio) if ratio.ndim == 0 else ratio
+
+    def manipulability_gradient(self, position: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """∂m/∂θ (3,) for world-frame rotations R ← exp([θ]) R: central differences,
+        the six perturbed poses evaluated as one batch."""
+        values = self.manipulability(position, _SMALL_ROTATIONS @ R)
+        return (values[0::2] - values[1::2]) / (2 * _GRADIENT_STEP)
+
+    def manipulability_of(self, robot: Robot) -> float:
+        """The logged measure, on any robot of this model (e.g. the physics plant)."""
+        return self.manipulability(*self.platform_pose(robot))
+
+
+class PlatformManipulabilityTask(Task):
+    """Turn the platform toward higher manipulability: ½ w ‖ω − k0 ∇θ m‖².
+
+    J is the platform's angular Jacobian (3 x nv); with a hard position task and the
+    loop closures, the platform's three rotational freedoms are exactly this task's.
+    """
+
+    name = "platform manipulability task"
+
+    def __init__(self, model: HexapodModel, gain: float = 1.0, weight=1.0):
+        super().__init__(model.robot, 3, weight, hard=False)
+        self.model = model
+        self.gain = float(gain)
+
+    def update(self) -> None:
+        self.robot.site_jacobian(self.model.center_site, None, self.jacobian)
+        position, R = self.model.platform_pose()
+        self.target_velocity[:] = self.gain * self.model.manipulability_gradient(position, R)
+
+
+class HexapodClassicalController:
+    """CLIK on the strokes with the analytic inverse Jacobian (and null-space gradient).
+
+    Reads the platform pose and the task targets from the same task object as the QP:
+    a :class:`FrameTask` (6-D law) or a :class:`PositionTask` on ``platform_center``
+    (position-only law with ω = k0 ∇θ m). Returns q̇ with the stroke rates filled and
+    zeros elsewhere: ``actuated_only`` tells the rollout to close the loops.
+    """
+
+    kind = "pinv"
+    solver = "none"
+    actuated_only = True
+
+    def __init__(self, model: HexapodModel, task: FrameTask | PositionTask, k0: float = 0.0):
+        self.model = model
+        self.robot = model.robot
+        self.task = task
+        self.k0 = float(k0)
+        self.qdot = np.zeros(model.robot.nv)
+        self._twist = np.zeros(6)
+        self._unscale = 1.0 / model._scale
+
+    def compute_velocity(self) -> np.ndarray:
+        position, R = self.model.platform_pose()
+        task = self.task
+        task.update_target_velocity()
+        if isinstance(task, FrameTask):
+            self._twist[:] = task.target_velocity
+        else:
+            self._twist[:3] = task.target_velocity
+            self._twist[3:] = self.k0 * self.model.manipulability_gradient(position, R) if self.k0 else 0.0
+        jinv = self.model.scaled_inverse_jacobian(position, R) * self._unscale
+        strokes = jinv @ self._twist
+        if not np.all(np.isfinite(strokes)):
+            raise DivergenceError("inverse Jacobian undefined at this pose (outside the workspace)")
+        self.qdot[self.model.slider_dofs] = strokes
+        return self.qdot
+
+
+class StrokeDrivenClosure:
+    """The classical law's mechanism: after the strokes moved, the platform and hinges follow.
+
+    Forward kinematics from the current pose (Newton with a short continuation, so it
+    follows the assembly branch the mechanism is on) places the platform, then the
+    universal joints. If the new
+    strokes admit no assembly (a slider held at its end stop while the others move on),
+    the mechanism jams: it stays where it was, as position-controlled drives fighting a
+    closed chain would.
+    """
+
+    def __init__(self, model: HexapodModel):
+        self.model = model
+        self.jams = 0
+        self._last = model.robot.q.copy()
+
+    def __call__(self, robot: Robot) -> None:
+        model = self.model
+        q = robot.q[model.slider_qpos]
+        position, R = model.platform_pose(robot)
+        try:
+            p, Rn = model.hexapod.forward_kinematics(q, initial=(position, R), steps=4)
+        except (ConvergenceError, ValueError):
+            self.jams += 1
+            robot.q[:] = self._last
+            robot.update_kinematics()
+            return
+        robot.q[model.assembly_index] = assembly_qpos(model.hexapod, q, p, Rn)
+        robot.update_kinematics()
+        self._last[:] = robot.q
+
+
+class PlatformReference:
+    """Feeds a pose trajectory to the platform task; measures pose error and loops."""
+
+    def __init__(self, model: HexapodModel, task: FrameTask | PositionTask, trajectory, loops: LoopClosureTask):
+        self.model = model
+        self.task = task
+        self.trajectory = trajectory
+        self.loops = loops
+        self._desired_rotation = np.eye(3)
+
+    def apply(self, t: float) -> None:
+        p, v, R, omega = self.trajectory.sample_pose(t)
+        self._desired_rotation = R
+        if isinstance(self.task, FrameTask):
+            self.task.set_target(p, R, v, omega)
+        else:
+            self.task.set_target(p, v)
+
+    def desired(self) -> np.ndarray:
+        return self.task.target_position if isinstance(self.task, FrameTask) else self.task.target
+
+    def measure(self, robot: Robot) -> dict:
+        position, R = self.model.platform_pose(robot)
+        sample = {"x": position}
+        if isinstance(self.task, FrameTask):
+            sample["orientation_error"] = float(np.linalg.norm(rotation_error(self._desired_rotation, R)))
+        sample["constraint_violation"] = self.loops.max_residual(robot)
+        return sample
+

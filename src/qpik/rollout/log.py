@@ -1,0 +1,82 @@
+"""The log of one rollout: time series, and the summary metrics computed from them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..io import write_json, write_npz
+
+
+@dataclass
+class RolloutLog:
+    """Time series of one rollout; ``summary()`` gives DESIGN.md's metrics."""
+
+    robot: str
+    controller: str
+    solver: str
+    scenario: str
+    mode: str
+    dt: float
+    t: np.ndarray
+    q: np.ndarray
+    qdot: np.ndarray
+    x: np.ndarray
+    x_des: np.ndarray
+    error: np.ndarray
+    manipulability: np.ndarray
+    step_time: np.ndarray
+    limit_violation: np.ndarray
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    manipulability_measure: str = "sigma"
+    speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
+    completed: bool = True
+    failure: str = ""
+
+    def summary(self) -> dict:
+        """The summary.json record (plain Python types)."""
+        err = self.error
+        st = self.step_time * 1e6
+        out = {
+            "robot": self.robot,
+            "controller": self.controller,
+            "solver": self.solver,
+            "scenario": self.scenario,
+            "mode": self.mode,
+            "dt": self.dt,
+            "steps": int(len(self.t)),
+            "max_error": float(np.max(err)),
+            "rms_error": float(np.sqrt(np.mean(err**2))),
+            "final_error": float(err[-1]),
+            "manipulability_measure": self.manipulability_measure,
+            "manipulability_min": float(np.min(self.manipulability)),
+            "manipulability_mean": float(np.mean(self.manipulability)),
+            "manipulability_final": float(self.manipulability[-1]),
+            "limit_violation_max": float(np.max(self.limit_violation)),
+            "peak_joint_speed": float(np.max(np.abs(self.qdot if self.speed_dofs is None
+                                                     else self.qdot[:, self.speed_dofs]))),
+            "step_time_median_us": float(np.median(st)),
+            "step_time_p99_us": float(np.percentile(st, 99)),
+            "q_final": [float(v) for v in self.q[-1]],
+            "completed": self.completed,
+        }
+        for name, series in self.extras.items():
+            out[f"{name}_max"] = float(np.max(series))
+        if not self.completed:
+            out["failure"] = self.failure
+        return out
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        data = dict(t=self.t, q=self.q, qdot=self.qdot, x=self.x, x_des=self.x_des, error=self.error,
+                    manipulability=self.manipulability, step_time=self.step_time,
+                    limit_violation=self.limit_violation)
+        data.update(self.extras)
+        return data
+
+    def save(self, out_dir: str | Path) -> None:
+        """Write ``summary.json`` and ``log.npz`` (each whole, or not at all)."""
+        out_dir = Path(out_dir)
+        write_npz(out_dir / "log.npz", **self.arrays())
+        write_json(out_dir / "summary.json", self.summary())

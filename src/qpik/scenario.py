@@ -1,0 +1,124 @@
+"""Scenarios: a named, reproducible run setup, and the registry the robots fill.
+
+A scenario builds, for one run, a fresh robot with its tasks, limits, reference
+trajectory and gains (a :class:`Setup`); every controller of a comparison gets an
+identical copy. The bundled robots register their scenarios when their
+``scenarios`` module is imported; :func:`scenarios` imports them on first use, so
+nothing here imports a robot (no import cycle).
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from typing import Callable
+
+import mujoco
+
+from .controllers.qp import QPController
+from .errors import UnknownName
+from .robot import JointLimits, Robot, scene_path
+from .robots import BUNDLED
+from .solvers import available_solvers
+from .tasks import Task
+
+DT = 0.002
+
+
+@dataclass(frozen=True)
+class JointPlotSpec:
+    """Which joints figures show: names, qpos/qvel columns, limits (inf: none), units."""
+
+    names: tuple[str, ...]
+    qpos_index: tuple[int, ...]
+    dof_index: tuple[int, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    units: tuple[str, ...]
+
+    @classmethod
+    def from_limits(cls, robot: Robot, limits: JointLimits, names=None) -> JointPlotSpec:
+        names = tuple(limits.names if names is None else names)
+        idx = [limits.names.index(n) for n in names]
+        slide = int(mujoco.mjtJoint.mjJNT_SLIDE)
+        units = tuple("m" if int(robot.model.jnt_type[robot.joint_id(n)]) == slide else "rad" for n in names)
+        return cls(names, tuple(int(limits.qpos_index[i]) for i in idx), tuple(int(limits.dof_index[i]) for i in idx),
+                   tuple(float(limits.lower[i]) for i in idx), tuple(float(limits.upper[i]) for i in idx), units)
+
+
+@dataclass
+class Setup:
+    """Everything one run of a scenario needs; ``controller()`` builds a controller on it."""
+
+    scenario: str
+    robot_name: str
+    robot: Robot
+    duration: float
+    reference: object
+    qp_tasks: list[Task]
+    limits: list
+    joint_limits: JointLimits
+    manipulability: Callable[[Robot], float]
+    manipulability_measure: str
+    classical: dict[str, Callable[[], object]]
+    plot_joints: JointPlotSpec
+    params: dict = field(default_factory=dict)
+    dt: float = DT
+    closure: Callable[[Robot], None] | None = None  # closes the loops of a closed chain
+
+    def controller(self, kind: str = "qp", solver: str = "daqp", **options):
+        if kind == "qp":
+            return QPController(self.robot, self.qp_tasks, self.limits, solver=solver, dt=self.dt, **options)
+        if kind in self.classical:
+            return self.classical[kind]()
+        raise UnknownName(f"unknown controller {kind!r} for {self.scenario}; choose from {['qp', *self.classical]}")
+
+
+@dataclass(frozen=True)
+class ScenarioInfo:
+    name: str
+    robot: str
+    description: str
+    build: Callable[..., Setup]
+
+
+_SCENARIOS: dict[str, ScenarioInfo] = {}
+
+
+def register(name: str, robot: str, description: str):
+    def decorator(build: Callable[..., Setup]) -> Callable[..., Setup]:
+        _SCENARIOS[name] = ScenarioInfo(name, robot, description, build)
+        return build
+
+    return decorator
+
+
+def scenarios() -> dict[str, ScenarioInfo]:
+    """Every registered scenario by name (the bundled robots' first, in their order)."""
+    for module in (entry[1] for entry in BUNDLED.values()):
+        importlib.import_module(module)
+    return dict(_SCENARIOS)
+
+
+def build_scenario(name: str, robot: str | None = None, **options) -> Setup:
+    """A fresh setup of scenario ``name``.
+
+    ``robot`` is checked against the scenario's robot (``"arm"``, ``"hexapod"``); an
+    MJCF path instead replaces the bundled scene (it must define the same names).
+    """
+    known = scenarios()
+    if name not in known:
+        raise UnknownName(f"unknown scenario {name!r}; known: {', '.join(known)}")
+    info = known[name]
+    if robot is not None and robot not in BUNDLED:
+        scene_path(robot)  # raises a clear error for an unknown name or a missing file
+        options.setdefault("scene", robot)
+    elif robot is not None and robot != info.robot:
+        raise UnknownName(f"scenario {name!r} is for robot {info.robot!r}, not {robot!r}")
+    return info.build(**options)
+
+
+def check_solver(solver: str) -> str:
+    if solver not in available_solvers():
+        raise UnknownName(f"unknown or uninstalled QP solver {solver!r}; available: {', '.join(available_solvers())}")
+    return solver
