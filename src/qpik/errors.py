@@ -30,7 +30,14 @@ class UnreachablePose(QpikError, ValueError):
 
 
 class InfeasibleProblem(QpikError, RuntimeError):
-    """The constraints of a QP (hard tasks and limits) cannot all be met."""
+    """The constraints of a QP (hard tasks and limits) cannot all be met.
+
+    ``variable`` is the index of the variable whose bounds cross, when that is the cause.
+    """
+
+    def __init__(self, message: str, variable: int | None = None):
+        super().__init__(message)
+        self.variable = variable
 
 
 class SolverError(QpikError, RuntimeError):

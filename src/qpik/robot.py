@@ -99,6 +99,7 @@ class Robot:
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
         self.nq = model.nq
         self.nv = model.nv
+        self._kinematics_state = b""
         if keyframe is not None:
             key_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
             if key_id >= 0:
@@ -132,6 +133,19 @@ class Robot:
         """The one kinematics update per control step: frames and Jacobian data."""
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
+        self._kinematics_state = self._state_bytes()
+
+    def ensure_kinematics(self) -> None:
+        """Update the kinematics if the configuration (or a mocap pose) changed since the
+        last update: what every controller calls first, so forgetting it cannot drift."""
+        if self._state_bytes() != self._kinematics_state:
+            self.update_kinematics()
+
+    def _state_bytes(self) -> bytes:
+        data = self.data
+        if self.model.nmocap:
+            return data.qpos.tobytes() + data.mocap_pos.tobytes() + data.mocap_quat.tobytes()
+        return data.qpos.tobytes()
 
     def integrate(self, qdot: np.ndarray, dt: float) -> None:
         """q <- q (+) qdot dt on the configuration manifold (``mj_integratePos``)."""

@@ -43,7 +43,7 @@ def test_qp_with_hard_task_equals_the_null_space_law(solver):
         p = arm.end_effector_position(q)
         task.set_target(p + [1e-4, -2e-4], [0.1, -0.05])
         manip = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
-        qp = QPController(robot, [task, manip], solver=solver)
+        qp = QPController(robot, [task, manip], solver=solver, dt=0.002)
         expected = _null_space_law(q, np.array([0.1, -0.05]) + 500.0 * np.array([1e-4, -2e-4]), 5.0)
         np.testing.assert_allclose(qp.compute_velocity(), expected, atol=1e-6)
         pinv = PseudoinverseController(robot, [task], manip)
@@ -56,7 +56,7 @@ def test_primary_only_qp_is_the_minimum_norm_solution(solver):
         robot = _arm_at(q)
         task = PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)
         task.set_target(arm.end_effector_position(q), [0.2, 0.1])
-        qp = QPController(robot, [task, DampingTask(robot, 1e-3)], solver=solver)
+        qp = QPController(robot, [task, DampingTask(robot, 1e-3)], solver=solver, dt=0.002)
         expected = np.linalg.pinv(arm.position_jacobian(q)) @ np.array([0.2, 0.1])
         np.testing.assert_allclose(qp.compute_velocity(), expected, atol=1e-6)
 
@@ -74,7 +74,7 @@ def test_native_and_qpsolvers_paths_agree():
             task.set_target(arm.end_effector_position(q) + 1e-3, [0.3, 0.0])
             manip = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
             limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(4, 0.3))]
-            results.append(QPController(robot, [task, manip], limits, solver=solver, native=native).compute_velocity())
+            results.append(QPController(robot, [task, manip], limits, solver=solver, native=native, dt=0.002).compute_velocity())
         np.testing.assert_allclose(results[0], results[1], atol=1e-6)
         assert np.max(np.abs(results[0])) <= 0.3 + 1e-7  # a velocity bound is active here
 
@@ -84,7 +84,7 @@ def test_soft_task_with_velocity_limits_stays_in_bounds_and_reduces_error():
     robot = _arm_at(q)
     task = PositionTask(robot, "end_effector", axes="xy", gain=500.0)
     task.set_target([2.0, 1.0])  # far: the unconstrained answer is huge
-    qp = QPController(robot, [task, DampingTask(robot, 1e-3)], [JointVelocityLimit(robot)], solver="daqp")
+    qp = QPController(robot, [task, DampingTask(robot, 1e-3)], [JointVelocityLimit(robot)], solver="daqp", dt=0.002)
     qdot = qp.compute_velocity()
     assert np.all(np.abs(qdot) <= robot.velocity_limits + 1e-9)
     assert task.error @ (arm.position_jacobian(q) @ qdot) > 0  # moves toward the target
@@ -117,7 +117,7 @@ def test_hard_task_against_limits_is_reported_infeasible():
     task = PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)
     task.set_target([0.6, 1.9])  # needs 50 m/s at K = 500; joints allow 8 rad/s
     for solver in ("daqp", "osqp", "proxqp"):
-        qp = QPController(robot, [task, DampingTask(robot)], [JointVelocityLimit(robot)], solver=solver)
+        qp = QPController(robot, [task, DampingTask(robot)], [JointVelocityLimit(robot)], solver=solver, dt=0.002)
         with pytest.raises(InfeasibleProblem):
             qp.compute_velocity()
 
@@ -136,7 +136,7 @@ def test_bad_inputs_raise_typed_errors():
     with pytest.raises(InvalidInput):
         PositionTask(robot, "end_effector", axes="xw")
     with pytest.raises(UnknownName):
-        QPController(robot, [task], solver="no_such_solver")
+        QPController(robot, [task], solver="no_such_solver", dt=0.002)
     with pytest.raises(InvalidInput):
         JointVelocityLimit(robot, np.array([1.0, -1.0, 1.0, 1.0]))
     with pytest.raises(InvalidInput):

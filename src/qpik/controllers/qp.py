@@ -4,7 +4,7 @@ r"""QPController: a stack of tasks and limits turned into one QP per control ste
     \min_{\dot q}\ \tfrac12 \sum_{i\,\text{soft}} w_i \|J_i \dot q - v_i\|^2
                   + \tfrac12 \epsilon \|\dot q\|^2
     \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
-    lb \le \dot q \le ub \ (\text{limits})
+    G \dot q \le h,\quad lb \le \dot q \le ub \ (\text{limits})
 
 With a hard position task and the manipulability task
 (:math:`\tfrac12\|\dot q - k_0\nabla\sigma\|^2`) the solution is exactly the
@@ -14,17 +14,30 @@ limit is active (Lagrange conditions of the equality-constrained least squares).
 
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
 
-from ..errors import InvalidInput, SolverError
-from ..limits import order_limits
+from ..errors import InvalidInput
+from ..limits import Limit, order_limits
 from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
+
+
+def check_dt(dt) -> float:
+    """The control period as a positive finite float, or InvalidInput."""
+    if dt is None:
+        raise InvalidInput("dt is required: the control period in seconds (e.g. dt=0.002), "
+                           "which the limits use to bound the next step")
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"dt must be a number of seconds, got {dt!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise InvalidInput(f"dt must be positive and finite, got {dt}")
+    return value
 
 
 class QPController:
@@ -33,29 +46,29 @@ class QPController:
     Args:
         robot: the robot the tasks and limits read.
         tasks: tasks; each one's ``hard`` flag chooses equality or weighted cost.
-        limits: joint position/velocity limits (box constraints on q̇).
+        limits: limits: boxes on q̇ (joint position and velocity) and general rows
+            G q̇ ≤ h (collision avoidance).
         solver: a qpsolvers name (``daqp``, ``osqp``, ``quadprog``, ``proxqp``, ...).
-        dt: control period, used by the position limits.
+        dt: control period in seconds (required: the limits bound the step q̇Δt).
         regularization: ε added to the Hessian's diagonal so it is positive definite.
-        native: call DAQP/OSQP directly (True) or always go through qpsolvers.
+        native: call DAQP/OSQP/ProxQP directly (True) or always go through qpsolvers.
 
-    Call :meth:`compute_velocity` after ``robot.update_kinematics()``. Task weights
-    and constant limits (velocity bounds) are read once, when the controller is built:
-    their share of the QP is precomputed, the hot path only adds what changes.
+    :meth:`compute_velocity` updates the robot's kinematics itself when its configuration
+    changed since the last update. Task weights and constant limits (velocity bounds) are
+    read once, when the controller is built: their share of the QP is precomputed, the
+    hot path only adds what changes.
     """
 
     kind = "qp"
 
-    def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence = (), solver: str = "daqp",
-                 dt: float = 0.002, regularization: float = 1e-12, native: bool = True, **solver_settings):
+    def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), solver: str = "daqp",
+                 dt: float | None = None, regularization: float = 1e-12, native: bool = True, **solver_settings):
         if not tasks:
             raise InvalidInput("a QPController needs at least one task")
-        if not (np.isfinite(dt) and dt > 0):
-            raise InvalidInput(f"dt must be positive, got {dt}")
+        self.dt = check_dt(dt)
         self.robot = robot
         self.tasks = list(tasks)
         self.limits = order_limits(limits)
-        self.dt = float(dt)
         self.solver = solver
         nv = robot.nv
         self._hard = [t for t in self.tasks if t.hard]
@@ -64,14 +77,14 @@ class QPController:
         self._soft_diagonal = [t for t in soft if t.joint_space]
         self._soft_general = [t for t in soft if not t.joint_space]
         meq = sum(t.dim for t in self._hard)
-        self._rows = []
-        start = 0
-        for t in self._hard:
-            self._rows.append(slice(start, start + t.dim))
-            start += t.dim
-        self._backend = make_backend(solver, nv, meq, native=native, **solver_settings)
+        self._rows = _row_slices(self._hard, lambda t: t.dim)
+        self._row_limits = [lim for lim in self.limits if lim.inequality_rows]
+        mineq = sum(lim.inequality_rows for lim in self._row_limits)
+        self._inequality_slices = _row_slices(self._row_limits, lambda lim: lim.inequality_rows)
+        self._backend = make_backend(solver, nv, meq, mineq, native=native, **solver_settings)
         # The problem is written straight into the back-end's arrays.
         self.A, self.b = self._backend.A, self._backend.b
+        self.G, self.h = self._backend.G, self._backend.h
         self.lb, self.ub = self._backend.lb, self._backend.ub
         # Parts that do not change between steps are computed once: the regulariser and
         # the joint-space tasks' weights on H's diagonal, and the constant bounds.
@@ -81,9 +94,9 @@ class QPController:
             self._H0.reshape(-1)[:: nv + 1][dofs] += task.weight
         self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
         for limit in self.limits:
-            if limit.constant:
+            if limit.constant and limit.box:
                 limit.apply(self.dt, self._lb0, self._ub0)
-        self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
+        self._dynamic_limits = [lim for lim in self.limits if lim.box and not lim.constant]
         self._neg_weights = [-task.weight for task in self._soft_diagonal]
         self.H = np.zeros((nv, nv))
         self.c = np.zeros(nv)
@@ -93,6 +106,7 @@ class QPController:
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
+        self.robot.ensure_kinematics()
         H, c = self.H, self.c
         for task in self.tasks:
             task.update()
@@ -118,11 +132,16 @@ class QPController:
         self.ub[:] = self._ub0
         for limit in self._dynamic_limits:
             limit.apply(self.dt, self.lb, self.ub)
-        x = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
-        if x is None or not math.isfinite(x.sum()):
-            raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
-        if not self._backend.exact_bounds:  # a 1e-13 overshoot of a joint limit is still one
-            np.minimum(x, self.ub, out=x)
-            np.maximum(x, self.lb, out=x)
-        self.qdot = x
-        return x
+        for limit, rows in zip(self._row_limits, self._inequality_slices):
+            limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
+        self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+        return self.qdot
+
+
+def _row_slices(items, size) -> list[slice]:
+    """Consecutive row blocks, one per item, of ``size(item)`` rows each."""
+    slices, start = [], 0
+    for item in items:
+        slices.append(slice(start, start + size(item)))
+        start += size(item)
+    return slices

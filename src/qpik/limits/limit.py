@@ -1,8 +1,15 @@
-r"""The Limit interface: bounds on the joint velocity :math:`\dot q` for the next step Δt.
+r"""The Limit interface: inequalities on the joint velocity :math:`\dot q` for the next step Δt.
 
-A limit tightens the velocity box lb ≤ q̇ ≤ ub (nv,) in place with
-:meth:`Limit.apply`. ``constant`` limits (the same bounds every step, e.g. speed
-limits) are applied once when a controller is built; the others every step.
+A limit contributes either or both of
+
+- a box lb ≤ q̇ ≤ ub (nv,), tightened in place by :meth:`Limit.apply` (joint position
+  and velocity limits: every solver takes boxes natively, the fast path);
+- ``inequality_rows`` general rows :math:`G\dot q \le h`, written in place by
+  :meth:`Limit.fill_inequalities` (collision avoidance). A row that does not bind this
+  step may be written as 0 ≤ +inf.
+
+``constant`` limits (the same bounds every step, e.g. speed limits) are applied once when
+a controller is built; the others every step.
 
 When both position and velocity limits are present a joint found outside its range
 (possible in physics mode) may return at full speed: the position bound is clipped into
@@ -15,13 +22,23 @@ import numpy as np
 
 
 class Limit:
-    """Base class of the limits: a box on q̇ for the step Δt."""
+    """Base class of the limits: a box on q̇ and/or general rows G q̇ ≤ h for the step Δt.
 
-    constant = False  # True: the same bounds every step (applied once)
+    Attributes:
+        constant: the same bounds every step (a controller applies them once).
+        box: whether :meth:`apply` tightens the box.
+        inequality_rows: how many rows :meth:`fill_inequalities` writes.
+    """
+
+    constant = False
+    box = True
+    inequality_rows = 0
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
-        raise NotImplementedError
+
+    def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
+        """Write this limit's rows G (rows x nv) and h (rows,) in place."""
 
 
 def as_slice(index: np.ndarray):

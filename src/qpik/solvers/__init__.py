@@ -19,7 +19,7 @@ from .osqp import OsqpBackend
 from .proxqp import ProxqpBackend
 from .qpsolvers_backend import QpsolversBackend
 
-# Native back-ends by qpsolvers name: each takes (nv, meq, **settings).
+# Native back-ends by qpsolvers name: each takes (nv, meq, mineq, **settings).
 NATIVE_BACKENDS: dict[str, Callable[..., QPBackend]] = {}
 
 # Tolerances tight enough for the QP to reproduce the closed-form laws (≤ 1e-6) when a
@@ -31,7 +31,7 @@ QPSOLVERS_DEFAULTS: dict[str, dict] = {
 
 
 def register_backend(name: str, factory: Callable[..., QPBackend]) -> None:
-    """Make ``factory(nv, meq, **settings)`` the native back-end of solver ``name``."""
+    """Make ``factory(nv, meq, mineq, **settings)`` the native back-end of solver ``name``."""
     NATIVE_BACKENDS[name] = factory
 
 
@@ -45,16 +45,17 @@ def available_solvers() -> list[str]:
     return sorted(qpsolvers.available_solvers)
 
 
-def make_backend(solver: str, nv: int, meq: int, native: bool = True, **settings) -> QPBackend:
-    """Back-end for a qpsolvers solver name; ``native=False`` forces the qpsolvers path."""
+def make_backend(solver: str, nv: int, meq: int, mineq: int = 0, native: bool = True, **settings) -> QPBackend:
+    """Back-end for a qpsolvers solver name, sized for nv variables, meq equalities and
+    mineq general inequalities; ``native=False`` forces the qpsolvers path."""
     if not isinstance(solver, str) or solver not in qpsolvers.available_solvers:
         raise UnknownName(f"unknown or uninstalled QP solver {solver!r}; available: {', '.join(available_solvers())}")
-    if nv < 1 or meq < 0:
+    if nv < 1 or meq < 0 or mineq < 0:
         raise InvalidInput("a QP needs at least one variable")
     if native and solver in NATIVE_BACKENDS:
-        return NATIVE_BACKENDS[solver](nv, meq, **settings)
+        return NATIVE_BACKENDS[solver](nv, meq, mineq, **settings)
     settings = {**QPSOLVERS_DEFAULTS.get(solver, {}), **settings}
-    return QpsolversBackend(nv, meq, solver, **settings)
+    return QpsolversBackend(nv, meq, mineq, solver=solver, **settings)
 
 
 __all__ = ["BIG", "NATIVE_BACKENDS", "QPBackend", "available_solvers", "make_backend", "register_backend"]

@@ -1,50 +1,150 @@
-r"""The QP back-end interface.
+r"""The QP back-end interface, and the checks every back-end's answer goes through.
 
 Every back-end solves
 
 .. math::
-    \min_x \tfrac12 x^T H x + c^T x \quad\text{s.t.}\quad A x = b,\; lb \le x \le ub
+    \min_x \tfrac12 x^T H x + c^T x \quad\text{s.t.}\quad A x = b,\quad G x \le h,
+    \quad lb \le x \le ub
 
-with fixed sizes (nv variables, meq equalities) decided once. The controller writes the
-problem straight into the back-end's own arrays, laid out as the solver wants them.
+with fixed sizes (nv variables, meq equalities, mineq general inequalities) decided
+once. The controller writes the problem straight into the back-end's own arrays ``A``,
+``b``, ``G``, ``h``, ``lb``, ``ub`` (±inf for an absent bound), laid out as the solver
+wants them, then calls :meth:`QPBackend.solve` with H and c.
+
+:meth:`QPBackend.solve` keeps three promises whatever the solver does:
+
+- its inputs are sane: a box with lb > ub is reported as infeasible (naming the
+  variable) before any solver sees it; non-finite H, c, b, h are refused;
+- its answer is checked: finite, within the box (a tolerance-based solver that lands a
+  hair outside is projected back in; farther than ``bound_tolerance`` is a failure), the
+  equalities and inequalities met to ``constraint_tolerance`` (relative to the data's
+  scale), so a stale or wrong answer never passes as a solution;
+- every failure is a typed qpik error: :class:`~qpik.errors.InfeasibleProblem` or
+  :class:`~qpik.errors.SolverError`, naming the solver and the cause; iteration and time
+  limits are set on every solver, so a solve cannot hang.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from ..errors import InfeasibleProblem, SolverError
 
-BIG = 1e30  # DAQP's and OSQP's stand-in for an absent bound
+BIG = 1e30  # the stand-in for an absent bound in solvers that take no inf (OSQP: >= 1e30 is inf)
+# A solve must not take longer than this (seconds); solvers that accept a time limit get it.
+TIME_LIMIT = 0.05
+ITERATION_LIMIT = 10000
 
 
 class QPBackend:
     """Base class: one solver instance per controller, sized at construction.
 
-    The controller writes the problem straight into the back-end's own arrays
-    ``A`` (meq x nv), ``b`` (meq), ``lb`` and ``ub`` (nv; ±inf for no bound), laid
-    out as the solver wants them, then calls :meth:`solve` with H and c.
+    Subclasses implement :meth:`_solve` and may lay ``A``, ``b``, ``G``, ``h``, ``lb``,
+    ``ub`` out as views into their own storage.
+
+    Attributes:
+        exact: an active-set solver: an active constraint holds to machine precision.
+        bound_tolerance: how far outside the box an answer may land and still be
+            projected back in (beyond it the solve failed).
+        constraint_tolerance: allowed residual of equalities and general inequalities,
+            relative to 1 + the largest right-hand side.
     """
 
     name = "qp"
-    exact_bounds = False  # interior-point/ADMM solvers meet bounds only to a tolerance
+    exact = False
+    bound_tolerance = 1e-6
+    constraint_tolerance = 1e-6
 
-    def __init__(self, nv: int, meq: int):
+    def __init__(self, nv: int, meq: int, mineq: int = 0):
         self.nv = nv
         self.meq = meq
+        self.mineq = mineq
         self.A = np.zeros((meq, nv))
         self.b = np.zeros(meq)
+        self.G = np.zeros((mineq, nv))
+        self.h = np.zeros(mineq)
         self.lb = np.full(nv, -np.inf)
         self.ub = np.full(nv, np.inf)
 
     def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
-        """Solve with the arrays as written; ``hessian_changed=False`` lets a
-        workspace keep its factorised H from the previous step."""
+        """Solve with the arrays as written and return the checked minimiser.
+
+        ``hessian_changed=False`` lets a workspace keep its factorised H from the
+        previous step.
+
+        Raises:
+            InfeasibleProblem: the box is empty for some variable, or the solver
+                certified the constraints infeasible.
+            SolverError: non-finite data, a solver failure (iteration or time limit,
+                numerical trouble, a rejected update) or an answer that fails the checks.
+        """
+        self._check_inputs(H, c)
+        x = self._solve(H, c, hessian_changed)
+        return self._check_result(x)
+
+    def _solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool) -> np.ndarray:
         raise NotImplementedError
+
+    # Checks ----------------------------------------------------------------------
+    def _check_inputs(self, H: np.ndarray, c: np.ndarray) -> None:
+        lb, ub = self.lb, self.ub
+        if (lb > ub).any():
+            i = int(np.argmax(lb - ub))
+            raise InfeasibleProblem(f"QP infeasible ({self.name}): variable {i} must lie in the empty "
+                                    f"interval [{lb[i]:.6g}, {ub[i]:.6g}]", variable=i)
+        total = float(H.sum()) + float(c.sum()) + float(self.b.sum()) + float(self.h.sum())
+        if not math.isfinite(total):
+            what = [name for name, arr in (("H", H), ("c", c), ("b", self.b), ("h", self.h))
+                    if not np.all(np.isfinite(arr))]
+            raise SolverError(f"QP solver {self.name}: the problem data {', '.join(what) or '(overflow)'} "
+                              "contains NaN or inf (a task velocity or weight overflowed)")
+        if self.mineq and (self.h == -np.inf).any():
+            raise InfeasibleProblem(f"QP infeasible ({self.name}): an inequality row has h = -inf")
+
+    def _check_result(self, x) -> np.ndarray:
+        if x is None:
+            raise SolverError(f"QP solver {self.name} returned no solution")
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.nv,) or not math.isfinite(float(x.sum())):
+            raise SolverError(f"QP solver {self.name} returned a non-finite solution")
+        lb, ub = self.lb, self.ub
+        below = float(np.max(lb - x))
+        above = float(np.max(x - ub))
+        if below > 0.0 or above > 0.0:
+            off = max(below, above)
+            if off > self.bound_tolerance:
+                i = int(np.argmax(np.maximum(lb - x, x - ub)))
+                raise SolverError(f"QP solver {self.name} returned a point {off:.3g} outside the bounds "
+                                  f"of variable {i}")
+            np.clip(x, lb, ub, out=x)  # a tolerance's worth outside: project back in
+        if self.meq:
+            scale = 1.0 + float(np.max(np.abs(self.b)))
+            residual = float(np.max(np.abs(self.A @ x - self.b)))
+            if not residual <= self.constraint_tolerance * scale:
+                raise SolverError(f"QP solver {self.name} returned a point that misses the equality "
+                                  f"constraints by {residual:.3g}")
+        if self.mineq:
+            finite = self.h < BIG
+            if finite.any():
+                excess = float(np.max((self.G @ x - self.h)[finite]))
+                scale = 1.0 + float(np.max(np.abs(self.h[finite])))
+                if not excess <= self.constraint_tolerance * scale:
+                    raise SolverError(f"QP solver {self.name} returned a point that exceeds an inequality "
+                                      f"by {excess:.3g}")
+        return x
 
     def _fail(self, status: str, infeasible: bool) -> None:
         if infeasible:
-            raise InfeasibleProblem(
-                f"QP infeasible ({self.name}: {status}): the hard tasks and limits cannot all be met"
-            )
+            raise InfeasibleProblem(f"QP infeasible ({self.name}: {status})")
         raise SolverError(f"QP solver {self.name} failed: {status}")
+
+
+def finite_bounds(values: np.ndarray, out: np.ndarray, sign: float) -> np.ndarray:
+    """``values`` with ±inf replaced by ±BIG, written into ``out`` (solvers without inf)."""
+    if sign > 0:
+        np.minimum(values, BIG, out=out)
+    else:
+        np.maximum(values, -BIG, out=out)
+    return out

@@ -4,42 +4,55 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BIG, QPBackend
+from .base import BIG, ITERATION_LIMIT, QPBackend
 
 
 class ProxqpBackend(QPBackend):
-    """One ProxQP dense workspace (box constraints native), updated and warm-started."""
+    """One ProxQP dense workspace (box constraints native), updated and warm-started.
+
+    General inequalities are ProxQP's C x ≤ u rows (with l = −BIG). Iterations are capped
+    (ProxQP has no time limit): an ill-conditioned problem ends in a typed error instead
+    of running for seconds.
+    """
 
     name = "proxqp"
 
-    def __init__(self, nv: int, meq: int, eps_abs: float = 1e-10, eps_rel: float = 0.0, **settings):
-        super().__init__(nv, meq)
+    def __init__(self, nv: int, meq: int, mineq: int = 0, eps_abs: float = 1e-10, eps_rel: float = 0.0,
+                 **settings):
+        super().__init__(nv, meq, mineq)
         import proxsuite
 
         self._proxqp = proxsuite.proxqp
-        self._qp = proxsuite.proxqp.dense.QP(nv, meq, 0, True)
+        self._qp = proxsuite.proxqp.dense.QP(nv, meq, mineq, True)
         self._qp.settings.eps_abs = eps_abs
         self._qp.settings.eps_rel = eps_rel
+        self._qp.settings.max_iter = ITERATION_LIMIT
+        self._qp.settings.max_iter_in = ITERATION_LIMIT // 10
         self._qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
         for key, value in settings.items():
             setattr(self._qp.settings, key, value)
         self._ready = False
+        self._lb, self._ub = np.empty(nv), np.empty(nv)
+        self._l = np.full(mineq, -BIG)
+        self._h = np.empty(mineq)
 
-    def solve(self, H, c, hessian_changed: bool = True) -> np.ndarray:
-        lb = np.maximum(self.lb, -BIG)
-        ub = np.minimum(self.ub, BIG)
+    def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
+        lb = np.clip(self.lb, -BIG, BIG, out=self._lb)
+        ub = np.clip(self.ub, -BIG, BIG, out=self._ub)
         A, b = self.A, self.b  # (0, nv) and (0,) without equalities
+        C, l, u = (self.G, self._l, np.clip(self.h, -BIG, BIG, out=self._h)) if self.mineq else (None, None, None)
         Output = self._proxqp.QPSolverOutput
         if self._ready:
-            self._qp.update(H if hessian_changed else None, c, A, b, None, None, None, lb, ub)
+            self._qp.update(H if hessian_changed else None, c, A, b, C, l, u, lb, ub)
             self._qp.solve()
         if not self._ready or self._qp.results.info.status != Output.PROXQP_SOLVED:
             # Cold start: a warm start from a far-off previous solution can end in a
             # false infeasibility certificate (seen on joint-limits at t = 3.16 s).
-            self._qp.init(H, c, A, b, None, None, None, lb, ub)
+            self._qp.init(H, c, A, b, C, l, u, lb, ub)
             self._qp.solve()
             self._ready = True
         status = self._qp.results.info.status
         if status != Output.PROXQP_SOLVED:
+            self._ready = False
             self._fail(str(status).rsplit(".", 1)[-1], status == Output.PROXQP_PRIMAL_INFEASIBLE)
         return np.array(self._qp.results.x)

@@ -1,0 +1,106 @@
+"""Every back-end on the same random QPs with equalities, general inequalities and boxes,
+against an independent reference: the KKT conditions solved on the active set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qpik.errors import InfeasibleProblem, SolverError, UnknownName
+from qpik.solvers import available_solvers, make_backend
+
+SOLVERS = [s for s in ("daqp", "osqp", "proxqp", "quadprog") if s in available_solvers()]
+
+
+def random_qp(rng, nv=6, meq=2, mineq=3):
+    M = rng.normal(size=(nv, nv))
+    H = M @ M.T + 0.5 * np.eye(nv)
+    c = rng.normal(size=nv) * 3.0
+    A = rng.normal(size=(meq, nv))
+    x0 = rng.uniform(-0.5, 0.5, size=nv)  # a strictly feasible point
+    b = A @ x0
+    G = rng.normal(size=(mineq, nv))
+    h = G @ x0 + rng.uniform(0.05, 0.5, size=mineq)
+    lb = x0 - rng.uniform(0.1, 1.0, size=nv)
+    ub = x0 + rng.uniform(0.1, 1.0, size=nv)
+    return H, c, A, b, G, h, lb, ub
+
+
+def kkt_solution(H, c, A, b, G, h, lb, ub, x, tol=1e-6):
+    """Re-solve the equality-constrained QP on the constraints active at x (closed form)."""
+    nv = len(c)
+    rows, rhs = [A], [b]
+    active_g = G @ x >= h - tol
+    rows.append(G[active_g]); rhs.append(h[active_g])
+    eye = np.eye(nv)
+    at_lb, at_ub = x <= lb + tol, x >= ub - tol
+    rows += [eye[at_lb], eye[at_ub]]; rhs += [lb[at_lb], ub[at_ub]]
+    C, d = np.vstack(rows), np.concatenate(rhs)
+    m = len(d)
+    K = np.block([[H, C.T], [C, np.zeros((m, m))]])
+    sol = np.linalg.lstsq(K, np.concatenate([-c, d]), rcond=None)[0]
+    multipliers = sol[nv:]
+    # Inequality multipliers (G rows, upper bounds) must be >= 0 with this sign convention;
+    # lower bounds enter as -x <= -lb, i.e. their multiplier in C x = d is <= 0.
+    n_eq, n_g, n_lb = len(b), int(active_g.sum()), int(at_lb.sum())
+    g_mult = multipliers[n_eq:n_eq + n_g]
+    lb_mult = multipliers[n_eq + n_g:n_eq + n_g + n_lb]
+    ub_mult = multipliers[n_eq + n_g + n_lb:]
+    return sol[:nv], g_mult, lb_mult, ub_mult
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("native", [True, False])
+def test_general_inequalities_and_boxes_match_the_kkt_reference(solver, native):
+    rng = np.random.default_rng(7)
+    binding = 0
+    for _ in range(30):
+        H, c, A, b, G, h, lb, ub = random_qp(rng)
+        backend = make_backend(solver, 6, 2, 3, native=native)
+        backend.A[:] = A; backend.b[:] = b; backend.G[:] = G; backend.h[:] = h
+        backend.lb[:] = lb; backend.ub[:] = ub
+        x = backend.solve(H, c)
+        assert np.all(x >= lb) and np.all(x <= ub)
+        np.testing.assert_allclose(A @ x, b, atol=1e-7)
+        assert np.all(G @ x <= h + 1e-7)
+        reference, g_mult, lb_mult, ub_mult = kkt_solution(H, c, A, b, G, h, lb, ub, x)
+        np.testing.assert_allclose(x, reference, atol=1e-6)
+        assert np.all(g_mult >= -1e-6) and np.all(ub_mult >= -1e-6) and np.all(lb_mult <= 1e-6)
+        binding += int(len(g_mult) > 0)
+    assert binding >= 5  # the random problems do exercise the general rows
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_empty_box_is_infeasible_naming_the_variable(solver):
+    backend = make_backend(solver, 3, 0)
+    backend.lb[:] = [-1.0, 0.5, -1.0]
+    backend.ub[:] = [1.0, 0.2, 1.0]
+    with pytest.raises(InfeasibleProblem, match="variable 1") as info:
+        backend.solve(np.eye(3), np.zeros(3))
+    assert info.value.variable == 1
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_data_is_a_solver_error(solver, bad):
+    backend = make_backend(solver, 3, 1)
+    backend.A[:] = [[1.0, 0.0, 0.0]]
+    c = np.array([0.0, bad, 0.0])
+    with pytest.raises(SolverError, match="NaN or inf"):
+        backend.solve(np.eye(3), c)
+
+
+def test_osqp_never_returns_a_stale_answer_after_a_rejected_update():
+    backend = make_backend("osqp", 2, 0)
+    backend.lb[:] = -1.0
+    backend.ub[:] = 1.0
+    first = backend.solve(np.eye(2), np.array([0.5, -0.5]))
+    np.testing.assert_allclose(first, [-0.5, 0.5], atol=1e-7)
+    backend.lb[:] = [2.0, -1.0]  # l > u on the first variable: OSQP rejects the update
+    with pytest.raises(SolverError, match="rejected"):
+        backend._solve(np.eye(2), np.array([0.4, -0.4]), True)
+
+
+def test_unknown_solver_lists_the_installed_ones():
+    with pytest.raises(UnknownName, match="daqp"):
+        make_backend("no_such_solver", 2, 0)
