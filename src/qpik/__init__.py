@@ -41,6 +41,7 @@ _EXPORTS = {
     "LoopClosureTask": "qpik.tasks",
     # limits
     "Limit": "qpik.limits",
+    "CollisionAvoidanceLimit": "qpik.limits",
     "JointPositionLimit": "qpik.limits",
     "JointVelocityLimit": "qpik.limits",
     # controllers and solvers
@@ -90,7 +91,7 @@ if TYPE_CHECKING:  # static type checkers see the real imports
         UnknownName,
         UnreachablePose,
     )
-    from .limits import JointPositionLimit, JointVelocityLimit, Limit
+    from .limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit, Limit
     from .robot import JointLimits, Robot, load_model
     from .rollout import PositionReference, RolloutLog, simulate
     from .scenario import Setup, build_scenario, scenarios

@@ -94,14 +94,16 @@ class QPBackend:
             i = int(np.argmax(lb - ub))
             raise InfeasibleProblem(f"QP infeasible ({self.name}): variable {i} must lie in the empty "
                                     f"interval [{lb[i]:.6g}, {ub[i]:.6g}]", variable=i)
-        total = float(H.sum()) + float(c.sum()) + float(self.b.sum()) + float(self.h.sum())
+        total = float(H.sum()) + float(c.sum()) + float(self.b.sum())
         if not math.isfinite(total):
-            what = [name for name, arr in (("H", H), ("c", c), ("b", self.b), ("h", self.h))
-                    if not np.all(np.isfinite(arr))]
+            what = [name for name, arr in (("H", H), ("c", c), ("b", self.b)) if not np.all(np.isfinite(arr))]
             raise SolverError(f"QP solver {self.name}: the problem data {', '.join(what) or '(overflow)'} "
                               "contains NaN or inf (a task velocity or weight overflowed)")
-        if self.mineq and (self.h == -np.inf).any():
-            raise InfeasibleProblem(f"QP infeasible ({self.name}): an inequality row has h = -inf")
+        if self.mineq:  # h = +inf is an inactive row
+            if np.isnan(self.h).any() or not np.all(np.isfinite(self.G)):
+                raise SolverError(f"QP solver {self.name}: an inequality row contains NaN or inf")
+            if (self.h == -np.inf).any():
+                raise InfeasibleProblem(f"QP infeasible ({self.name}): an inequality row has h = -inf")
 
     def _check_result(self, x) -> np.ndarray:
         if x is None:
