@@ -173,6 +173,15 @@ class Robot:
     def joint_id(self, name: str) -> int:
         return self._id(mujoco.mjtObj.mjOBJ_JOINT, name, "joint")
 
+    def dof_name(self, dof: int) -> str:
+        """The joint a dof belongs to (``name[k]`` for the k-th dof of a ball or free joint)."""
+        m = self.model
+        joint = int(m.dof_jntid[dof])
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"joint{joint}"
+        offset = dof - int(m.jnt_dofadr[joint])
+        single = int(m.jnt_type[joint]) in _SCALAR_JOINTS
+        return name if single else f"{name}[{offset}]"
+
     def joint_qpos_index(self, name: str) -> int:
         return int(self.model.jnt_qposadr[self.joint_id(name)])
 

@@ -18,13 +18,17 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import InvalidInput
+from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..limits import Limit, order_limits
 from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
+from .diagnostics import explain_infeasibility
 
+# Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
+# together (same minimiser) so no solver sees huge numbers from a far-away target.
+LM_RESCALE = 1e6
 
 def check_dt(dt) -> float:
     """The control period as a positive finite float, or InvalidInput."""
@@ -118,13 +122,23 @@ class QPController:
             scratch = self._scratch[: task.dim]
             np.multiply(neg_weight, task.target_velocity, out=scratch)
             c[dofs] += scratch
+        lm_total = 0.0
         for task in self._soft_general:
             weighted = task.weight[:, None] * task.jacobian
             H += task.jacobian.T @ weighted
             c -= weighted.T @ task.target_velocity
             if task.lm_damping:
                 error = task.error
-                self._diag += task.lm_damping * float(error @ (task.weight * error))
+                lm = task.lm_damping * float(error @ (task.weight * error))
+                self._diag += lm
+                lm_total += lm
+        if lm_total > LM_RESCALE:
+            if not np.isfinite(lm_total):
+                raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
+                                   "check its target")
+            scale = 1.0 / (1.0 + lm_total)
+            H *= scale
+            c *= scale
         for task, rows in zip(self._hard, self._rows):
             self.A[rows] = task.jacobian
             self.b[rows] = task.target_velocity
@@ -134,8 +148,29 @@ class QPController:
             limit.apply(self.dt, self.lb, self.ub)
         for limit, rows in zip(self._row_limits, self._inequality_slices):
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
-        self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+        try:
+            self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+        except InfeasibleProblem as exc:
+            raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
+                                    exc.variable) from None
+        except SolverError as exc:
+            self.qdot = self._retry_regularized(exc)
         return self.qdot
+
+    def _retry_regularized(self, failure: SolverError) -> np.ndarray:
+        """A solver that cycles or stalls on a (nearly) singular Hessian gets one more try
+        with a little damping on every dof; if that fails too, the error says what to do."""
+        nv = self.robot.nv
+        damping = 1e-9 * max(1.0, float(np.trace(self.H)) / nv)
+        self.H.reshape(-1)[:: nv + 1] += damping
+        try:
+            return self._backend.solve(self.H, self.c, hessian_changed=True)
+        except InfeasibleProblem as exc:
+            raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
+                                    exc.variable) from None
+        except SolverError:
+            raise SolverError(f"{failure} (also with {damping:.1g} of damping on every dof): the cost is "
+                              "nearly singular; add a DampingTask (weight 1e-6 or more) or try another solver") from None
 
 
 def _row_slices(items, size) -> list[slice]:

@@ -32,11 +32,15 @@ class JointPositionLimit(Limit):
         self.limits = robot.joint_limits if limits is None else limits
         if not 0.0 < gain <= 1.0:
             raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
-        if np.any(self.limits.lower >= self.limits.upper):
-            bad = [n for n, lo, hi in zip(self.limits.names, self.limits.lower, self.limits.upper) if lo >= hi]
-            raise InvalidInput(f"empty joint range for {bad}")
-        if influence < 0 or damper_rate <= 0:
-            raise InvalidInput("damper influence must be >= 0 and its rate > 0")
+        if not (np.isfinite(margin) and margin >= 0):
+            raise InvalidInput(f"position-limit margin must be finite and >= 0, got {margin}")
+        if not np.all(self.limits.upper - self.limits.lower > 2.0 * margin):
+            bad = [f"{n} [{lo:g}, {hi:g}]" for n, lo, hi in zip(self.limits.names, self.limits.lower,
+                                                              self.limits.upper) if not hi - lo > 2.0 * margin]
+            raise InvalidInput(f"joint range narrower than twice the limit margin ({margin:g}) or empty: "
+                               f"{', '.join(bad)}")
+        if not (np.isfinite(influence) and influence >= 0 and np.isfinite(damper_rate) and damper_rate > 0):
+            raise InvalidInput("damper influence must be finite and >= 0, its rate finite and > 0")
         self.robot = robot
         self.gain = gain
         self.influence = influence
