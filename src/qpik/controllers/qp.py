@@ -24,6 +24,7 @@ from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
+from .closed_form import ClosedFormStep
 from .diagnostics import explain_infeasibility
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
@@ -56,6 +57,9 @@ class QPController:
         dt: control period in seconds (required: the limits bound the step q̇Δt).
         regularization: ε added to the Hessian's diagonal so it is positive definite.
         native: call DAQP/OSQP/ProxQP directly (True) or always go through qpsolvers.
+        fast_path: solve the equality-constrained QP in closed form and call the solver
+            only when that solution would cross a limit (the same minimiser: the QP is
+            strictly convex); False calls the solver every step.
 
     :meth:`compute_velocity` updates the robot's kinematics itself when its configuration
     changed since the last update. Task weights and constant limits (velocity bounds) are
@@ -66,7 +70,8 @@ class QPController:
     kind = "qp"
 
     def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), solver: str = "daqp",
-                 dt: float | None = None, regularization: float = 1e-12, native: bool = True, **solver_settings):
+                 dt: float | None = None, regularization: float = 1e-12, native: bool = True,
+                 fast_path: bool = True, **solver_settings):
         if not tasks:
             raise InvalidInput("a QPController needs at least one task")
         self.dt = check_dt(dt)
@@ -86,8 +91,12 @@ class QPController:
         mineq = sum(lim.inequality_rows for lim in self._row_limits)
         self._inequality_slices = _row_slices(self._row_limits, lambda lim: lim.inequality_rows)
         self._backend = make_backend(solver, nv, meq, mineq, native=native, **solver_settings)
-        # The problem is written straight into the back-end's arrays.
-        self.A, self.b = self._backend.A, self._backend.b
+        # The equality rows and the cost vector share one array, [A; cᵀ], which the
+        # closed-form step reads in one product; the solver gets a copy on the (rare) steps
+        # that need it. Limits write straight into the back-end's box and rows.
+        self._Ac = np.zeros((meq + 1, nv))
+        self.A, self.c = self._Ac[:meq], self._Ac[meq]
+        self.b = np.zeros(meq)
         self.G, self.h = self._backend.G, self._backend.h
         self.lb, self.ub = self._backend.lb, self._backend.ub
         # Parts that do not change between steps are computed once: the regulariser and
@@ -102,11 +111,13 @@ class QPController:
                 limit.apply(self.dt, self._lb0, self._ub0)
         self._dynamic_limits = [lim for lim in self.limits if lim.box and not lim.constant]
         self._neg_weights = [-task.weight for task in self._soft_diagonal]
-        self.H = np.zeros((nv, nv))
-        self.c = np.zeros(nv)
+        self.H = self._H0.copy()
         self._diag = self.H.reshape(-1)[:: nv + 1]
         self._scratch = np.zeros(nv)
         self.qdot = np.zeros(nv)
+        self._c_written_by_first = bool(self._soft_diagonal) and self._diagonal_dofs[0] == slice(0, nv)
+        self._closed_form = ClosedFormStep(None if self._soft_general else self._H0, meq) if fast_path else None
+        self.solver_calls = 0  # steps that needed the solver (a limit would bind)
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
@@ -114,11 +125,18 @@ class QPController:
         H, c = self.H, self.c
         for task in self.tasks:
             task.update()
-        H[:] = self._H0
-        c.fill(0.0)
+        if self._soft_general:  # else H is H0 every step
+            H[:] = self._H0
+        first = self._c_written_by_first
+        if not first:
+            c.fill(0.0)
         for task, neg_weight, dofs in zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs):
             if not task.joint_space:
                 raise InvalidInput(f"{task.name}: its Jacobian changed after the controller was built")
+            if first:  # a first task on every dof writes c directly
+                np.multiply(neg_weight, task.target_velocity, out=c)
+                first = False
+                continue
             scratch = self._scratch[: task.dim]
             np.multiply(neg_weight, task.target_velocity, out=scratch)
             c[dofs] += scratch
@@ -148,6 +166,14 @@ class QPController:
             limit.apply(self.dt, self.lb, self.ub)
         for limit, rows in zip(self._row_limits, self._inequality_slices):
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
+        if self._closed_form is not None:
+            x = self._closed_form.solve(H, self._Ac, self.b)
+            if x is not None and self._inside_limits(x):
+                self.qdot = x
+                return x
+        self.solver_calls += 1
+        self._backend.A[:] = self.A
+        self._backend.b[:] = self.b
         try:
             self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
         except InfeasibleProblem as exc:
@@ -156,6 +182,16 @@ class QPController:
         except SolverError as exc:
             self.qdot = self._retry_regularized(exc)
         return self.qdot
+
+    def _inside_limits(self, x: np.ndarray) -> bool:
+        """x finite, in the box and under every general row (exact comparisons: a point
+        on a bound goes to the solver, which decides whether that bound is active)."""
+        for value, low, high in zip(x.tolist(), self.lb.tolist(), self.ub.tolist()):
+            if not low <= value <= high:  # NaN fails too
+                return False
+        if self.G.shape[0] and not (self.G @ x <= self.h).all():
+            return False
+        return True
 
     def _retry_regularized(self, failure: SolverError) -> np.ndarray:
         """A solver that cycles or stalls on a (nearly) singular Hessian gets one more try

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import JointLimits, Robot
 from .limit import Limit, as_slice
+
+SCALAR_JOINTS_MAX = 20
 
 
 class JointPositionLimit(Limit):
@@ -54,9 +58,16 @@ class JointPositionLimit(Limit):
         self._rate = damper_rate / influence if influence > 0 else 0.0
         self._factor = np.empty_like(self._bounds)
         self._near = np.empty(self._bounds.shape, dtype=bool)
+        # A few joints: plain floats beat a dozen NumPy calls (each ~0.4 µs) per step.
+        self._scalar_joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
+                               zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)] \
+            if len(self.limits.names) <= SCALAR_JOINTS_MAX else None
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
+        if self._scalar_joints is not None:
+            self._apply_scalars(dt, lb, ub)
+            return
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
         np.subtract(self._bounds, self.robot.q[self._qpos], out=steps)
         if self.influence > 0.0:
@@ -79,3 +90,34 @@ class JointPositionLimit(Limit):
         if not isinstance(self._dofs, slice):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
+
+    def _apply_scalars(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+        """:meth:`apply` joint by joint in floats: the same operations in the same order."""
+        q = self.robot.q.tolist()
+        lbs, ubs = lb.tolist(), ub.tolist()
+        step_rate = self.gain / dt
+        influence = self.influence
+        damped = min(self._rate, step_rate)
+        for qi, di, lo, hi in self._scalar_joints:
+            x = q[qi]
+            if not math.isfinite(x):
+                raise InvalidInput(f"joint {self.robot.dof_name(di)} has a non-finite position {x}")
+            low, high = lo - x, hi - x
+            if influence > 0.0:
+                low *= damped if abs(low) < influence else step_rate
+                high *= damped if abs(high) < influence else step_rate
+            else:
+                low *= step_rate
+                high *= step_rate
+            v_lo, v_hi = lbs[di], ubs[di]
+            # Recovery from outside the range never asks for more than the velocity box.
+            if low > v_hi:
+                low = v_hi
+            if high < v_lo:
+                high = v_lo
+            if low > v_lo:
+                lbs[di] = low
+            if high < v_hi:
+                ubs[di] = high
+        lb[:] = lbs
+        ub[:] = ubs

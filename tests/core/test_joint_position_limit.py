@@ -1,0 +1,39 @@
+"""JointPositionLimit: its float path for a few joints equals its vectorised path exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qpik import InvalidInput, JointPositionLimit, Robot
+
+
+@pytest.mark.parametrize("scene", ["arm", "hexapod"])
+@pytest.mark.parametrize("influence", [0.0, 0.05, 0.8])
+def test_float_and_vector_paths_are_identical(scene, influence):
+    robot = Robot.load(scene)
+    floats = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
+    vector = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
+    vector._scalar_joints = None
+    assert floats._scalar_joints is not None
+    rng = np.random.default_rng(1)
+    limits = robot.joint_limits
+    for _ in range(200):  # inside, near and outside the ranges
+        robot.q[limits.qpos_index] = rng.uniform(limits.lower - 0.3, limits.upper + 0.3)
+        speed = rng.uniform(0.5, 5.0, robot.nv)
+        box_a, box_b = (-speed, speed.copy()), (-speed, speed.copy())
+        floats.apply(0.002, *box_a)
+        vector.apply(0.002, *box_b)
+        np.testing.assert_array_equal(box_a[0], box_b[0])
+        np.testing.assert_array_equal(box_a[1], box_b[1])
+        q_next = robot.q[limits.qpos_index] + 0.002 * box_a[1][limits.dof_index]
+        inside = (robot.q[limits.qpos_index] <= limits.upper)
+        assert np.all(q_next[inside] <= limits.upper[inside])  # the upper bound is never stepped past
+
+
+def test_non_finite_position_is_an_error():
+    robot = Robot.load("arm")
+    limit = JointPositionLimit(robot)
+    robot.q[1] = np.nan
+    with pytest.raises(InvalidInput, match="theta2"):
+        limit.apply(0.002, np.full(4, -1.0), np.full(4, 1.0))
