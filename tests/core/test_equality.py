@@ -202,10 +202,10 @@ def test_hard_equalities_hold_in_a_qp_rollout(option):
 def test_soft_equalities_approach_the_hard_solution():
     robot = equality_robot(seed=3)
     posture = PostureTask(robot, target=robot.q + 0.1, gain=1.0, weight=1.0)
-    hard = QPController(robot, [EqualityTask(robot, gain=10.0), posture]).compute_velocity().copy()
+    hard = QPController(robot, [EqualityTask(robot, gain=10.0), posture], dt=0.002).compute_velocity().copy()
     soft_task = EqualityTask(robot, gain=10.0, hard=False, weight=1e8)
-    soft = QPController(robot, [soft_task, posture]).compute_velocity().copy()
-    weak = QPController(robot, [EqualityTask(robot, gain=10.0, hard=False, weight=1e-2), posture]).compute_velocity()
+    soft = QPController(robot, [soft_task, posture], dt=0.002).compute_velocity().copy()
+    weak = QPController(robot, [EqualityTask(robot, gain=10.0, hard=False, weight=1e-2), posture], dt=0.002).compute_velocity()
     assert np.max(np.abs(soft - hard)) < 1e-4 * np.max(np.abs(hard))
     assert np.max(np.abs(weak - hard)) > 1e-2 * np.max(np.abs(hard))
 

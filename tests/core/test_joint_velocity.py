@@ -56,7 +56,7 @@ def test_the_qp_keeps_the_given_bounds(jaco_path):
     task = PositionTask(robot, "wristsite", gain=50.0)
     task.set_target(task.target + [0.3, -0.2, 0.1])  # far: the unbounded QP would be fast
     bounds = {"joint_1": 0.2, "joint_2": 0.3, "joint_3": 0.25}
-    limited = QPController(robot, [task], [JointVelocityLimit(robot, bounds)]).compute_velocity().copy()
-    free = QPController(robot, [task]).compute_velocity()
+    limited = QPController(robot, [task], [JointVelocityLimit(robot, bounds)], dt=0.002).compute_velocity().copy()
+    free = QPController(robot, [task], dt=0.002).compute_velocity()
     assert np.all(np.abs(free[:3]) > [0.2, 0.3, 0.25])
     assert np.all(np.abs(limited[:3]) <= np.array([0.2, 0.3, 0.25]) + 1e-12)
