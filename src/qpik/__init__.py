@@ -16,6 +16,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     # robot and errors
     "Robot": "qpik.robot",
+    "Frame": "qpik.robot",
     "JointLimits": "qpik.robot",
     "load_model": "qpik.robot",
     "QpikError": "qpik.errors",
@@ -38,7 +39,10 @@ _EXPORTS = {
     "ManipulabilityMeasure": "qpik.tasks",
     "SigmaProxy": "qpik.tasks",
     "Yoshikawa": "qpik.tasks",
-    "LoopClosureTask": "qpik.tasks",
+    "OrientationTask": "qpik.tasks",
+    "RelativeFrameTask": "qpik.tasks",
+    "ComTask": "qpik.tasks",
+    "EqualityTask": "qpik.tasks",
     # limits
     "Limit": "qpik.limits",
     "CollisionAvoidanceLimit": "qpik.limits",
@@ -92,19 +96,22 @@ if TYPE_CHECKING:  # static type checkers see the real imports
         UnreachablePose,
     )
     from .limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit, Limit
-    from .robot import JointLimits, Robot, load_model
+    from .robot import Frame, JointLimits, Robot, load_model
     from .rollout import PositionReference, RolloutLog, simulate
     from .scenario import Setup, build_scenario, scenarios
     from .solvers import available_solvers
     from .tasks import (
+        ComTask,
         DampingTask,
+        EqualityTask,
         FrameTask,
         JointSpaceTask,
-        LoopClosureTask,
         ManipulabilityMeasure,
         ManipulabilityTask,
+        OrientationTask,
         PositionTask,
         PostureTask,
+        RelativeFrameTask,
         SigmaProxy,
         Task,
         Yoshikawa,

@@ -6,12 +6,26 @@ The controllers read everything from one :class:`Robot`: the configuration ``q``
 (``mj_kinematics`` + ``mj_comPos``, what ``mj_jac*`` needs); nothing else runs
 MuJoCo's pipeline in the loop.
 
+Frames are sites, bodies or geoms (``frame_type``, as in mink): :meth:`Robot.frame`
+returns a :class:`Frame` whose position and rotation are views of MuJoCo's own arrays
+(``site_xpos``/``xpos``/``geom_xpos``, ``site_xmat``/``xmat``/``geom_xmat``) and whose
+Jacobian is ``mj_jacSite``/``mj_jacBody``/``mj_jacGeom``. A body's frame is its origin
+(``xpos``), not its centre of mass.
+
+Names are checked: an unknown site, body, geom, joint, keyframe or equality raises
+:class:`~qpik.errors.UnknownName` listing the model's closest names.
+
+Keyframes: ``Robot(model)`` starts at the model's ``qpos0``; ``Robot(model, keyframe=name)``
+at that keyframe, which must exist. ``Robot.load`` of a bundled robot starts at its
+``"home"`` keyframe, of an MJCF path at ``qpos0``, unless a keyframe is named.
+
 Joint velocity limits are not part of MJCF; a scene declares them as custom numerics
 named ``qpik_velocity_limit_<joint>`` holding one value per degree of freedom.
 """
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +38,94 @@ from .robots import BUNDLED
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
 _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+
+FRAME_TYPES = ("site", "body", "geom")
+# frame type -> (object type, position array, rotation array, Jacobian function)
+_FRAMES = {
+    "site": (mujoco.mjtObj.mjOBJ_SITE, "site_xpos", "site_xmat", mujoco.mj_jacSite),
+    "body": (mujoco.mjtObj.mjOBJ_BODY, "xpos", "xmat", mujoco.mj_jacBody),
+    "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_xpos", "geom_xmat", mujoco.mj_jacGeom),
+}
+# object type -> (label in messages, MjModel attribute counting them)
+_COUNTS = {
+    mujoco.mjtObj.mjOBJ_SITE: ("site", "nsite"),
+    mujoco.mjtObj.mjOBJ_BODY: ("body", "nbody"),
+    mujoco.mjtObj.mjOBJ_GEOM: ("geom", "ngeom"),
+    mujoco.mjtObj.mjOBJ_JOINT: ("joint", "njnt"),
+    mujoco.mjtObj.mjOBJ_KEY: ("keyframe", "nkey"),
+    mujoco.mjtObj.mjOBJ_EQUALITY: ("equality", "neq"),
+    mujoco.mjtObj.mjOBJ_TENDON: ("tendon", "ntendon"),
+    mujoco.mjtObj.mjOBJ_ACTUATOR: ("actuator", "nu"),
+}
+
+
+class _BundledDefault:
+    """Robot.load's default keyframe: "home" for a bundled robot, none for a path."""
+
+    def __repr__(self) -> str:
+        return "'home' for a bundled robot, else None"
+
+
+BUNDLED_HOME = _BundledDefault()
+
+
+def object_names(model: mujoco.MjModel, kind: mujoco.mjtObj) -> list[str]:
+    """The names of every object of a kind (sites, bodies, ...), unnamed ones left out."""
+    count = getattr(model, _COUNTS[kind][1])
+    return [n for n in (mujoco.mj_id2name(model, kind, i) for i in range(count)) if n]
+
+
+def name_to_id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str, model_name: str = "") -> int:
+    """The id of a named object, or :class:`UnknownName` listing the closest names.
+
+    Raises:
+        UnknownName: no object of this kind has this name.
+        InvalidInput: ``name`` is not a string.
+    """
+    label = _COUNTS[kind][0]
+    if not isinstance(name, str):
+        raise InvalidInput(f"a {label} name must be a string, got {name!r}")
+    idx = mujoco.mj_name2id(model, kind, name)
+    if idx >= 0:
+        return idx
+    names = object_names(model, kind)
+    where = f" in model {model_name!r}" if model_name else ""
+    if not names:
+        raise UnknownName(f"unknown {label} {name!r}{where}: the model has no named {label}")
+    close = difflib.get_close_matches(name, names, n=5, cutoff=0.5)
+    hint = f"close matches: {close}" if close else f"no close match among its {len(names)} {label} names"
+    if not close and len(names) <= 12:
+        hint = f"known: {names}"
+    raise UnknownName(f"unknown {label} {name!r}{where}; {hint}")
+
+
+class Frame:
+    """A site, body or geom of a robot: its id, and views of its world pose.
+
+    ``position`` (3,) and ``rotation`` (3, 3) are views of MuJoCo's arrays, valid after
+    each :meth:`Robot.update_kinematics` without copying; :meth:`jacobian` fills the
+    translational and/or rotational Jacobians (3 x nv) of the frame's origin.
+    """
+
+    __slots__ = ("name", "type", "id", "position", "rotation", "_jac", "_model", "_data")
+
+    def __init__(self, robot: Robot, name: str, frame_type: str = "site"):
+        if frame_type not in _FRAMES:
+            raise InvalidInput(f"frame_type must be one of {FRAME_TYPES}, got {frame_type!r}")
+        kind, position, rotation, jac = _FRAMES[frame_type]
+        self.name = name
+        self.type = frame_type
+        self.id = name_to_id(robot.model, kind, name, robot.name)
+        self.position = getattr(robot.data, position)[self.id]
+        self.rotation = getattr(robot.data, rotation)[self.id].reshape(3, 3)
+        self._jac, self._model, self._data = jac, robot.model, robot.data
+
+    def jacobian(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
+        """Fill the 3 x nv translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
+        self._jac(self._model, self._data, jacp, jacr, self.id)
+
+    def __repr__(self) -> str:
+        return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
 
 
 def scene_path(scene: str | Path) -> Path:
@@ -90,10 +192,13 @@ class Robot:
     Args:
         model: compiled MuJoCo model.
         name: a label for logs and summaries (defaults to the model's name).
-        keyframe: keyframe to start from, if the model has it (``"home"`` by default).
+        keyframe: keyframe to start from (default: none, the model's ``qpos0``).
+
+    Raises:
+        UnknownName: ``keyframe`` names no keyframe of the model.
     """
 
-    def __init__(self, model: mujoco.MjModel, name: str | None = None, keyframe: str | None = "home"):
+    def __init__(self, model: mujoco.MjModel, name: str | None = None, keyframe: str | None = None):
         self.model = model
         self.data = mujoco.MjData(model)
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
@@ -101,17 +206,27 @@ class Robot:
         self.nv = model.nv
         self._kinematics_state = b""
         if keyframe is not None:
-            key_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
-            if key_id >= 0:
-                mujoco.mj_resetDataKeyframe(model, self.data, key_id)
+            mujoco.mj_resetDataKeyframe(model, self.data, self.keyframe_id(keyframe))
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
         self.update_kinematics()
 
     @classmethod
-    def load(cls, scene: str | Path, keyframe: str | None = "home") -> Robot:
-        """Load a bundled scene by name (``"arm"``, ``"hexapod"``) or an MJCF path."""
+    def load(cls, scene: str | Path, keyframe: str | None | _BundledDefault = BUNDLED_HOME) -> Robot:
+        """Load a bundled scene by name (``"arm"``, ``"hexapod"``) or an MJCF path.
+
+        Args:
+            scene: a bundled robot's name or a path to an MJCF file.
+            keyframe: the keyframe to start from; by default ``"home"`` for a bundled
+                robot and none (``qpos0``) for a path; ``None``: ``qpos0``.
+
+        Raises:
+            UnknownName: unknown robot name, or ``keyframe`` names no keyframe of the model.
+            ModelError: the file is missing or MuJoCo cannot compile it.
+        """
         name = str(scene) if str(scene) in BUNDLED else None
+        if isinstance(keyframe, _BundledDefault):
+            keyframe = "home" if name is not None else None
         return cls(load_model(scene), name=name, keyframe=keyframe)
 
     # Configuration ---------------------------------------------------------------
@@ -158,20 +273,34 @@ class Robot:
         m = self.model
         return tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(m.njnt))
 
-    def _id(self, kind: mujoco.mjtObj, name: str, label: str) -> int:
-        idx = mujoco.mj_name2id(self.model, kind, name)
-        if idx < 0:
-            raise UnknownName(f"unknown {label} {name!r} in model {self.name!r}")
-        return idx
+    def object_id(self, kind: mujoco.mjtObj, name: str) -> int:
+        """The id of a named model object; :class:`UnknownName` lists the closest names."""
+        return name_to_id(self.model, kind, name, self.name)
 
     def site_id(self, name: str) -> int:
-        return self._id(mujoco.mjtObj.mjOBJ_SITE, name, "site")
+        return self.object_id(mujoco.mjtObj.mjOBJ_SITE, name)
 
     def body_id(self, name: str) -> int:
-        return self._id(mujoco.mjtObj.mjOBJ_BODY, name, "body")
+        return self.object_id(mujoco.mjtObj.mjOBJ_BODY, name)
+
+    def geom_id(self, name: str) -> int:
+        return self.object_id(mujoco.mjtObj.mjOBJ_GEOM, name)
 
     def joint_id(self, name: str) -> int:
-        return self._id(mujoco.mjtObj.mjOBJ_JOINT, name, "joint")
+        return self.object_id(mujoco.mjtObj.mjOBJ_JOINT, name)
+
+    def keyframe_id(self, name: str) -> int:
+        return self.object_id(mujoco.mjtObj.mjOBJ_KEY, name)
+
+    def equality_id(self, name: str) -> int:
+        return self.object_id(mujoco.mjtObj.mjOBJ_EQUALITY, name)
+
+    def joint_dofs(self, name: str) -> np.ndarray:
+        """The dof indices of a joint (6 for a free joint, 3 for a ball, else 1)."""
+        jid = self.joint_id(name)
+        count = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}.get(
+            int(self.model.jnt_type[jid]), 1)
+        return int(self.model.jnt_dofadr[jid]) + np.arange(count)
 
     def dof_name(self, dof: int) -> str:
         """The joint a dof belongs to (``name[k]`` for the k-th dof of a ball or free joint)."""
@@ -189,6 +318,27 @@ class Robot:
         return int(self.model.jnt_dofadr[self.joint_id(name)])
 
     # Frames ------------------------------------------------------------------------
+    def frame(self, name: str, frame_type: str = "site") -> Frame:
+        """A site, body or geom by name, with views of its pose (see :class:`Frame`).
+
+        Raises:
+            InvalidInput: ``frame_type`` is not ``"site"``, ``"body"`` or ``"geom"``.
+            UnknownName: no frame of that type has this name (the closest are listed).
+        """
+        return Frame(self, name, frame_type)
+
+    def frame_position(self, frame: Frame) -> np.ndarray:
+        """World position of a frame of this model on this robot (a view)."""
+        return getattr(self.data, _FRAMES[frame.type][1])[frame.id]
+
+    def frame_rotation(self, frame: Frame) -> np.ndarray:
+        """World rotation of a frame of this model on this robot (a 3x3 view)."""
+        return getattr(self.data, _FRAMES[frame.type][2])[frame.id].reshape(3, 3)
+
+    def frame_jacobian(self, frame: Frame, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
+        """Fill a frame's 3 x nv Jacobians on this robot (another robot of the same model)."""
+        _FRAMES[frame.type][3](self.model, self.data, jacp, jacr, frame.id)
+
     def site_position(self, site_id: int) -> np.ndarray:
         """World position of a site (a view, valid after :meth:`update_kinematics`)."""
         return self.data.site_xpos[site_id]

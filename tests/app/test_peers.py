@@ -24,6 +24,8 @@ from qpik.app.cli import main
 from qpik.app.peers import PLACO_SOLVER, PeerUnsupported, peer_controller
 from qpik.app.peers.problem import PeerProblem
 from qpik.robot import Robot
+from qpik.rollout import PositionReference
+from qpik.tasks import PositionTask
 from qpik.rollout import simulate
 from qpik.app.runs import compare
 from qpik.robots.arm.scenarios import _seed_segment, arm_setup
@@ -138,6 +140,30 @@ def test_step_gain_below_one_is_mapped_exactly():
         np.testing.assert_allclose(rollout(s, peer_controller(kind, s, "daqp")).q, ref.q, atol=AGREEMENT, rtol=0)
 
 
+@pytest.mark.parametrize("kind, frame, frame_type", [("mink", "ram", "body"), ("placo", "ram", "body"),
+                                                     ("mink", "ram", "geom")])
+def test_peer_tracks_a_body_or_geom_frame(kind, frame, frame_type):
+    """The peers get the tracked frame's type (mink's FrameTask takes it as qpik's does;
+    placo has a URDF link per body): one peer step equals one QP step."""
+    setup = arm_setup("seed-redundant", _seed_segment(), redundant=True)
+    robot = setup.robot
+    task = PositionTask(robot, frame, frame_type, axes="xy", gain=500.0, hard=True)
+    setup.qp_tasks[0] = task
+    setup.reference = PositionReference(task, _seed_segment())
+    task.set_target(task.measured() + [1e-4, -2e-4], [0.1, -0.05])
+    qp = setup.controller("qp", "daqp").compute_velocity().copy()
+    np.testing.assert_allclose(peer_controller(kind, setup, "daqp").compute_velocity(), qp, atol=1e-10, rtol=0)
+
+
+def test_placo_has_no_geom_frames():
+    setup = arm_setup("seed-primary", _seed_segment(), redundant=False)
+    task = PositionTask(setup.robot, "ram", "geom", axes="xy", gain=500.0, hard=True)
+    setup.qp_tasks[0] = task
+    setup.reference = PositionReference(task, _seed_segment())
+    with pytest.raises(PeerUnsupported, match="geom"):
+        peer_controller("placo", setup)
+
+
 def test_compare_json_holds_the_peer_runs(tmp_path, capsys):
     out = tmp_path / "cmp"
     assert main(["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp", "--out", str(out)]) == 0
@@ -198,9 +224,9 @@ def random_hexapod_state(setup, seed: int, closed: bool) -> None:
         mujoco.mj_integratePos(robot.model, robot.data.qpos, rng.normal(scale=1e-5, size=robot.nv), 1.0)
     robot.update_kinematics()
     task = setup.reference.task
-    p = robot.site_position(task.site_id) + rng.normal(scale=1e-5, size=3)
+    p = task.frame.position + rng.normal(scale=1e-5, size=3)
     if isinstance(task, FrameTask):
-        R = Rotation.from_rotvec(rng.normal(scale=1e-4, size=3)).as_matrix() @ robot.site_rotation(task.site_id)
+        R = Rotation.from_rotvec(rng.normal(scale=1e-4, size=3)).as_matrix() @ task.frame.rotation
         task.set_target(p, R, rng.normal(scale=0.03, size=3), rng.normal(scale=0.1, size=3))
     else:
         task.set_target(p, rng.normal(scale=0.03, size=3))

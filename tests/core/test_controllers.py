@@ -42,7 +42,7 @@ def test_qp_with_hard_task_equals_the_null_space_law(solver):
         task = PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)
         p = arm.end_effector_position(q)
         task.set_target(p + [1e-4, -2e-4], [0.1, -0.05])
-        manip = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
+        manip = ManipulabilityTask(robot, SigmaProxy(robot, ["theta2", "theta3"]), gain=5.0)
         qp = QPController(robot, [task, manip], solver=solver, dt=0.002)
         expected = _null_space_law(q, np.array([0.1, -0.05]) + 500.0 * np.array([1e-4, -2e-4]), 5.0)
         np.testing.assert_allclose(qp.compute_velocity(), expected, atol=1e-6)
@@ -72,7 +72,7 @@ def test_native_and_qpsolvers_paths_agree():
             robot = _arm_at(q)
             task = PositionTask(robot, "end_effector", axes="xy", gain=500.0)
             task.set_target(arm.end_effector_position(q) + 1e-3, [0.3, 0.0])
-            manip = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
+            manip = ManipulabilityTask(robot, SigmaProxy(robot, ["theta2", "theta3"]), gain=5.0)
             limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(4, 0.3))]
             results.append(QPController(robot, [task, manip], limits, solver=solver, native=native, dt=0.002).compute_velocity())
         np.testing.assert_allclose(results[0], results[1], atol=1e-6)
@@ -167,9 +167,9 @@ def test_sigma_proxy_gradient_matches_formula():
     q = np.array([0.3, 1.1, -0.7, 0.4])
     robot = _arm_at(q)
     grad = np.zeros(4)
-    SigmaProxy(robot).gradient(grad)
+    SigmaProxy(robot, ["theta2", "theta3"]).gradient(grad)
     np.testing.assert_allclose(grad, arm.sigma_gradient(q), atol=1e-15)
-    assert SigmaProxy(robot).value() == pytest.approx(arm.sigma(q))
+    assert SigmaProxy(robot, ["theta2", "theta3"]).value() == pytest.approx(arm.sigma(q))
 
 
 def test_damped_least_squares_and_jacobian_transpose():

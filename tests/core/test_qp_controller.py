@@ -43,7 +43,7 @@ def test_kinematics_follow_q_without_an_explicit_update(arm):
     for _ in range(400):
         arm.integrate(qp.compute_velocity(), DT)
     arm.update_kinematics()
-    np.testing.assert_allclose(arm.data.site_xpos[task.site_id][:2], [1.0, 1.5], atol=1e-6)
+    np.testing.assert_allclose(task.frame.position[:2], [1.0, 1.5], atol=1e-6)
 
 
 def test_infeasible_hard_task_names_the_binding_speed_limits(arm):

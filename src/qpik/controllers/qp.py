@@ -115,7 +115,8 @@ class QPController:
         self._diag = self.H.reshape(-1)[:: nv + 1]
         self._scratch = np.zeros(nv)
         self.qdot = np.zeros(nv)
-        self._c_written_by_first = bool(self._soft_diagonal) and self._diagonal_dofs[0] == slice(0, nv)
+        self._c_written_by_first = bool(self._soft_diagonal) and isinstance(self._diagonal_dofs[0], slice) \
+            and self._diagonal_dofs[0] == slice(0, nv)
         self._closed_form = ClosedFormStep(None if self._soft_general else self._H0, meq) if fast_path else None
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
 

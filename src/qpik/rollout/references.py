@@ -6,15 +6,17 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import Robot
-from ..tasks import PositionTask
+from ..tasks import ComTask, PositionTask
 
 
 class PositionReference:
-    """Feeds a trajectory to a position task; measures the tracked site on any robot."""
+    """Feeds a trajectory to a position task (or a CoM task); measures what the task tracks
+    (its frame's position, the CoM) on any robot: the controller's, or the physics plant of
+    the same model."""
 
-    def __init__(self, task: PositionTask, trajectory):
-        if trajectory.dim != task.dim:
-            raise InvalidInput(f"trajectory has {trajectory.dim} coordinates, the task {task.dim}")
+    def __init__(self, task: PositionTask | ComTask, trajectory):
+        if trajectory.dim != task.target_dim:
+            raise InvalidInput(f"trajectory has {trajectory.dim} coordinates, the task's target {task.target_dim}")
         self.task = task
         self.trajectory = trajectory
 
@@ -26,4 +28,4 @@ class PositionReference:
         return self.task.target
 
     def measure(self, robot: Robot) -> dict:
-        return {"x": robot.site_position(self.task.site_id)[self.task.rows].copy()}
+        return {"x": self.task.measured(robot)}

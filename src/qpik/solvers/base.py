@@ -33,8 +33,10 @@ import numpy as np
 from ..errors import InfeasibleProblem, SolverError
 
 BIG = 1e30  # the stand-in for an absent bound in solvers that take no inf (OSQP: >= 1e30 is inf)
-# A solve must not take longer than this (seconds); solvers that accept a time limit get it.
-TIME_LIMIT = 0.05
+# Iteration caps keep every solve bounded and deterministic; the time limit, given to the
+# solvers that take one, is only a guard against a hang: a solve that normally takes
+# microseconds never nears it, so a busy machine cannot change a result.
+TIME_LIMIT = 1.0
 ITERATION_LIMIT = 10000
 
 

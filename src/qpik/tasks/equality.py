@@ -1,4 +1,4 @@
-"""Equality constraints of the model (closed kinematic chains) as task rows."""
+r"""MuJoCo's equality constraints (closed chains, welds, coupled joints and tendons) as task rows."""
 
 from __future__ import annotations
 
@@ -7,77 +7,175 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from ..errors import ModelError, UnknownName
+from ..errors import InvalidInput, ModelError
 from ..robot import Robot
 from .task import Task
 
+# The equality types whose rows the task takes from MuJoCo, and their row counts.
+SUPPORTED = {
+    int(mujoco.mjtEq.mjEQ_CONNECT): ("connect", 3),
+    int(mujoco.mjtEq.mjEQ_WELD): ("weld", 6),
+    int(mujoco.mjtEq.mjEQ_JOINT): ("joint", 1),
+    int(mujoco.mjtEq.mjEQ_TENDON): ("tendon", 1),
+}
+_D = mujoco.mjtDisableBit
+# While the rows are made: no contact, limit or friction-loss rows; equalities on.
+_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)
+_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
+_SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)  # a sleeping tree's equalities would be skipped
 
-class LoopClosureTask(Task):
-    """Closed kinematic chains: MuJoCo ``connect`` equalities as hard rows J_c q̇ = −K_c e_c.
 
-    The residual e_c = p1 − p2 (the two anchor points in world) and its Jacobian
-    J_c = J(p1) − J(p2) are computed from the kinematics update alone (``mj_jacSite`` /
-    ``mj_jac``), without running MuJoCo's constraint pipeline.
+def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool) -> None:
+    """MuJoCo's rows of the active equality constraints, alone, at ``data``'s kinematics.
+
+    Runs ``mj_makeConstraint`` (after ``mj_tendon`` when ``tendons``) with contacts,
+    joint limits and friction loss disabled in ``model.opt`` for the call, so that
+    ``data.efc_*`` hold the equality rows only (``data.ne`` of them); the model's flags
+    are restored after. ``data`` must have had ``mj_kinematics`` and ``mj_comPos``.
+    """
+    opt = model.opt
+    disable, enable = opt.disableflags, opt.enableflags
+    opt.disableflags = (disable | _DISABLE) & ~_ENABLE
+    opt.enableflags = enable & ~_SLEEP
+    try:
+        if tendons:
+            mujoco.mj_tendon(model, data)
+        mujoco.mj_makeConstraint(model, data)
+    finally:
+        opt.disableflags, opt.enableflags = disable, enable
+
+
+class EqualityTask(Task):
+    r"""The model's equality constraints (``connect``, ``weld``, ``joint``, ``tendon``) as rows
+
+    .. math::
+        J_e\,\dot q = -K\,e_e,
+
+    hard (the default: closed kinematic chains stay closed) or soft. :math:`e_e` and
+    :math:`J_e` are MuJoCo's own constraint residual and Jacobian (``efc_pos``,
+    ``efc_J``), made by ``mj_makeConstraint`` from the step's kinematics update with
+    every other constraint type disabled for the call: a ``connect`` gives the 3 rows
+    :math:`p_1 - p_2`, a ``weld`` 6 (position, then orientation scaled by its
+    ``torquescale``), a ``joint`` or ``tendon`` coupling 1 (its polynomial residual).
+    Sparse Jacobians (large models) are expanded with ``mju_sparse2dense``. Rows follow
+    the equalities' ids.
+
+    ``error`` holds the residual :math:`e_e` (zero when the constraints hold).
+
+    Args:
+        robot: the robot.
+        equalities: names of the equalities to enforce (default: every equality active
+            when the task is built, ``data.eq_active``).
+        gain: K (1/s).
+        hard: enforce the rows as equalities in the QP (else weighed in the cost).
+        weight: cost weight of a soft task, a scalar or one per row.
+
+    Raises:
+        UnknownName: an unknown equality name (the closest are listed).
+        ModelError: no active equality, an inactive one named, or a type other than
+            connect, weld, joint and tendon (flex equalities are not supported).
+        InvalidInput: a negative or non-finite gain.
+
+    The set of active equalities is read when the task is built; switching one on or off
+    later (``data.eq_active``) makes :meth:`update` raise ModelError.
     """
 
-    name = "loop closure"
+    name = "equality task"
 
-    def __init__(self, robot: Robot, equalities: Sequence[str] | None = None, gain: float = 1.0):
-        model = robot.model
+    def __init__(self, robot: Robot, equalities: Sequence[str] | None = None, gain: float = 1.0, hard: bool = True,
+                 weight=1.0):
+        model, data = robot.model, robot.data
+        active = [i for i in range(model.neq) if data.eq_active[i]]
         if equalities is None:
-            ids = list(range(model.neq))
+            ids = active
         else:
-            ids = []
-            for name in equalities:
-                eq = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, name)
-                if eq < 0:
-                    raise UnknownName(f"unknown equality constraint {name!r}")
-                ids.append(eq)
+            if isinstance(equalities, str):
+                raise InvalidInput(f"equalities must be a list of names, got the string {equalities!r}")
+            ids = [robot.equality_id(name) for name in equalities]
+            if len(set(ids)) != len(ids):
+                raise InvalidInput(f"an equality is named twice in {list(equalities)}")
+            inactive = [name for name, i in zip(equalities, ids) if i not in active]
+            if inactive:
+                raise ModelError(f"{self.name}: equalities {inactive} are inactive (data.eq_active)")
+            ids = sorted(ids)
         if not ids:
-            raise ModelError("the model has no equality constraints to close")
-        for eq in ids:
-            if model.eq_type[eq] != mujoco.mjtEq.mjEQ_CONNECT:
-                raise ModelError(f"equality {eq} is not a 'connect' constraint")
-        n = len(ids)
-        super().__init__(robot, 3 * n, weight=1.0, hard=True)
-        self.gain = float(gain)
+            raise ModelError(f"{self.name}: model {robot.name!r} has no active equality constraint")
+        for i in ids:
+            if int(model.eq_type[i]) not in SUPPORTED:
+                label = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_EQUALITY, i) or f"#{i}"
+                kind = mujoco.mjtEq(int(model.eq_type[i])).name
+                raise ModelError(f"{self.name}: equality {label!r} is a {kind}; supported: "
+                                 f"{[name for name, _ in SUPPORTED.values()]}")
+        if not (np.isfinite(gain) and gain >= 0):
+            raise InvalidInput(f"{self.name}: gain must be finite and >= 0, got {gain}")
         self.equalities = tuple(ids)  # model equality ids, in row order
-        self._sites = all(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in ids)
-        self._obj1 = np.array([model.eq_obj1id[eq] for eq in ids], dtype=int)
-        self._obj2 = np.array([model.eq_obj2id[eq] for eq in ids], dtype=int)
-        if not self._sites and any(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in ids):
-            raise ModelError("mixing site- and body-based connect constraints is not supported")
-        # Body-based connects: the anchors in each body's frame (MuJoCo's eq_data layout).
-        self._anchor1 = np.array([model.eq_data[eq][0:3] for eq in ids])
-        self._anchor2 = np.array([model.eq_data[eq][3:6] for eq in ids])
-        self._jac1 = np.zeros((n, 3, robot.nv))
-        self._jac2 = np.zeros((n, 3, robot.nv))
-        self._jac_rows = self.jacobian.reshape(n, 3, robot.nv)
-        self._error_rows = self.error.reshape(n, 3)
-
-    def _points(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        if self._sites:
-            return data.site_xpos[self._obj1], data.site_xpos[self._obj2]
-        p1 = data.xpos[self._obj1] + np.einsum("kij,kj->ki", data.xmat[self._obj1].reshape(-1, 3, 3), self._anchor1)
-        p2 = data.xpos[self._obj2] + np.einsum("kij,kj->ki", data.xmat[self._obj2].reshape(-1, 3, 3), self._anchor2)
-        return p1, p2
+        self._tendons = any(int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_TENDON) for i in ids)
+        self._sparse = bool(mujoco.mj_isSparse(model))
+        # Where each equality's rows lie among MuJoCo's equality rows (read once).
+        robot.update_kinematics()
+        make_equality_rows(model, data, self._tendons)
+        self._ne = int(data.ne)
+        efc_id = np.array(data.efc_id[: self._ne])
+        rows = np.flatnonzero(np.isin(efc_id, ids))
+        super().__init__(robot, len(rows), weight, hard)
+        self.gain = float(gain)
+        self._rows = rows
+        self._all_rows = len(rows) == self._ne
+        self._dense = None if self._all_rows and self._sparse else np.zeros((self._ne, robot.nv))
+        self._slices = []  # per equality: its slice of the task's rows
+        for i in ids:
+            where = np.flatnonzero(efc_id[rows] == i)
+            self._slices.append(slice(int(where[0]), int(where[-1]) + 1))
+        self._scratch = None
 
     def update(self) -> None:
         model, data = self.robot.model, self.robot.data
-        p1, p2 = self._points(data)
-        np.subtract(p1, p2, out=self._error_rows)
-        if self._sites:
-            for k in range(len(self._obj1)):
-                mujoco.mj_jacSite(model, data, self._jac1[k], None, self._obj1[k])
-                mujoco.mj_jacSite(model, data, self._jac2[k], None, self._obj2[k])
-        else:
-            for k in range(len(self._obj1)):
-                mujoco.mj_jac(model, data, self._jac1[k], None, p1[k], self._obj1[k])
-                mujoco.mj_jac(model, data, self._jac2[k], None, p2[k], self._obj2[k])
-        np.subtract(self._jac1, self._jac2, out=self._jac_rows)
+        make_equality_rows(model, data, self._tendons)
+        self._read_rows(data)
         np.multiply(-self.gain, self.error, out=self.target_velocity)
 
+    def _read_rows(self, data: mujoco.MjData) -> None:
+        ne = self._ne
+        if data.ne != ne or data.nefc != ne:
+            raise ModelError(f"{self.name}: the model's active equalities changed since the task was built "
+                             f"({data.ne} equality rows, {ne} expected); build a new task")
+        if self._all_rows:
+            self.error[:] = data.efc_pos
+        else:
+            np.take(data.efc_pos, self._rows, out=self.error)
+        if self._sparse:
+            dense = self.jacobian if self._all_rows else self._dense
+            mujoco.mju_sparse2dense(dense, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
+        else:
+            dense = data.efc_J.reshape(ne, self.robot.nv)
+            if self._all_rows:
+                self.jacobian[:] = dense
+        if not self._all_rows:
+            np.take(dense, self._rows, axis=0, out=self.jacobian)
+
+    def residuals(self, robot: Robot | None = None) -> np.ndarray:
+        """The norm of each equality's residual (its units: m, rad, ...), in row order, at
+        the configuration of the bound robot or of another robot of the same model.
+
+        Computed on a scratch MjData (the robot's own data and constraint rows untouched).
+        """
+        robot = robot or self.robot
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.robot.model)
+        model, scratch = self.robot.model, self._scratch
+        source = robot.data
+        scratch.qpos[:] = source.qpos
+        scratch.mocap_pos[:] = source.mocap_pos
+        scratch.mocap_quat[:] = source.mocap_quat
+        scratch.eq_active[:] = source.eq_active
+        mujoco.mj_kinematics(model, scratch)
+        mujoco.mj_comPos(model, scratch)
+        make_equality_rows(model, scratch, self._tendons)
+        if scratch.ne != self._ne:
+            raise ModelError(f"{self.name}: the robot's active equalities differ from the task's")
+        residual = np.asarray(scratch.efc_pos)[self._rows]
+        return np.array([np.linalg.norm(residual[rows]) for rows in self._slices])
+
     def max_residual(self, robot: Robot | None = None) -> float:
-        """Largest loop-closure gap (m) on the bound robot, or another of the same model."""
-        p1, p2 = self._points((robot or self.robot).data)
-        return float(np.max(np.linalg.norm(p1 - p2, axis=1)))
+        """The largest residual norm of :meth:`residuals` (e.g. a loop-closure gap in m)."""
+        return float(np.max(self.residuals(robot)))

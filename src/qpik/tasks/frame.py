@@ -1,67 +1,122 @@
-"""Pose of a frame: three position rows, then three orientation rows (world frame)."""
+"""Pose of a frame (site, body or geom): position rows, then orientation rows."""
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
-from ..errors import InvalidInput
 from ..robot import Robot
-from .task import Task, finite_vector, positive
+from .task import (
+    PoseRows,
+    RotationError,
+    Task,
+    axis_rows,
+    check_axes_frame,
+    finite_vector,
+    positive,
+    rotation_error,
+    rotation_matrix,
+)
 
-
-def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """World-frame rotation vector e with exp([e]) R_current = R_desired."""
-    qd, qc, local = np.empty(4), np.empty(4), np.empty(3)
-    mujoco.mju_mat2Quat(qd, np.ascontiguousarray(desired).ravel())
-    mujoco.mju_mat2Quat(qc, np.ascontiguousarray(current).ravel())
-    mujoco.mju_subQuat(local, qd, qc)  # qc * exp(local) = qd, local in the current frame
-    return current @ local
+__all__ = ["FrameTask", "rotation_error"]
 
 
 class FrameTask(Task):
-    """Track a site's pose: 3 position rows then 3 orientation rows (world frame).
+    r"""Track a frame's pose: position rows, then orientation rows.
 
-    :math:`v = [\\dot p_d + K_p e_p;\\ \\omega_d + K_o e_o]`, with :math:`e_o` the
-    rotation vector of :math:`R_d R^T`.
+    .. math::
+        J = \begin{bmatrix} J_p \\ J_\omega \end{bmatrix},\qquad
+        v = \begin{bmatrix} \dot p_d + K_p (p_d - p) \\ \omega_d + K_o\, e_o \end{bmatrix},
+
+    with :math:`e_o` the rotation vector of :math:`R_d R^T` (so that
+    :math:`\exp([e_o]_\times) R = R_d`) and :math:`J_p, J_\omega` MuJoCo's translational and
+    rotational Jacobians of the frame. By default the rows are the world's x, y, z axes;
+    with ``axes_frame="local"`` they are the frame's own (moving) axes: e, the
+    feed-forward and J are rotated by :math:`R^T`, so that masks, gains and weights act
+    along the frame's axes (placo's local masks; mink's FrameTask weighs these rows).
+
+    Args:
+        robot: the robot.
+        frame: name of the site, body or geom.
+        frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
+        position_gain: :math:`K_p` (1/s), a scalar or one per position row.
+        orientation_gain: :math:`K_o` (1/s), a scalar or one per orientation row.
+        weight: cost weight of a soft task, a scalar or one per row.
+        hard: enforce the rows as equalities in the QP.
+        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+        position_axes: the position rows kept, a subset of ``"xyz"``.
+        orientation_axes: the orientation rows kept, a subset of ``"xyz"``.
+        axes_frame: ``"world"`` or ``"local"``: the axes the rows, masks, gains and
+            weights refer to.
+
+    Raises:
+        UnknownName: no frame of that type has this name (the closest are listed).
+        InvalidInput: a bad gain, weight, mask or ``axes_frame``.
+
+    The target is the frame's pose when the task is built; :meth:`set_target` moves it.
     """
 
     name = "frame task"
 
-    def __init__(self, robot: Robot, site: str, position_gain=1.0, orientation_gain=1.0, weight=1.0, hard: bool = False,
-                 lm_damping: float = 0.0):
-        super().__init__(robot, 6, weight, hard)
+    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", position_gain=1.0, orientation_gain=1.0,
+                 weight=1.0, hard: bool = False, lm_damping: float = 0.0, position_axes: str = "xyz",
+                 orientation_axes: str = "xyz", axes_frame: str = "world"):
+        self.position_rows = axis_rows(position_axes, "position_axes")
+        self.orientation_rows = axis_rows(orientation_axes, "orientation_axes")
+        self.axes_frame = axes_frame
+        local = check_axes_frame(axes_frame)
+        n_position = len(self.position_rows)
+        super().__init__(robot, n_position + len(self.orientation_rows), weight, hard)
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
-        self.site = site
-        self.site_id = robot.site_id(site)
-        self.position_gain = positive(position_gain, 3, "position gain", allow_zero=True)
-        self.orientation_gain = positive(orientation_gain, 3, "orientation gain", allow_zero=True)
-        self.target_position = robot.site_position(self.site_id).copy()
-        self.target_rotation = robot.site_rotation(self.site_id).copy()
+        self.frame = robot.frame(frame, frame_type)
+        self.position_gain = positive(position_gain, n_position, "position gain", allow_zero=True)
+        self.orientation_gain = positive(orientation_gain, self.dim - n_position, "orientation gain", allow_zero=True)
+        self.target_position = self.frame.position.copy()
+        self.target_rotation = self.frame.rotation.copy()
         self.target_linear_velocity = np.zeros(3)
         self.target_angular_velocity = np.zeros(3)
-        self.position_error = self.error[:3]
-        self.orientation_error = self.error[3:]
+        self.position_error = self.error[:n_position]
+        self.orientation_error = self.error[n_position:]
+        self._position_velocity = self.target_velocity[:n_position]
+        self._orientation_velocity = self.target_velocity[n_position:]
+        # Every world axis: MuJoCo fills the task's own Jacobian rows (views), no copies.
+        self._whole = self.dim == 6 and not local
+        if self._whole:
+            self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
+            self._rotation_error = RotationError()
+        else:
+            self._rows = PoseRows(self.frame, robot.nv, self.position_rows, self.orientation_rows, local)
+            self._feedforward = np.zeros(self.dim)
+            self._gain = np.concatenate([self.position_gain, self.orientation_gain])
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired pose (world frame) and feed-forward twist."""
+        """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
+        """
         self.target_position[:] = finite_vector(position, 3, "target position")
-        rot = np.asarray(rotation, dtype=float)
-        if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
-            raise InvalidInput(f"target rotation must be a finite 3x3 matrix, got shape {rot.shape}")
-        if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
-            raise InvalidInput("target rotation is not a rotation matrix")
-        self.target_rotation[:] = rot
+        self.target_rotation[:] = rotation_matrix(rotation)
         self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
         self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
 
     def update(self) -> None:
-        self.robot.site_jacobian(self.site_id, self.jacobian[:3], self.jacobian[3:])
+        if self._whole:
+            self.frame.jacobian(self._jacp, self._jacr)
+        else:
+            self._rows.jacobian(self.jacobian)
         self.update_target_velocity()
 
     def update_target_velocity(self) -> None:
         """Errors and v only (what a law without the Jacobian needs)."""
-        np.subtract(self.target_position, self.robot.site_position(self.site_id), out=self.position_error)
-        self.orientation_error[:] = rotation_error(self.target_rotation, self.robot.site_rotation(self.site_id))
-        self.target_velocity[:3] = self.target_linear_velocity + self.position_gain * self.position_error
-        self.target_velocity[3:] = self.target_angular_velocity + self.orientation_gain * self.orientation_error
+        if not self._whole:
+            self._rows.errors(self.target_position, self.target_rotation, self.target_linear_velocity,
+                              self.target_angular_velocity, self.error, self._feedforward)
+            np.multiply(self._gain, self.error, out=self.target_velocity)
+            self.target_velocity += self._feedforward
+            return
+        np.subtract(self.target_position, self.frame.position, out=self.position_error)
+        self._rotation_error.world(self.target_rotation, self.frame.rotation, out=self.orientation_error)
+        np.multiply(self.position_gain, self.position_error, out=self._position_velocity)
+        self._position_velocity += self.target_linear_velocity
+        np.multiply(self.orientation_gain, self.orientation_error, out=self._orientation_velocity)
+        self._orientation_velocity += self.target_angular_velocity

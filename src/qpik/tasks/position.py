@@ -1,65 +1,115 @@
-"""Position of a frame (site, body or geom) on selected world axes."""
+"""Position of a frame (site, body or geom) on selected world or local axes."""
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
 from ..robot import Robot
-from .task import Task, axis_rows, finite_vector, positive
+from .task import PoseRows, Task, axis_rows, check_axes_frame, contiguous_rows, finite_vector, positive
 
 
 class PositionTask(Task):
-    """Track a site's position on selected world axes (the arm's task uses ``"xy"``).
+    r"""Track a frame's position on selected axes (the arm's task uses ``"xy"``).
 
-    :math:`v = \\dot p_d + K (p_d - p)` on the masked rows. Targets are given in the
-    masked coordinates (length ``len(axes)``).
+    .. math::
+        J = S J_p,\qquad v = S\,\dot p_d + K\,S (p_d - p)
+
+    with :math:`S` the rows of the mask ``axes``, :math:`J_p` MuJoCo's translational
+    Jacobian of the frame. In world axes (the default) targets are given on the masked
+    axes (length ``len(axes)``). With ``axes_frame="local"`` the mask, gains and weights
+    refer to the frame's own axes (:math:`S R^T`): the target is then a whole world
+    position (3,) and only its components along the frame's kept axes are tracked.
 
     ``lm_damping`` μ adds μ w ‖e‖² ‖q̇‖²/2 to the cost of a soft task (adaptive
     Levenberg–Marquardt, as mink's ``lm_damping``): negligible while tracking, it
     calms the step when the target is out of reach and the error stays large.
+
+    Args:
+        robot: the robot.
+        frame: name of the site, body or geom.
+        frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
+        axes: the rows kept, a subset of ``"xyz"``.
+        gain: K (1/s), a scalar or one per row.
+        weight: cost weight of a soft task, a scalar or one per row.
+        hard: enforce the rows as equalities in the QP.
+        lm_damping: μ above.
+        axes_frame: ``"world"`` or ``"local"`` (the frame's own axes).
+
+    Raises:
+        UnknownName: no frame of that type has this name (the closest are listed).
+        InvalidInput: a bad gain, weight, mask or ``axes_frame``.
     """
 
     name = "position task"
 
-    def __init__(self, robot: Robot, site: str, axes: str = "xyz", gain=1.0, weight=1.0, hard: bool = False,
-                 lm_damping: float = 0.0):
+    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=1.0, weight=1.0,
+                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
         self.rows = axis_rows(axes)
+        self.axes_frame = axes_frame
+        self.local = check_axes_frame(axes_frame)
         super().__init__(robot, len(self.rows), weight, hard)
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
-        self.site = site
-        self.site_id = robot.site_id(site)
+        self.frame = robot.frame(frame, frame_type)
         self.gain = positive(gain, self.dim, "position gain", allow_zero=True)
-        self._model, self._data = robot.model, robot.data
         self._jacp = np.zeros((3, robot.nv))
-        site_position = robot.data.site_xpos[self.site_id]
+        self._views = False
+        if self.local:
+            self._pose_rows = PoseRows(self.frame, robot.nv, self.rows, None, local=True)
+            self._feedforward = np.zeros(self.dim)
+            self.target = self.frame.position.copy()
+            self.target_rate = np.zeros(3)
+            return
         # With contiguous axes ("xy", "xyz") the Jacobian and position are views that
         # MuJoCo's own arrays fill: no copies in the loop.
-        self._views = bool(self.rows[-1] - self.rows[0] + 1 == self.dim)
+        rows = contiguous_rows(self.rows)
+        self._views = rows is not None
         if self._views:
-            rows = slice(int(self.rows[0]), int(self.rows[-1]) + 1)
             self.jacobian = self._jacp[rows]
-            self.position = site_position[rows]
+            self.position = self.frame.position[rows]
         else:
-            self.position = site_position[self.rows]
-        self.target = site_position[self.rows].copy()
+            self.position = self.frame.position[self.rows]
+        self.target = self.frame.position[self.rows].copy()
         self.target_rate = np.zeros(self.dim)
 
+    @property
+    def target_dim(self) -> int:
+        """Length of a target: ``len(axes)`` in world axes, 3 (a world position) in local axes."""
+        return len(self.target)
+
     def set_target(self, position, velocity=None) -> None:
-        """Desired position (and feed-forward velocity) on the masked axes."""
-        self.target[:] = finite_vector(position, self.dim, "target position")
-        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, "target velocity")
+        """Desired position and feed-forward velocity: on the masked world axes, or a
+        world position (3,) and velocity with ``axes_frame="local"``.
+
+        Raises:
+            InvalidInput: a wrong length, NaN or inf.
+        """
+        self.target[:] = finite_vector(position, self.target_dim, "target position")
+        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.target_dim, "target velocity")
+
+    def measured(self, robot: Robot | None = None) -> np.ndarray:
+        """The tracked position in the target's coordinates (a copy), on the bound robot
+        or another robot of the same model (valid after its kinematics update)."""
+        position = (robot or self.robot).frame_position(self.frame)
+        return position.copy() if self.local else position[self.rows]
 
     def update(self) -> None:
-        mujoco.mj_jacSite(self._model, self._data, self._jacp, None, self.site_id)
-        if not self._views:
-            self.jacobian[:] = self._jacp[self.rows]
+        if self.local:
+            self._pose_rows.jacobian(self.jacobian)
+        else:
+            self.frame.jacobian(self._jacp)
+            if not self._views:
+                np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
         self.update_target_velocity()
 
     def update_target_velocity(self) -> None:
         """Error and v only (what a law without the Jacobian needs)."""
+        if self.local:
+            self._pose_rows.errors(self.target, None, self.target_rate, None, self.error, self._feedforward)
+            np.multiply(self.gain, self.error, out=self.target_velocity)
+            self.target_velocity += self._feedforward
+            return
         if not self._views:
-            self.position[:] = self._data.site_xpos[self.site_id][self.rows]
+            np.take(self.frame.position, self.rows, out=self.position)
         np.subtract(self.target, self.position, out=self.error)
         np.multiply(self.gain, self.error, out=self.target_velocity)
         self.target_velocity += self.target_rate

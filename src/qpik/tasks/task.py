@@ -16,6 +16,11 @@ The QP either enforces a task (``hard=True``: :math:`J\dot q = v`) or adds
 :math:`\tfrac12 \|J\dot q - v\|_W^2`; the classical laws use the same two arrays. Tracking
 tasks use the closed-loop inverse kinematics velocity :math:`v = \dot x_d + K (x_d - x)`.
 
+Frame-based tasks (position, orientation, pose, relative pose) act on a site, a body (its
+origin) or a geom (``frame_type``). Their masks (``axes``), gains and weights refer to the
+world's axes (``axes_frame="world"``, the default) or to the frame's own moving axes
+(``axes_frame="local"``: e, the feed-forward velocity and J rotated by :math:`R^T`).
+
 All arrays are preallocated: ``update`` writes in place and allocates nothing big.
 """
 
@@ -30,13 +35,81 @@ from ..errors import InvalidInput
 from ..robot import Robot
 
 _AXES = "xyz"
+AXES_FRAMES = ("world", "local")
+_IDENTITY = np.eye(3)
 
 
-def axis_rows(axes: str) -> np.ndarray:
+def axis_rows(axes: str, what: str = "axes") -> np.ndarray:
     """Row indices of a mask such as ``"xy"`` (a non-empty subset of ``"xyz"``)."""
     if not isinstance(axes, str) or not axes or any(a not in _AXES for a in axes) or len(set(axes)) != len(axes):
-        raise InvalidInput(f"axes must be a non-empty subset of 'xyz', got {axes!r}")
+        raise InvalidInput(f"{what} must be a non-empty subset of 'xyz', got {axes!r}")
     return np.array(sorted(_AXES.index(a) for a in axes), dtype=int)
+
+
+def check_axes_frame(axes_frame: str) -> bool:
+    """Whether masks, gains and weights refer to the frame's own axes (``"local"``) or the
+    world's (``"world"``); InvalidInput otherwise."""
+    if axes_frame not in AXES_FRAMES:
+        raise InvalidInput(f"axes_frame must be one of {AXES_FRAMES}, got {axes_frame!r}")
+    return axes_frame == "local"
+
+
+def contiguous_rows(rows: np.ndarray) -> slice | None:
+    """``rows`` as a slice when they are consecutive (then views replace copies), else None."""
+    if rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return None
+
+
+def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
+    """``rotation`` as a float (3, 3) array after a cheap check that it is a rotation.
+
+    Raises:
+        InvalidInput: not a finite 3x3 matrix, not orthonormal to 1e-6, or a reflection.
+    """
+    rot = np.asarray(rotation, dtype=float)
+    if rot.shape != (3, 3):
+        raise InvalidInput(f"{what} must be a 3x3 matrix, got shape {rot.shape}")
+    gram = rot.T @ rot
+    gram -= _IDENTITY
+    deviation = float(np.max(np.abs(gram)))
+    if not np.isfinite(deviation):
+        raise InvalidInput(f"{what} contains NaN or inf")
+    if deviation > 1e-6:
+        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {deviation:.2g})")
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+        raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
+    return rot
+
+
+class RotationError:
+    """e with exp([e]) R_current = R_desired, world (or current-frame) axes, no allocation.
+
+    MuJoCo's quaternion difference (``mju_subQuat``) gives the rotation vector in the
+    current frame's axes; :meth:`world` rotates it into the world's.
+    """
+
+    def __init__(self) -> None:
+        self._desired, self._current = np.empty(4), np.empty(4)
+        self.local = np.empty(3)
+
+    def compute(self, desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+        """The error in the current frame's axes (``self.local``, overwritten next call)."""
+        mujoco.mju_mat2Quat(self._desired, desired.reshape(9))
+        mujoco.mju_mat2Quat(self._current, current.reshape(9))
+        mujoco.mju_subQuat(self.local, self._desired, self._current)  # qc * exp(local) = qd
+        return self.local
+
+    def world(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The error in world axes, written into ``out``."""
+        return np.matmul(current, self.compute(desired, current), out=out)
+
+
+def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """World-frame rotation vector e with exp([e]) R_current = R_desired."""
+    out = np.empty(3)
+    return RotationError().world(np.ascontiguousarray(desired), np.ascontiguousarray(current), out)
 
 
 def finite_vector(value, size: int, what: str) -> np.ndarray:
@@ -118,19 +191,10 @@ def joint_dofs(robot: Robot, joints: Sequence[str] | None) -> np.ndarray:
         return scalar_dofs(robot)
     if isinstance(joints, str):
         raise InvalidInput(f"joints must be a list of joint names, got the string {joints!r}")
-    dofs = []
-    for name in joints:
-        jid = robot.joint_id(name)
-        start = int(robot.model.jnt_dofadr[jid])
-        dofs.extend(range(start, start + _joint_dof_count(robot.model, jid)))
+    dofs = [int(dof) for name in joints for dof in robot.joint_dofs(name)]
     if len(set(dofs)) != len(dofs):
         raise InvalidInput(f"a joint is named twice in {list(joints)}")
     return np.array(sorted(dofs), dtype=int)
-
-
-def _joint_dof_count(model: mujoco.MjModel, jid: int) -> int:
-    kind = int(model.jnt_type[jid])
-    return {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}.get(kind, 1)
 
 
 class JointSpaceTask(Task):
@@ -175,3 +239,74 @@ class JointSpaceTask(Task):
     @property
     def joint_space(self) -> bool:
         return self._custom_jacobian is None and type(self).jacobian is JointSpaceTask.jacobian
+
+
+class PoseRows:
+    """Masked rows of a frame's pose error, feed-forward velocity and Jacobian.
+
+    The blocks are the position (rows 0-2) and/or the orientation (next three) of
+    ``frame``; ``rows`` picks among them. In world axes the rows are the world's; in the
+    frame's own axes (``local``) the error e, the feed-forward velocity and the Jacobian
+    J are rotated by :math:`R^T`: the rows then measure the pose along the frame's
+    current axes. (:math:`\\dot{(R^T e)} = R^T\\dot e + \\dot R^T e`: the second term,
+    of order \\|e\\| \\|ω\\|, is left out, as in placo's local masks.)
+
+    Everything is preallocated; the tasks built on it allocate nothing per step.
+    """
+
+    def __init__(self, frame, nv: int, position_rows: np.ndarray | None, orientation_rows: np.ndarray | None,
+                 local: bool):
+        self.frame = frame
+        self.local = local
+        self.has_position = position_rows is not None
+        self.has_orientation = orientation_rows is not None
+        blocks = int(self.has_position) + int(self.has_orientation)
+        offset = 3 if self.has_position else 0
+        parts = ([position_rows] if self.has_position else []) + ([offset + orientation_rows] if self.has_orientation else [])
+        self.rows = np.concatenate(parts).astype(int)
+        self._jac = np.zeros((3 * blocks, nv))
+        self._rotated = np.zeros((3 * blocks, nv))
+        self._jacp = self._jac[:3] if self.has_position else None
+        self._jacr = self._jac[offset:] if self.has_orientation else None
+        self._error = np.zeros(3 * blocks)
+        self._feedforward = np.zeros(3 * blocks)
+        self._scratch = np.zeros(3)
+        self._blocks = [slice(3 * b, 3 * b + 3) for b in range(blocks)]
+        self._position = slice(0, 3) if self.has_position else None
+        self._orientation = slice(offset, offset + 3) if self.has_orientation else None
+        self._rotation_error = RotationError()
+
+    def jacobian(self, out: np.ndarray) -> None:
+        """Write the masked Jacobian rows into ``out`` (len(rows) x nv)."""
+        self.frame.jacobian(self._jacp, self._jacr)
+        jac = self._jac
+        if self.local:
+            Rt = self.frame.rotation.T
+            for block in self._blocks:
+                np.matmul(Rt, jac[block], out=self._rotated[block])
+            jac = self._rotated
+        np.take(jac, self.rows, axis=0, out=out)
+
+    def errors(self, target_position, target_rotation, linear_velocity, angular_velocity,
+               error: np.ndarray, feedforward: np.ndarray) -> None:
+        """Write the masked pose error and feed-forward velocity into ``error``, ``feedforward``."""
+        frame, e, f = self.frame, self._error, self._feedforward
+        R = frame.rotation
+        if self.has_position:
+            np.subtract(target_position, frame.position, out=e[self._position])
+            f[self._position] = linear_velocity
+            if self.local:  # vᵀR = (Rᵀv)ᵀ
+                np.matmul(e[self._position], R, out=self._scratch)
+                e[self._position] = self._scratch
+                np.matmul(f[self._position], R, out=self._scratch)
+                f[self._position] = self._scratch
+        if self.has_orientation:
+            part = self._orientation
+            if self.local:
+                e[part] = self._rotation_error.compute(target_rotation, R)
+                np.matmul(angular_velocity, R, out=f[part])
+            else:
+                self._rotation_error.world(target_rotation, R, out=e[part])
+                f[part] = angular_velocity
+        np.take(e, self.rows, out=error)
+        np.take(f, self.rows, out=feedforward)

@@ -2,7 +2,7 @@ r"""mink on qpik's scenarios: its FrameTask, EqualityConstraintTask, limits and 
 
 The mapping (see :mod:`qpik.app.peers.problem` for why each one is exact):
 
-- position task → ``mink.FrameTask`` on the same site, ``gain`` α = KΔt (1.0 for
+- position task → ``mink.FrameTask`` on the same frame (site, body or geom), ``gain`` α = KΔt (1.0 for
   K = 500, Δt = 2 ms), target translation :math:`p_d + \dot p_d/K` on the task's axes and
   the site's current rotation (so the SE(3) error has no rotation part to couple into the
   position rows: mink's log Jacobian is then the identity), ``orientation_cost = 0``.
@@ -29,7 +29,7 @@ The mapping (see :mod:`qpik.app.peers.problem` for why each one is exact):
   μ‖α e‖², qpik's μ‖e‖²; they agree up to the feed-forward share of mink's error, so only
   while the target moves). On ``hexapod-stroke-limits`` this share dominates the
   difference (per step ~4e-5 m/s, ~5e-8 m/s with the QP's own LM weight).
-- loop closures → ``mink.EqualityConstraintTask`` on the same ``connect`` equalities,
+- loop closures (the hard :class:`~qpik.tasks.EqualityTask`) → ``mink.EqualityConstraintTask`` on the same equalities,
   ``gain`` α_c = K_cΔt, in ``constraints``. mink reads MuJoCo's constraint rows
   (``efc_pos`` = p1 − p2, ``efc_J`` = J(p1) − J(p2), which ``Configuration.update`` fills
   with ``mj_makeConstraint``): the QP's e_c and J_c, so its row
@@ -228,12 +228,12 @@ class MinkController:
         if speeds:
             self.limits.append(mink.VelocityLimit(model, speeds))
         tracking = problem.tracking
-        self._site = tracking.site
+        self._frame = (tracking.frame.name, tracking.frame.type)
         lm_damping = tracking.lm_damping / problem.step_gain**2
         if problem.frame:
             costs = (1.0, 1.0) if problem.hard else (_block_cost(tracking.weight[:3], "position"),
                                                      _block_cost(tracking.weight[3:], "orientation"))
-            self.frame = mink.FrameTask(tracking.site, "site", position_cost=costs[0], orientation_cost=costs[1],
+            self.frame = mink.FrameTask(*self._frame, position_cost=costs[0], orientation_cost=costs[1],
                                         gain=problem.step_gain, lm_damping=lm_damping)
             hard_rows = self.frame
             self._target = mink.SE3(np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
@@ -241,7 +241,7 @@ class MinkController:
             self._axes = 4 + tracking.rows  # translation entries of mink's wxyz_xyz pose
             weight = np.zeros(3)
             weight[tracking.rows] = tracking.weight
-            self.frame = mink.FrameTask(tracking.site, "site", position_cost=np.sqrt(weight), orientation_cost=0.0,
+            self.frame = mink.FrameTask(*self._frame, position_cost=np.sqrt(weight), orientation_cost=0.0,
                                         gain=problem.step_gain, lm_damping=lm_damping)
             hard_rows = TaskRows(self.frame, tracking.rows)
         soft = [QpikTask(task, self.dt) for task in (*problem.joint_space, *problem.extra)]
@@ -259,7 +259,7 @@ class MinkController:
     def _retarget(self) -> None:
         """The frame task's target for this step (see the module docstring)."""
         configuration = self.configuration
-        pose = configuration.get_transform_frame_to_world(self._site, "site")
+        pose = configuration.get_transform_frame_to_world(*self._frame)
         if self.problem.frame:
             rplus(pose.wxyz_xyz, self.problem.body_step(), self._target.wxyz_xyz)
             self.frame.set_target(self._target)

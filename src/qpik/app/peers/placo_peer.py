@@ -17,7 +17,7 @@ the tracked frame's pose is checked against MuJoCo's site. placo's variable is t
   :math:`J_p\Delta q = \text{target} - p` and
   :math:`J_\omega\Delta q = \log(R_t R^T)` (world frame, pinocchio's ``WORLD`` Jacobian)
   are then :math:`J\Delta q = \Delta t\,v`, the QP's rows, hard or soft (weights w_p, w_o).
-- loop closures (``connect`` equalities between two sites) → one hard
+- loop closures (the hard :class:`~qpik.tasks.EqualityTask`'s ``connect`` equalities between two sites) → one hard
   ``RelativePositionTask`` per loop, target 0 (placo's documented way to close a loop):
   :math:`\partial_q(R_1^T(p_2 - p_1))\Delta q = -R_1^T(p_2 - p_1)`. Dead-beat, so α_c = K_cΔt
   must be 1. It equals the QP's :math:`J_c\Delta q = -e_c` rotated by :math:`R_1^T` except
@@ -179,7 +179,9 @@ class PlacoController:
 
     def _tracking(self, problem: PeerProblem) -> None:
         task = problem.tracking
-        self._frame = task.site
+        if task.frame.type == "geom":
+            raise PeerUnsupported("placo: a geom frame has no URDF link; track a site or a body")
+        self._frame = task.frame.name  # the URDF link of that site or body
         priority = "hard" if problem.hard else "soft"
         self.orientation = None
         if problem.frame:
@@ -209,7 +211,7 @@ class PlacoController:
             raise PeerUnsupported(f"placo: its loop tasks are dead-beat, K_cΔt = {problem.loop_gain:g} must be 1")
         model = self.robot.model
         for eq in problem.loop_equalities():
-            if model.eq_objtype[eq] != mujoco.mjtObj.mjOBJ_SITE:
+            if model.eq_type[eq] != mujoco.mjtEq.mjEQ_CONNECT or model.eq_objtype[eq] != mujoco.mjtObj.mjOBJ_SITE:
                 raise PeerUnsupported("placo: only site-to-site connect equalities are mapped")
             a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SITE, int(s))
                     for s in (model.eq_obj1id[eq], model.eq_obj2id[eq]))
@@ -249,11 +251,11 @@ class PlacoController:
         """The URDF must place the frame where MuJoCo places the site."""
         self._sync()
         pose = self.wrapper.get_T_world_frame(self._frame)
-        site = self.problem.tracking.site_id
-        if not (np.allclose(pose[:3, 3], self.robot.site_position(site), atol=1e-9)
-                and np.allclose(pose[:3, :3], self.robot.site_rotation(site), atol=1e-9)):
+        frame = self.problem.tracking.frame
+        if not (np.allclose(pose[:3, 3], frame.position, atol=1e-9)
+                and np.allclose(pose[:3, :3], frame.rotation, atol=1e-9)):
             raise PeerUnsupported(f"placo: the URDF's {self._frame!r} is at {pose[:3, 3]}, "
-                                  f"MuJoCo's site at {self.robot.site_position(site)}")
+                                  f"MuJoCo's {frame.type} at {frame.position}")
 
     def _retarget(self) -> None:
         problem, dt = self.problem, self.dt

@@ -48,7 +48,7 @@ from ...errors import QpikError
 from ...limits import JointPositionLimit, JointVelocityLimit
 from ...robot import Robot
 from ...scenario import Setup
-from ...tasks import FrameTask, LoopClosureTask, PositionTask, Task
+from ...tasks import EqualityTask, FrameTask, PositionTask, Task
 
 SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 # JointPositionLimit's default margin: bounds pulled in so that q + q̇Δt never lands a
@@ -73,7 +73,7 @@ class PeerProblem:
         step_gain: α = KΔt of the tracked task, in (0, 1].
         joint_space: the soft joint-space tasks (J = I[dofs], target velocity v).
         extra: the other soft tasks, each with its own Jacobian (e.g. platform manipulability).
-        loops: the loop-closure task (hard), if the robot is a closed chain.
+        loops: the hard equality task (loop closures), if the robot is a closed chain.
         loop_gain: α_c = K_cΔt of the loop closures, in (0, 1] (0 without loops).
         position_limit: the scenario's joint position limit (its ranges, gain, damper).
         max_velocity: per-dof speed bound (nv,), inf where none.
@@ -85,7 +85,7 @@ class PeerProblem:
     step_gain: float
     joint_space: tuple[Task, ...]
     extra: tuple[Task, ...]
-    loops: LoopClosureTask | None
+    loops: EqualityTask | None
     loop_gain: float
     position_limit: JointPositionLimit
     max_velocity: np.ndarray
@@ -105,14 +105,17 @@ class PeerProblem:
         if not isinstance(tracking, (PositionTask, FrameTask)) or tracking not in setup.qp_tasks:
             raise PeerUnsupported(f"{peer}: scenario {setup.scenario!r} tracks a {type(tracking).__name__} "
                                   "outside the QP, which the peer does not map")
+        if tracking.axes_frame != "world" or (isinstance(tracking, FrameTask) and tracking.dim != 6):
+            raise PeerUnsupported(f"{peer}: scenario {setup.scenario!r} tracks a masked frame task or one in the "
+                                  "frame's own axes, which the peer mapping does not cover")
         others = [t for t in setup.qp_tasks if t is not tracking]
-        loops = [t for t in others if isinstance(t, LoopClosureTask)]
+        loops = [t for t in others if isinstance(t, EqualityTask) and t.hard]
         joint_space = [t for t in others if t.joint_space]
         extra = [t for t in others if t not in loops and t not in joint_space]
         hard_extra = [type(t).__name__ for t in extra if t.hard]
         if hard_extra or len(loops) > 1:
             raise PeerUnsupported(f"{peer}: scenario {setup.scenario!r} has tasks the peer does not map: "
-                                  f"{hard_extra or ['two loop-closure tasks']}")
+                                  f"{hard_extra or ['two equality tasks']}")
         step_gain = _step_gain(_gains(tracking), setup.dt, f"{peer}: the tracking gain")
         loop_gain = _step_gain(np.array([loops[0].gain]), setup.dt, f"{peer}: the loop gain") if loops else 0.0
         position_limits = [lim for lim in setup.limits if isinstance(lim, JointPositionLimit)]
@@ -139,7 +142,7 @@ class PeerProblem:
         return task.target + task.target_rate / task.gain
 
     def body_step(self) -> np.ndarray:
-        r"""u = (Δt/α) [Rᵀ v_lin; Rᵀ v_ang] (6,): the frame task's step in the site's body frame.
+        r"""u = (Δt/α) [Rᵀ v_lin; Rᵀ v_ang] (6,): the frame task's step in the frame's own axes.
 
         With the QP's :math:`v = [\dot p_d + K e_p;\ \omega_d + K e_o]` and α = KΔt this is
         :math:`u = [R^T(\dot p_d/K + e_p);\ R^T(\omega_d/K + e_o)]`: the current pose
@@ -151,7 +154,7 @@ class PeerProblem:
         """
         task = self.tracking
         task.update_target_velocity()
-        R = self.robot.site_rotation(task.site_id)
+        R = task.frame.rotation
         scale = self.dt / self.step_gain
         v, u = task.target_velocity, self._step
         np.matmul(v[:3], R, out=u[:3])  # vᵀR = (Rᵀv)ᵀ
@@ -184,7 +187,7 @@ class PeerProblem:
         return out
 
     def loop_equalities(self) -> list[int]:
-        """The ids of the model's ``connect`` equalities the loop-closure task closes."""
+        """The ids of the model's equalities the hard equality task enforces."""
         return [] if self.loops is None else list(self.loops.equalities)
 
 def _gains(task: PositionTask | FrameTask) -> np.ndarray:

@@ -71,7 +71,7 @@ def arm_setup(
     scene: str = "arm",
 ) -> Setup:
     """The arm with its position task (x, y), optional σ task, limits and reference."""
-    robot = Robot.load(scene)
+    robot = Robot.load(scene)  # the scenarios start at ARM_START, home or not
     for joint in ARM_JOINTS:  # a custom scene must name what the arm scenarios use
         robot.joint_id(joint)
     robot.set_q(np.array(ARM_START))

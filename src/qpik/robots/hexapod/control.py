@@ -2,7 +2,7 @@ r"""Control of the hexapod on its full MuJoCo coordinates, and its classical com
 
 The QP controller works on all 24 dofs (6 sliders, 12 universal-joint hinges, the
 platform's free joint): the platform task, the six ``connect`` loop closures as hard
-equalities :math:`J_c\dot q = -K_c e_c`, stroke and hinge limits as bounds. The
+equalities (an :class:`~qpik.tasks.EqualityTask` on MuJoCo's own constraint rows) :math:`J_c\dot q = -K_c e_c`, stroke and hinge limits as bounds. The
 classical law works on the strokes only:
 
 - 6-D task: :math:`\dot q_s = J_{inv}(p, R)\,[\dot p_d + K e_p;\ \omega_d + K e_o]`
@@ -31,7 +31,7 @@ from ...errors import ConvergenceError, DivergenceError
 from .kinematics import N_LEGS, Hexapod
 from .scene import assembly_qpos
 from ...robot import Robot
-from ...tasks import FrameTask, LoopClosureTask, PositionTask, Task, rotation_error
+from ...tasks import EqualityTask, FrameTask, PositionTask, Task, rotation_error
 
 CHARACTERISTIC_LENGTH = 0.1  # m, the platform radius: makes rotations commensurate
 _GRADIENT_STEP = 1e-5  # rad
@@ -206,7 +206,7 @@ class StrokeDrivenClosure:
 class PlatformReference:
     """Feeds a pose trajectory to the platform task; measures pose error and loops."""
 
-    def __init__(self, model: HexapodModel, task: FrameTask | PositionTask, trajectory, loops: LoopClosureTask):
+    def __init__(self, model: HexapodModel, task: FrameTask | PositionTask, trajectory, loops: EqualityTask):
         self.model = model
         self.task = task
         self.trajectory = trajectory

@@ -30,7 +30,7 @@ from .kinematics import HexapodGeometry
 from ...limits import JointPositionLimit, JointVelocityLimit
 from ...robot import Robot
 from ...scenario import JointPlotSpec, Setup, register
-from ...tasks import DampingTask, FrameTask, LoopClosureTask, PositionTask
+from ...tasks import DampingTask, EqualityTask, FrameTask, PositionTask
 from ...trajectories import Circle, CircularTilt, PoseTrajectory, Segment
 
 HEXAPOD_GAIN = 500.0
@@ -48,9 +48,9 @@ def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: boo
                   k0: float = 0.0, duration: float | None = None, scene: str = "hexapod") -> Setup:
     """The hexapod with its platform task, loop closures, limits and reference; ``duration``
     (default the trajectory's) may exceed the trajectory's, which then holds its end pose."""
-    robot = Robot.load(scene)
+    robot = Robot.load(scene, keyframe="home")
     model = HexapodModel(robot)
-    loops = LoopClosureTask(robot, model.loop_names, gain=LOOP_GAIN)
+    loops = EqualityTask(robot, model.loop_names, gain=LOOP_GAIN)
     lm = 0.0 if hard else LM_DAMPING
     if orientation:
         task = FrameTask(robot, "platform_center", position_gain=HEXAPOD_GAIN, orientation_gain=HEXAPOD_GAIN,

@@ -1,0 +1,87 @@
+"""Centre of mass of the whole model or of a body's subtree."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from ..errors import ModelError
+from ..robot import Robot
+from .task import Task, axis_rows, finite_vector, positive
+
+
+class ComTask(Task):
+    r"""Track the centre of mass c of the whole model, or of the subtree of one body.
+
+    .. math::
+        J = S\,\frac{\partial c}{\partial q},\qquad v = S\,\dot c_d + K\,S (c_d - c),
+
+    with :math:`S` the world rows of the mask ``axes`` (e.g. ``"xy"`` to keep the CoM
+    above a support polygon), c MuJoCo's ``subtree_com`` and its Jacobian
+    ``mj_jacSubtreeCom``.
+
+    Args:
+        robot: the robot.
+        gain: K (1/s), a scalar or one per row.
+        weight: cost weight of a soft task, a scalar or one per row.
+        subtree: a body name: the CoM of that body and its descendants (default: the
+            whole model, the world body's subtree).
+        axes: the world rows kept, a subset of ``"xyz"``.
+        hard: enforce the rows as equalities in the QP.
+        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+
+    Raises:
+        UnknownName: ``subtree`` names no body (the closest are listed).
+        ModelError: the subtree has no mass.
+        InvalidInput: a bad gain, weight or mask.
+
+    The target is the CoM when the task is built; :meth:`set_target` moves it.
+    """
+
+    name = "CoM task"
+
+    def __init__(self, robot: Robot, gain=1.0, weight=1.0, subtree: str | None = None, axes: str = "xyz",
+                 hard: bool = False, lm_damping: float = 0.0):
+        self.rows = axis_rows(axes)
+        super().__init__(robot, len(self.rows), weight, hard)
+        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        self.body = 0 if subtree is None else robot.body_id(subtree)
+        if not robot.model.body_subtreemass[self.body] > 0:
+            what = "the model" if subtree is None else f"the subtree of body {subtree!r}"
+            raise ModelError(f"{self.name}: {what} has no mass, so no centre of mass")
+        self.gain = positive(gain, self.dim, "CoM gain", allow_zero=True)
+        self.com = robot.data.subtree_com[self.body]  # a view, refreshed by every kinematics update
+        self._jacp = np.zeros((3, robot.nv))
+        self.target = self.com[self.rows].copy()
+        self.target_rate = np.zeros(self.dim)
+        self._masked = np.zeros(self.dim)
+
+    @property
+    def target_dim(self) -> int:
+        """Length of a target: ``len(axes)``."""
+        return self.dim
+
+    def set_target(self, position, velocity=None) -> None:
+        """Desired CoM and its feed-forward velocity, on the masked world axes.
+
+        Raises:
+            InvalidInput: a wrong length, NaN or inf.
+        """
+        self.target[:] = finite_vector(position, self.dim, "target CoM")
+        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, "target CoM velocity")
+
+    def measured(self, robot: Robot | None = None) -> np.ndarray:
+        """The CoM on the masked axes (a copy), on the bound robot or another of the same model
+        (valid after its kinematics update)."""
+        return (robot or self.robot).data.subtree_com[self.body][self.rows]
+
+    def update(self) -> None:
+        mujoco.mj_jacSubtreeCom(self.robot.model, self.robot.data, self._jacp, self.body)
+        np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
+        self.update_target_velocity()
+
+    def update_target_velocity(self) -> None:
+        """Error and v only (what a law without the Jacobian needs)."""
+        np.subtract(self.target, np.take(self.com, self.rows, out=self._masked), out=self.error)
+        np.multiply(self.gain, self.error, out=self.target_velocity)
+        self.target_velocity += self.target_rate

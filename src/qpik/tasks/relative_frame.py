@@ -1,0 +1,119 @@
+"""Pose of a frame in another frame's coordinates."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidInput
+from ..robot import Robot
+from .task import RotationError, Task, finite_vector, positive, rotation_matrix
+
+
+class RelativeFrameTask(Task):
+    r"""Track the pose of ``frame`` in the coordinates of ``root`` (both move).
+
+    With :math:`d = p_f - p_r`, the relative pose is :math:`p = R_r^T d`,
+    :math:`R = R_r^T R_f`, and its time derivative, in root coordinates,
+
+    .. math::
+        \dot p = R_r^T\,(J_{p,f} - J_{p,r} + [d]_\times J_{\omega,r})\,\dot q,\qquad
+        \omega = R_r^T\,(J_{\omega,f} - J_{\omega,r})\,\dot q,
+
+    the task's two 3-row blocks. As for :class:`~qpik.tasks.FrameTask`,
+    :math:`v = [\dot p_d + K_p (p_d - p);\ \omega_d + K_o e_o]` with
+    :math:`\exp([e_o]_\times) R = R_d`, all in root coordinates. With ``root`` the world
+    body this is the FrameTask. mink's RelativeFrameTask regulates the same pose.
+
+    Args:
+        robot: the robot.
+        frame: name of the tracked site, body or geom.
+        root: name of the site, body or geom whose coordinates the pose is taken in.
+        frame_type: type of ``frame``: ``"site"``, ``"body"`` or ``"geom"``.
+        root_type: type of ``root``.
+        position_gain: :math:`K_p` (1/s), a scalar or one per axis.
+        orientation_gain: :math:`K_o` (1/s), a scalar or one per axis.
+        weight: cost weight of a soft task, a scalar or one per row (6).
+        hard: enforce the rows as equalities in the QP.
+        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+
+    Raises:
+        UnknownName: a frame name unknown for its type (the closest are listed).
+        InvalidInput: a bad gain or weight, or ``frame`` and ``root`` the same frame.
+
+    The target is the relative pose when the task is built; :meth:`set_target` moves it.
+    """
+
+    name = "relative frame task"
+
+    def __init__(self, robot: Robot, frame: str, root: str, frame_type: str = "site", root_type: str = "site",
+                 position_gain=1.0, orientation_gain=1.0, weight=1.0, hard: bool = False, lm_damping: float = 0.0):
+        super().__init__(robot, 6, weight, hard)
+        self.frame = robot.frame(frame, frame_type)
+        self.root = robot.frame(root, root_type)
+        if (self.frame.type, self.frame.id) == (self.root.type, self.root.id):
+            raise InvalidInput(f"{self.name}: frame and root are the same {frame_type} {frame!r}")
+        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        self.position_gain = positive(position_gain, 3, "position gain", allow_zero=True)
+        self.orientation_gain = positive(orientation_gain, 3, "orientation gain", allow_zero=True)
+        nv = robot.nv
+        self._jac_frame, self._jac_root = np.zeros((6, nv)), np.zeros((6, nv))
+        self._moved = np.zeros((3, nv))
+        self._row = np.zeros(nv)
+        self._offset = np.zeros(3)
+        self.position = np.zeros(3)  # the relative pose, refreshed by every update
+        self.rotation = np.zeros((3, 3))
+        self._relative_pose()
+        self.target_position = self.position.copy()
+        self.target_rotation = self.rotation.copy()
+        self.target_linear_velocity = np.zeros(3)
+        self.target_angular_velocity = np.zeros(3)
+        self.position_error = self.error[:3]
+        self.orientation_error = self.error[3:]
+        self._rotation_error = RotationError()
+
+    def _relative_pose(self) -> None:
+        np.subtract(self.frame.position, self.root.position, out=self._offset)
+        np.matmul(self._offset, self.root.rotation, out=self.position)  # dᵀR_r = (R_rᵀd)ᵀ
+        np.matmul(self.root.rotation.T, self.frame.rotation, out=self.rotation)
+
+    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
+        """Desired pose of ``frame`` in ``root`` coordinates, and its feed-forward twist
+        (root coordinates).
+
+        Raises:
+            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
+        """
+        self.target_position[:] = finite_vector(position, 3, "target position")
+        self.target_rotation[:] = rotation_matrix(rotation)
+        self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
+        self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
+
+    def update(self) -> None:
+        jf, jr, moved = self._jac_frame, self._jac_root, self._moved
+        self.frame.jacobian(jf[:3], jf[3:])
+        self.root.jacobian(jr[:3], jr[3:])
+        self._relative_pose()
+        d, wr, row = self._offset, jr[3:], self._row
+        # J_pf − J_pr + d × (each column of J_ωr), the cross product written out per row.
+        np.subtract(jf[:3], jr[:3], out=moved)
+        for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+            moved[i] += np.multiply(d[j], wr[k], out=row)
+            moved[i] -= np.multiply(d[k], wr[j], out=row)
+        Rt = self.root.rotation.T
+        np.matmul(Rt, moved, out=self.jacobian[:3])
+        np.subtract(jf[3:], wr, out=moved)
+        np.matmul(Rt, moved, out=self.jacobian[3:])
+        self._errors()
+
+    def update_target_velocity(self) -> None:
+        """Errors and v only (what a law without the Jacobian needs)."""
+        self._relative_pose()
+        self._errors()
+
+    def _errors(self) -> None:
+        np.subtract(self.target_position, self.position, out=self.position_error)
+        self._rotation_error.world(self.target_rotation, self.rotation, out=self.orientation_error)
+        np.multiply(self.position_gain, self.position_error, out=self.target_velocity[:3])
+        self.target_velocity[:3] += self.target_linear_velocity
+        np.multiply(self.orientation_gain, self.orientation_error, out=self.target_velocity[3:])
+        self.target_velocity[3:] += self.target_angular_velocity
