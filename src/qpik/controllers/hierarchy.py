@@ -64,7 +64,15 @@ class _Level:
         soft = [t for t in self.tasks if not t.hard]
         self.soft_diagonal = [t for t in soft if t.joint_space]
         self.soft_general = [t for t in soft if not t.joint_space]
-        self.H0 = np.eye(nv) * regularization
+        # ε only breaks ties between a level's optima. A level of hard tasks alone has no
+        # cost of its own: its minimum-norm solution (H = I, which any solver meets
+        # accurately; with H = εI a tolerance-based solver would leave the null space
+        # loose). Joint-space tasks on every dof already make H positive definite: no ε.
+        covered = np.zeros(nv, dtype=bool)
+        for task in soft:
+            if task.joint_space:
+                covered[task.dofs[task.weight > 0]] = True
+        self.H0 = np.eye(nv) * (1.0 if not soft else 0.0 if covered.all() else regularization)
         for task in self.soft_diagonal:
             self.H0.reshape(-1)[:: nv + 1][task.dofs] += task.weight
         self.hessian_changes = bool(self.soft_general)
@@ -85,7 +93,10 @@ class HierarchicalController:
         solver: a qpsolvers name (``daqp``, ``osqp``, ``proxqp``, ``quadprog``, ...).
         dt: control period, used by the position limits.
         levels: explicit levels (lists of tasks, level 0 first) instead of ``tasks``.
-        regularization: ε on every level's Hessian diagonal (picks one optimum).
+        regularization: ε on the Hessian diagonal of a least-squares level whose cost
+            alone does not fix every joint (it picks one optimum and biases the level's
+            task velocities by about ε relative; 1e-10 keeps DAQP accurate, which at
+            1e-12 loses digits on such a nearly singular Hessian).
         native: call DAQP/OSQP/ProxQP directly (True) or through qpsolvers.
 
     A task with ``hard=True`` is an equality at its own level (and kept below); the
@@ -101,10 +112,10 @@ class HierarchicalController:
 
     def __init__(self, robot: Robot, tasks: Sequence[Task] | None = None, limits: Sequence = (),
                  solver: str = "daqp", dt: float = 0.002, *, levels: Sequence[Sequence[Task]] | None = None,
-                 regularization: float = 1e-12, native: bool = True, **solver_settings):
+                 regularization: float = 1e-10, native: bool = True, **solver_settings):
         if not (np.isfinite(dt) and dt > 0):
             raise InvalidInput(f"dt must be positive, got {dt}")
-        if not (np.isfinite(regularization) and regularization > 0):
+        if not (np.isfinite(regularization) and regularization > 0):  # a level may need it
             raise InvalidInput(f"regularization must be positive, got {regularization}")
         grouped = group_levels(robot, tasks, levels, "HierarchicalController")
         self.robot = robot
