@@ -39,10 +39,11 @@ def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp",
 
 
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
-            classical: Sequence[str] = CLASSICAL_KINDS,
+            classical: Sequence[str] = HIERARCHY_KINDS + CLASSICAL_KINDS,
             peers: Sequence[str] = PEERS) -> tuple[Setup, list[RolloutLog], list[str]]:
-    """qp with each solver, the classical laws, then the peers (mink with each solver,
-    placo with its own), on identical fresh setups.
+    """qp with each solver, the other controllers the scenario offers among ``classical``
+    (qp-hard, hqp, sns, pinv, jt), then the peers (mink with each solver, placo with its
+    own), on identical fresh setups.
 
     A controller that fails mid-run (an infeasible QP, a singular pseudoinverse) is
     kept with ``completed = False`` and the reason, so the table can say why.
@@ -56,16 +57,12 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
     for solver in solvers:
         setup, log = run(robot, scenario, "qp", solver, mode, on_failure="stop")
         logs.append(log)
-    offered = setup.controller_kinds()
-    for kind in HIERARCHY_KINDS:
-        if kind in offered:
-            setup, log = run(robot, scenario, kind, solvers[0] if kind != "sns" else "none", mode, on_failure="stop")
-            logs.append(log)
     for kind in classical:
         probe = build_scenario(scenario, robot)
-        if kind not in probe.classical:
+        if kind not in probe.controller_kinds():
             continue
-        setup, log = run(robot, scenario, kind, "none", mode, on_failure="stop", setup=probe)
+        solver = solvers[0] if kind in SOLVER_KINDS else "none"
+        setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop", setup=probe)
         logs.append(log)
     for kind in peers:
         if not peer_installed(kind):
