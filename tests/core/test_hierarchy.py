@@ -215,3 +215,12 @@ def test_equal_priorities_share_a_level_and_are_weighed():
     hqp = HierarchicalController(robot, [position, posture]).compute_velocity()
     qp = QPController(robot, [position, posture], regularization=1e-12).compute_velocity()
     np.testing.assert_allclose(hqp, qp, atol=1e-9)
+
+
+def test_hexapod_hierarchy_closes_the_loops_first_and_equals_the_hard_qp():
+    """Loops (level 0), platform pose (1), damping (2): every level hard or a minimum norm,
+    as in the hexapod's QP, so the two give the same rollout."""
+    hqp, qp = run("hexapod", "hexapod-circle", "hqp")[1], run("hexapod", "hexapod-circle", "qp")[1]
+    assert hqp.level_names == ("loops", "platform")
+    assert np.max(np.abs(hqp.q - qp.q)) <= 1e-9
+    assert hqp.summary()["level_error_max"][0] <= 1e-6 and hqp.summary()["limit_violation_max"] == 0.0
