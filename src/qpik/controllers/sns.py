@@ -84,13 +84,16 @@ _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 class _Solve:
     """The minimum-norm solution of J F y = r mapped back, x = F y (F: an orthonormal
     basis, or None for the identity): ``pinv`` (n x m) applied to r; and ``null``, a basis
-    of the null space of J F mapped back (computed when asked for). One SVD (LAPACK's
-    dgesvd directly: NumPy's wrapper costs more than the decomposition at these sizes)."""
+    of the null space of J F mapped back (computed when asked for). Singular values below
+    ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (not of
+    J F: a task direction the levels above nearly took is kept, as the law would keep
+    it; only rounding is cut). One SVD, from LAPACK directly (NumPy's wrapper costs more
+    than the decomposition at these sizes), or none for one row."""
 
-    __slots__ = ("pinv", "rank", "_basis", "_vt", "_null")
+    __slots__ = ("pinv", "rank", "_basis", "_matrix", "_vt", "_null")
 
-    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int):
-        self._basis, self._null = basis, None
+    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float = 1.0):
+        self._basis, self._matrix, self._vt, self._null = basis, matrix, None, None
         if matrix is None:  # J = I: x = F (I F)^# r = F Fᵀ r, and nothing of F is left
             self.rank = nv if basis is None else basis.shape[1]
             self.pinv = np.eye(nv) if basis is None else basis @ basis.T
@@ -101,11 +104,19 @@ class _Solve:
             self.rank, self.pinv = 0, np.zeros((nv, m))
             self._null = np.eye(nv) if basis is None else basis
             return
+        if m == 1:  # one row x: x^# = xᵀ/‖x‖²
+            row = matrix[0]
+            norm_sq = float(row @ row)
+            if not math.isfinite(norm_sq):
+                raise DivergenceError("SNS: a task Jacobian is not finite")
+            self.rank = 1 if norm_sq > (_RANK_TOLERANCE * scale) ** 2 else 0
+            pinv = (row / norm_sq if self.rank else 0.0 * row)[:, None]
+            self.pinv = pinv if basis is None else basis @ pinv
+            return
         u, s, vt, info = _gesvd(matrix)
-        largest = s[0]
-        if info != 0 or not math.isfinite(largest):
+        if info != 0 or not math.isfinite(s[0]):
             raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-        rank = int(np.count_nonzero(s > _RANK_TOLERANCE * largest)) if largest > 0 else 0
+        rank = int(np.count_nonzero(s > _RANK_TOLERANCE * scale))
         self.rank, self._vt = rank, vt
         if rank == len(s) == m:  # full row rank, the usual case
             pinv = vt[:rank].T @ (u.T / s[:, None])
@@ -116,6 +127,8 @@ class _Solve:
     @property
     def null(self) -> np.ndarray:
         if self._null is None:
+            if self._vt is None:  # the one-row case: decompose now
+                self._vt = _gesvd(self._matrix)[2]
             null = self._vt[self.rank:].T
             self._null = null if self._basis is None else self._basis @ null
         return self._null
@@ -234,7 +247,8 @@ class SNSController:
         if free_count == 0 or J.shape[0] == 0:
             return above, 0.0, 0, basis
         identity = level.identity  # J = I: no decomposition needed
-        task = _Solve(None if identity else (J if basis is None else J @ basis), basis, nv)
+        scale = 1.0 if identity else math.sqrt(float(np.vdot(J, J)))  # ‖J‖, for the rank decisions
+        task = _Solve(None if identity else (J if basis is None else J @ basis), basis, nv, scale)
         if task.rank == 0:  # the levels above took every direction this task moves
             return above, 0.0, 0, basis
         # The unsaturated pass: the prioritised pseudoinverse law.
@@ -272,7 +286,7 @@ class SNSController:
                     break
                 shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
                 free = hold.null
-            solve = _Solve(None if identity else J @ free, free, nv)
+            solve = _Solve(None if identity else J @ free, free, nv, scale)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
             qdot = shifted + solve.pinv @ (v - J @ shifted)
