@@ -87,12 +87,12 @@ class _Solve:
     of the null space of J F mapped back (computed when asked for). Singular values below
     ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (not of
     J F: a task direction the levels above nearly took is kept, as the law would keep
-    it; only rounding is cut). One SVD, from LAPACK directly (NumPy's wrapper costs more
+    it; only rounding is cut; None: the matrix is J, its largest singular value). One SVD, from LAPACK directly (NumPy's wrapper costs more
     than the decomposition at these sizes), or none for one row."""
 
     __slots__ = ("pinv", "rank", "_basis", "_matrix", "_vt", "_null")
 
-    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float = 1.0):
+    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float | None = 1.0):
         self._basis, self._matrix, self._vt, self._null = basis, matrix, None, None
         if matrix is None:  # J = I: x = F (I F)^# r = F Fᵀ r, and nothing of F is left
             self.rank = nv if basis is None else basis.shape[1]
@@ -109,14 +109,16 @@ class _Solve:
             norm_sq = float(row @ row)
             if not math.isfinite(norm_sq):
                 raise DivergenceError("SNS: a task Jacobian is not finite")
-            self.rank = 1 if norm_sq > (_RANK_TOLERANCE * scale) ** 2 else 0
+            self.rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
             pinv = (row / norm_sq if self.rank else 0.0 * row)[:, None]
             self.pinv = pinv if basis is None else basis @ pinv
             return
         u, s, vt, info = _gesvd(matrix)
-        if info != 0 or not math.isfinite(s[0]):
+        largest = float(s[0])
+        if info != 0 or not math.isfinite(largest):
             raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-        rank = int(np.count_nonzero(s > _RANK_TOLERANCE * scale))
+        threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
+        rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
         self.rank, self._vt = rank, vt
         if rank == len(s) == m:  # full row rank, the usual case
             pinv = vt[:rank].T @ (u.T / s[:, None])
@@ -247,7 +249,8 @@ class SNSController:
         if free_count == 0 or J.shape[0] == 0:
             return above, 0.0, 0, basis
         identity = level.identity  # J = I: no decomposition needed
-        scale = 1.0 if identity else math.sqrt(float(np.vdot(J, J)))  # ‖J‖, for the rank decisions
+        # ‖J‖ for the rank decisions (None: J itself is decomposed, its largest singular value)
+        scale = None if identity or basis is None else math.sqrt(float(np.vdot(J, J)))
         task = _Solve(None if identity else (J if basis is None else J @ basis), basis, nv, scale)
         if task.rank == 0:  # the levels above took every direction this task moves
             return above, 0.0, 0, basis
@@ -286,6 +289,8 @@ class SNSController:
                     break
                 shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
                 free = hold.null
+            if scale is None and not identity:
+                scale = math.sqrt(float(np.vdot(J, J)))
             solve = _Solve(None if identity else J @ free, free, nv, scale)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
