@@ -20,6 +20,8 @@ from qpik.tasks import DampingTask, ManipulabilityTask, PositionTask, PostureTas
 SOLVERS = available_solvers()
 EXACT = {"daqp", "quadprog"}
 
+DT = 0.002  # s, the control period
+
 
 def _arm_at(q):
     robot = Robot.load("arm")
@@ -49,8 +51,8 @@ def test_two_levels_equal_the_hard_qp_and_the_null_space_law(solver):
         sigma = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
         sigma.priority = 1
         limits = [JointPositionLimit(robot), JointVelocityLimit(robot)]
-        hqp = HierarchicalController(robot, [position, sigma], limits, solver=solver).compute_velocity()
-        qp = QPController(robot, [position, sigma], limits, solver=solver).compute_velocity()
+        hqp = HierarchicalController(robot, [position, sigma], limits, solver=solver, dt=DT).compute_velocity()
+        qp = QPController(robot, [position, sigma], limits, solver=solver, dt=DT).compute_velocity()
         J = arm.position_jacobian(q)
         J_pinv = J.T @ np.linalg.inv(J @ J.T)
         law = J_pinv @ position.target_velocity + (np.eye(4) - J_pinv @ J) @ (5.0 * arm.sigma_gradient(q))
@@ -96,8 +98,8 @@ def test_four_levels_without_active_limits_are_the_prioritised_pseudoinverse_law
         for level, task in enumerate((x, y, phi, posture)):
             task.priority = level
         tasks = [posture, phi, y, x]  # order does not matter: priorities do
-        hqp = HierarchicalController(robot, tasks, [JointPositionLimit(robot)]).compute_velocity()
-        sns = SNSController(robot, tasks, [JointPositionLimit(robot)]).compute_velocity()
+        hqp = HierarchicalController(robot, tasks, [JointPositionLimit(robot)], dt=DT).compute_velocity()
+        sns = SNSController(robot, tasks, [JointPositionLimit(robot)], dt=DT).compute_velocity()
         for task in tasks:
             task.update()
         law = _recursive_law([t.jacobian for t in (x, y, phi, posture)],
@@ -113,10 +115,10 @@ def test_explicit_levels_equal_priorities_and_keep_each_level_exact():
     phi.set_target(phi.angle() + 0.3)  # wants 150 rad/s: far beyond the box
     sigma = ManipulabilityTask(robot, SigmaProxy(robot), gain=5.0)
     limits = [JointPositionLimit(robot), JointVelocityLimit(robot)]
-    by_levels = HierarchicalController(robot, levels=[[position], [phi], [sigma]], limits=limits)
+    by_levels = HierarchicalController(robot, levels=[[position], [phi], [sigma]], limits=limits, dt=DT)
     qdot = by_levels.compute_velocity().copy()
     position.priority, phi.priority, sigma.priority = 0, 1, 2
-    np.testing.assert_allclose(HierarchicalController(robot, [sigma, phi, position], limits).compute_velocity(),
+    np.testing.assert_allclose(HierarchicalController(robot, [sigma, phi, position], limits, dt=DT).compute_velocity(),
                                qdot, atol=1e-12)
     # Level 0 is met exactly; φ takes what the bounds leave; it is never traded for σ.
     np.testing.assert_allclose(position.jacobian @ qdot, position.target_velocity, atol=1e-10)
@@ -149,8 +151,9 @@ def test_dependent_rows_above_a_level_are_reduced(solver):
     damping = DampingTask(robot, weight=1.0)
     levels = [[position], [phi], [posture], [damping]]
     limits = [JointPositionLimit(robot), JointVelocityLimit(robot)]
-    reference = HierarchicalController(robot, levels=levels, limits=limits, solver="daqp").compute_velocity().copy()
-    qdot = HierarchicalController(robot, levels=levels, limits=limits, solver=solver).compute_velocity()
+    reference = HierarchicalController(robot, levels=levels, limits=limits, solver="daqp", dt=DT)
+    reference = reference.compute_velocity().copy()
+    qdot = HierarchicalController(robot, levels=levels, limits=limits, solver=solver, dt=DT).compute_velocity()
     np.testing.assert_allclose(qdot, reference, atol=1e-9 if solver in EXACT else 1e-5)
     np.testing.assert_allclose(position.jacobian @ qdot, position.target_velocity, atol=1e-9 if solver in EXACT else 1e-5)
 
@@ -162,7 +165,7 @@ def test_an_infeasible_top_level_names_the_level():
     posture = PostureTask(robot)
     posture.priority = 1
     for solver in ("daqp", "osqp", "quadprog"):
-        hqp = HierarchicalController(robot, [task, posture], [JointVelocityLimit(robot)], solver=solver)
+        hqp = HierarchicalController(robot, [task, posture], [JointVelocityLimit(robot)], solver=solver, dt=DT)
         with pytest.raises(InfeasibleProblem, match="level 0 .*position task"):
             hqp.compute_velocity()
 
@@ -172,7 +175,7 @@ def test_a_soft_top_level_is_never_infeasible():
     robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.5])
     task = PositionTask(robot, "end_effector", axes="xy", gain=500.0)
     task.set_target([0.6, 1.9])
-    hqp = HierarchicalController(robot, [task], [JointVelocityLimit(robot)])
+    hqp = HierarchicalController(robot, [task], [JointVelocityLimit(robot)], dt=DT)
     qdot = hqp.compute_velocity()
     assert np.all(np.abs(qdot) <= robot.velocity_limits + 1e-12)
     assert task.error @ (task.jacobian @ qdot) > 0
@@ -188,23 +191,26 @@ def test_bad_hierarchies_are_typed_errors():
             posture.priority = bad
     assert position.priority == 0 and posture.priority == 0  # unchanged by the refused values
     with pytest.raises(InvalidInput, match=r"listed twice \(level 0\)"):
-        HierarchicalController(robot, [position, position])
+        HierarchicalController(robot, [position, position], dt=DT)
     with pytest.raises(InvalidInput, match=r"listed twice \(levels 0 and 1\)"):
-        HierarchicalController(robot, levels=[[position], [posture, position]])
+        HierarchicalController(robot, levels=[[position], [posture, position]], dt=DT)
     with pytest.raises(InvalidInput, match="level 1 is empty"):
-        HierarchicalController(robot, levels=[[position], [], [posture]])
+        HierarchicalController(robot, levels=[[position], [], [posture]], dt=DT)
     with pytest.raises(InvalidInput, match="either tasks"):
-        HierarchicalController(robot, [position], levels=[[position]])
+        HierarchicalController(robot, [position], levels=[[position]], dt=DT)
     with pytest.raises(InvalidInput, match="at least one task"):
-        HierarchicalController(robot, [])
+        HierarchicalController(robot, [], dt=DT)
     with pytest.raises(InvalidInput, match="another robot"):
-        HierarchicalController(robot, [PostureTask(_arm_at([0.0, 0.0, 0.0, 0.5]))])
+        HierarchicalController(robot, [PostureTask(_arm_at([0.0, 0.0, 0.0, 0.5]))], dt=DT)
     with pytest.raises(InvalidInput, match="not a Task"):
-        HierarchicalController(robot, levels=[[position], ["posture"]])
+        HierarchicalController(robot, levels=[[position], ["posture"]], dt=DT)
     with pytest.raises(InvalidInput, match="dt"):
         HierarchicalController(robot, [position], dt=0.0)
     with pytest.raises(InvalidInput, match="level 1 is empty"):  # the same grouping for SNS
-        SNSController(robot, levels=[[position], []])
+        SNSController(robot, levels=[[position], []], dt=DT)
+    for controller in (HierarchicalController, SNSController):  # no default period: the limits need it
+        with pytest.raises(InvalidInput, match="dt is required"):
+            controller(robot, [position])
 
 
 def test_equal_priorities_share_a_level_and_are_weighed():
@@ -212,8 +218,8 @@ def test_equal_priorities_share_a_level_and_are_weighed():
     robot = _arm_at([0.7, -0.6, 0.4, 0.5])
     position = _position(robot, hard=False)
     posture = PostureTask(robot, target=robot.q + 0.2, gain=1.0, weight=1e-2)
-    hqp = HierarchicalController(robot, [position, posture]).compute_velocity()
-    qp = QPController(robot, [position, posture], regularization=1e-12).compute_velocity()
+    hqp = HierarchicalController(robot, [position, posture], dt=DT).compute_velocity()
+    qp = QPController(robot, [position, posture], regularization=1e-12, dt=DT).compute_velocity()
     np.testing.assert_allclose(hqp, qp, atol=1e-9)
 
 

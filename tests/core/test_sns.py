@@ -16,6 +16,8 @@ from qpik.robots.arm.planar import PlanarOrientationTask
 from qpik.robots.arm.scenarios import SEED_PATH, TOO_FAST_DURATION, TOO_FAST_SPEEDS
 from qpik.tasks import ManipulabilityTask, PositionTask, SigmaProxy
 
+DT = 0.002  # s, the control period
+
 
 def _arm_at(q):
     robot = Robot.load("arm")
@@ -42,7 +44,7 @@ def test_no_bound_reached_is_exactly_the_null_space_law():
     for q in _configurations(8):
         robot = _arm_at(q)
         position, sigma = _tasks(robot)
-        sns = SNSController(robot, [position, sigma], [JointPositionLimit(robot), JointVelocityLimit(robot)])
+        sns = SNSController(robot, [position, sigma], [JointPositionLimit(robot), JointVelocityLimit(robot)], dt=DT)
         qdot = sns.compute_velocity()
         law = PseudoinverseController(robot, [position], sigma).compute_velocity()
         np.testing.assert_allclose(qdot, law, rtol=0, atol=1e-13)
@@ -74,7 +76,7 @@ def test_one_task_saturates_keeps_its_direction_and_scales(speed):
     for q in _configurations(40, seed=4):
         robot = _arm_at(q)
         position, _ = _tasks(robot, velocity=(0.6, -0.3))
-        sns = SNSController(robot, [position], [JointVelocityLimit(robot, np.full(4, speed))])
+        sns = SNSController(robot, [position], [JointVelocityLimit(robot, np.full(4, speed))], dt=DT)
         qdot = sns.compute_velocity()
         s = sns.task_scale[0]
         assert np.all(np.abs(qdot) <= speed + 1e-15)
@@ -94,7 +96,7 @@ def test_a_saturated_joint_is_compensated_by_the_others():
     caps = np.array([8.0, 0.01, 8.0, 2.0])
     free = PseudoinverseController(robot, [position]).compute_velocity().copy()
     assert abs(free[1]) > 0.01
-    sns = SNSController(robot, [position], [JointVelocityLimit(robot, caps)])
+    sns = SNSController(robot, [position], [JointVelocityLimit(robot, caps)], dt=DT)
     qdot = sns.compute_velocity()
     assert sns.task_scale[0] == 1.0 and sns.saturated[0] == 1
     assert abs(qdot[1]) == pytest.approx(0.01, abs=1e-15)
@@ -111,9 +113,9 @@ def test_lower_levels_never_change_what_the_levels_above_get():
         phi.set_target(phi.angle() + 0.02)
         position.priority, phi.priority, sigma.priority = 0, 1, 2
         limits = [JointVelocityLimit(robot, np.full(4, 0.3))]
-        alone = SNSController(robot, [position], limits)
+        alone = SNSController(robot, [position], limits, dt=DT)
         top = position.jacobian @ alone.compute_velocity()
-        full = SNSController(robot, [position, phi, sigma], limits)
+        full = SNSController(robot, [position, phi, sigma], limits, dt=DT)
         qdot = full.compute_velocity()
         assert full.task_scale[0] == alone.task_scale[0]
         np.testing.assert_allclose(position.jacobian @ qdot, top, atol=1e-10)
@@ -127,18 +129,18 @@ def test_braking_bound_from_max_acceleration():
     """The T-RO bound: near a range's end the speed toward it is at most √(2 A d)."""
     robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.98])  # d4 2 cm from its 1 m end
     position, _ = _tasks(robot, velocity=(0.0, 0.0), offset=(0.0, 0.0))
-    plain = SNSController(robot, [position], [JointPositionLimit(robot), JointVelocityLimit(robot)])
+    plain = SNSController(robot, [position], [JointPositionLimit(robot), JointVelocityLimit(robot)], dt=DT)
     braking = SNSController(robot, [position], [JointPositionLimit(robot), JointVelocityLimit(robot)],
-                            max_acceleration=4.0)
+                            max_acceleration=4.0, dt=DT)
     plain._bounds()
     braking._bounds()
     assert plain.ub[3] == pytest.approx(2.0)  # the speed limit: 1/Δt·(2 cm) is larger
     assert braking.ub[3] == pytest.approx(np.sqrt(2 * 4.0 * (1.0 - 0.98)), rel=1e-9)
     assert braking.lb[3] == pytest.approx(-2.0)  # 0.98 m from the other end: speed-limited
     with pytest.raises(InvalidInput, match="max_acceleration"):
-        SNSController(robot, [position], [JointPositionLimit(robot)], max_acceleration=-1.0)
+        SNSController(robot, [position], [JointPositionLimit(robot)], max_acceleration=-1.0, dt=DT)
     with pytest.raises(InvalidInput, match="position limit"):
-        SNSController(robot, [position], [JointVelocityLimit(robot)], max_acceleration=4.0)
+        SNSController(robot, [position], [JointVelocityLimit(robot)], max_acceleration=4.0, dt=DT)
 
 
 def test_joint_limits_rollout_keeps_the_limits_and_tracks_like_the_qp():

@@ -87,7 +87,7 @@ class _Checked:
     level 0's optimum kept) and against SNS on the same state."""
 
     def __init__(self, robot, levels, limits):
-        self.inner = HierarchicalController(robot, levels=levels, limits=limits, solver="daqp")
+        self.inner = HierarchicalController(robot, levels=levels, limits=limits, solver="daqp", dt=DT)
         self.sns = SNSController(robot, levels=levels, limits=limits, dt=DT)
         self.kind, self.solver, self.robot = "hqp", "daqp", robot
         (self.pose,), (self.elbow,), _ = levels

@@ -43,7 +43,7 @@ from ..limits import order_limits
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
-from .levels import StackedLevel, group_levels
+from .levels import StackedLevel, check_dt, group_levels
 
 # Singular values below this fraction of the largest are dropped when the rows above a
 # level are replaced by a basis of their row space.
@@ -91,7 +91,7 @@ class HierarchicalController:
             priorities share a level and are weighed there by their weights).
         limits: joint position/velocity limits, hard at every level.
         solver: a qpsolvers name (``daqp``, ``osqp``, ``proxqp``, ``quadprog``, ...).
-        dt: control period, used by the position limits.
+        dt: control period in seconds (required: the limits bound the step q̇Δt).
         levels: explicit levels (lists of tasks, level 0 first) instead of ``tasks``.
         regularization: ε on the Hessian diagonal of a least-squares level whose cost
             alone does not fix every joint (it picks one optimum and biases the level's
@@ -111,10 +111,9 @@ class HierarchicalController:
     kind = "hqp"
 
     def __init__(self, robot: Robot, tasks: Sequence[Task] | None = None, limits: Sequence = (),
-                 solver: str = "daqp", dt: float = 0.002, *, levels: Sequence[Sequence[Task]] | None = None,
+                 solver: str = "daqp", dt: float | None = None, *, levels: Sequence[Sequence[Task]] | None = None,
                  regularization: float = 1e-10, native: bool = True, **solver_settings):
-        if not (np.isfinite(dt) and dt > 0):
-            raise InvalidInput(f"dt must be positive, got {dt}")
+        dt = check_dt(dt)
         if not (np.isfinite(regularization) and regularization > 0):  # a level may need it
             raise InvalidInput(f"regularization must be positive, got {regularization}")
         grouped = group_levels(robot, tasks, levels, "HierarchicalController")
@@ -207,7 +206,9 @@ class HierarchicalController:
         x = backend.solve(level.H, level.c, hessian_changed=level.hessian_changes)
         if x is None or not math.isfinite(x.sum()):
             raise SolverError(f"QP solver {self.solver} returned a non-finite velocity")
-        if not backend.exact_bounds:  # a 1e-13 overshoot of a joint limit is still one
+        # A 1e-13 overshoot of a joint limit is still one (back-ends that project their
+        # answers into the box themselves have no ``exact_bounds``).
+        if not getattr(backend, "exact_bounds", True):
             np.minimum(x, self.ub, out=x)
             np.maximum(x, self.lb, out=x)
         return x

@@ -17,6 +17,20 @@ from ..robot import Robot
 from ..tasks import Task
 
 
+def check_dt(dt) -> float:
+    """The control period as a positive finite float (required: the limits use it)."""
+    if dt is None:
+        raise InvalidInput("dt is required: the control period in seconds (e.g. dt=0.002), "
+                           "which the limits use to bound the next step")
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"dt must be a number of seconds, got {dt!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise InvalidInput(f"dt must be positive and finite, got {dt}")
+    return value
+
+
 def _describe(tasks: Sequence[Task]) -> str:
     return ", ".join(task.name for task in tasks)
 

@@ -74,7 +74,7 @@ from ..errors import DivergenceError, InvalidInput
 from ..limits import order_limits
 from ..robot import JointLimits, Robot
 from ..tasks import Task
-from .levels import StackedLevel, group_levels
+from .levels import StackedLevel, check_dt, group_levels
 
 _gesvd = lapack.dgesvd
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
@@ -143,7 +143,7 @@ class SNSController:
         robot: the robot the tasks and limits read.
         tasks: tasks grouped into levels by their ``priority`` (0 the highest).
         limits: joint position/velocity limits: the box of joint velocities.
-        dt: control period T.
+        dt: control period T in seconds (required: the limits bound the step q̇T).
         levels: explicit levels (lists of tasks, level 0 first) instead of ``tasks``.
         max_acceleration: :math:`A_{max}` per dof (nv,) or one number, for the braking
             bound :math:`\\sqrt{2 A_{max} d}` near the ranges of the position limits
@@ -160,9 +160,9 @@ class SNSController:
     solver = "none"
 
     def __init__(self, robot: Robot, tasks: Sequence[Task] | None = None, limits: Sequence = (),
-                 dt: float = 0.002, *, levels: Sequence[Sequence[Task]] | None = None, max_acceleration=None):
-        if not (np.isfinite(dt) and dt > 0):
-            raise InvalidInput(f"dt must be positive, got {dt}")
+                 dt: float | None = None, *, levels: Sequence[Sequence[Task]] | None = None,
+                 max_acceleration=None):
+        dt = check_dt(dt)
         grouped = group_levels(robot, tasks, levels, "SNSController")
         self.robot = robot
         self.dt = float(dt)
