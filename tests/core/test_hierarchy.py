@@ -72,8 +72,9 @@ def test_hqp_rollout_equals_the_hard_qp_and_the_classical_law(scenario):
 
 
 def _recursive_law(jacobians, velocities):
-    """q̇_k = q̇_{k−1} + (J_k P_{k−1})†(v_k − J_k q̇_{k−1}), P_k = P_{k−1} − (J_k P_{k−1})† J_k P_{k−1}:
-    the prioritised pseudoinverse law (numpy's SVD pseudoinverse)."""
+    """q̇_k = q̇_{k−1} + (J_k P_{k−1})†(v_k − J_k q̇_{k−1}),
+    P_k = P_{k−1} − (J_k P_{k−1})† J_k P_{k−1}: the prioritised pseudoinverse law (numpy's
+    SVD pseudoinverse)."""
     qdot, P = np.zeros(jacobians[0].shape[1]), np.eye(jacobians[0].shape[1])
     for J, v in zip(jacobians, velocities):
         JP_pinv = np.linalg.pinv(J @ P, rcond=1e-10)
@@ -155,7 +156,8 @@ def test_dependent_rows_above_a_level_are_reduced(solver):
     reference = reference.compute_velocity().copy()
     qdot = HierarchicalController(robot, levels=levels, limits=limits, solver=solver, dt=DT).compute_velocity()
     np.testing.assert_allclose(qdot, reference, atol=1e-9 if solver in EXACT else 1e-5)
-    np.testing.assert_allclose(position.jacobian @ qdot, position.target_velocity, atol=1e-9 if solver in EXACT else 1e-5)
+    np.testing.assert_allclose(position.jacobian @ qdot, position.target_velocity,
+                               atol=1e-9 if solver in EXACT else 1e-5)
 
 
 def test_an_infeasible_top_level_names_the_level():

@@ -241,7 +241,8 @@ class HierarchicalController:
 
     def _named(self, level: _Level, exc: Exception) -> Exception:
         if isinstance(exc, InfeasibleProblem) or level.hard_dim:
-            what = "its hard tasks and the limits cannot all be met" if level.hard_dim else "the limits leave no velocity"
+            what = ("its hard tasks and the limits cannot all be met" if level.hard_dim
+                    else "the limits leave no velocity")
             return InfeasibleProblem(f"level {level.index} ({level.names}) is infeasible: {what} ({exc})")
         return SolverError(f"level {level.index} ({level.names}): {exc}")
 
