@@ -50,6 +50,8 @@ _EXPORTS = {
     "JointVelocityLimit": "qpik.limits",
     # controllers and solvers
     "QPController": "qpik.controllers",
+    "HierarchicalController": "qpik.controllers",
+    "SNSController": "qpik.controllers",
     "PseudoinverseController": "qpik.controllers",
     "JacobianTransposeController": "qpik.controllers",
     "available_solvers": "qpik.solvers",
@@ -83,7 +85,13 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # static type checkers see the real imports
-    from .controllers import JacobianTransposeController, PseudoinverseController, QPController
+    from .controllers import (
+        HierarchicalController,
+        JacobianTransposeController,
+        PseudoinverseController,
+        QPController,
+        SNSController,
+    )
     from .errors import (
         ConvergenceError,
         DivergenceError,

@@ -15,7 +15,9 @@ from typing import Callable
 
 import mujoco
 
+from .controllers.hierarchy import HierarchicalController
 from .controllers.qp import QPController
+from .controllers.sns import SNSController
 from .errors import UnknownName
 from .robot import JointLimits, Robot, scene_path
 from .robots import BUNDLED
@@ -48,7 +50,13 @@ class JointPlotSpec:
 
 @dataclass
 class Setup:
-    """Everything one run of a scenario needs; ``controller()`` builds a controller on it."""
+    """Everything one run of a scenario needs; ``controller()`` builds a controller on it.
+
+    ``hierarchy`` lists the tasks (each with its ``priority``) that the strict hierarchy
+    (``hqp``) and SNS (``sns``) order into levels; ``level_errors`` measures each level's
+    error for every controller; ``variants`` are further controllers built with a solver
+    name (e.g. ``qp-hard``); ``classical`` those without one.
+    """
 
     scenario: str
     robot_name: str
@@ -65,13 +73,26 @@ class Setup:
     params: dict = field(default_factory=dict)
     dt: float = DT
     closure: Callable[[Robot], None] | None = None  # closes the loops of a closed chain
+    hierarchy: list[Task] | None = None
+    level_errors: object | None = None  # a qpik.rollout.levels.LevelErrors
+    variants: dict[str, Callable[[str], object]] = field(default_factory=dict)
+
+    def controller_kinds(self) -> list[str]:
+        """Every controller this setup builds (the peers aside)."""
+        return ["qp", *self.variants, *(["hqp", "sns"] if self.hierarchy else []), *self.classical]
 
     def controller(self, kind: str = "qp", solver: str = "daqp", **options):
         if kind == "qp":
             return QPController(self.robot, self.qp_tasks, self.limits, solver=solver, dt=self.dt, **options)
+        if kind in self.variants:
+            return self.variants[kind](solver, **options)
+        if kind == "hqp" and self.hierarchy:
+            return HierarchicalController(self.robot, self.hierarchy, self.limits, solver=solver, dt=self.dt, **options)
+        if kind == "sns" and self.hierarchy:
+            return SNSController(self.robot, self.hierarchy, self.limits, dt=self.dt, **options)
         if kind in self.classical:
             return self.classical[kind]()
-        raise UnknownName(f"unknown controller {kind!r} for {self.scenario}; choose from {['qp', *self.classical]}")
+        raise UnknownName(f"unknown controller {kind!r} for {self.scenario}; choose from {self.controller_kinds()}")
 
 
 @dataclass(frozen=True)

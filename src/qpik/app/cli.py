@@ -1,7 +1,7 @@
 """The ``qpik`` command.
 
     qpik scenarios
-    qpik run ROBOT --controller {qp,pinv,jt,mink,placo} --scenario NAME [--solver S]
+    qpik run ROBOT --controller {qp,qp-hard,hqp,sns,pinv,jt,mink,placo} --scenario NAME [--solver S]
              [--mode {kinematic,physics}] [--out DIR] [--plot]
     qpik compare ROBOT --scenario NAME [--solvers daqp,osqp,...] [--mode M] [--out DIR] [--plot]
 
@@ -41,9 +41,9 @@ def _solver_list(text: str) -> list[str]:
 
 
 def _plot(setup, logs, out_dir: Path, title: str) -> list[Path]:
-    from .plotting import plot_logs  # matplotlib only when asked for
+    from .plotting import plot_level_errors, plot_logs  # matplotlib only when asked for
 
-    return plot_logs(logs, setup.plot_joints, out_dir, title)
+    return plot_logs(logs, setup.plot_joints, out_dir, title) + plot_level_errors(logs, out_dir, title)
 
 
 def cmd_scenarios(args) -> int:
@@ -106,7 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="roll one controller out on a scenario")
     common(p)
     p.add_argument("--controller", default="qp",
-                   help="qp, pinv (classical law), jt (Jacobian transpose), or the peers mink, placo")
+                   help="qp, qp-hard (a scenario's QP with its top level hard), hqp (strict hierarchy), "
+                        "sns (saturation in the null space), pinv (classical law), jt (Jacobian transpose), "
+                        "or the peers mink, placo")
     p.add_argument("--solver", default="daqp", help="QP solver (qpsolvers name)")
     p.set_defaults(handler=cmd_run)
 

@@ -116,3 +116,39 @@ def plot_logs(logs: Sequence[RolloutLog], joints: JointPlotSpec, out_dir: str | 
         axes[0].legend(fontsize=7)
         finish(fig, "extras.png")
     return written
+
+
+def plot_level_errors(logs: Sequence[RolloutLog], out_dir: str | Path, title: str) -> list[Path]:
+    """levels.png: each level's error over time (one panel per level, log scale, the
+    controllers overlaid), and SNS's task scale per level when a run reports it.
+    Writes nothing when no log has per-level errors."""
+    levelled = [log for log in logs if log.level_error is not None]
+    if not levelled:
+        return []
+    names, units = levelled[0].level_names, levelled[0].level_units
+    scaled = [log for log in logs if "task_scale" in log.report]
+    fig, axes = _grid(len(names) + (1 if scaled else 0))
+    for k, (ax, name, unit) in enumerate(zip(axes, names, units)):
+        for i, log in enumerate(levelled):
+            ax.semilogy(log.t, np.maximum(log.level_error[:, k], 1e-16), label=_label(log), **_style(i))
+        ax.set_ylabel(f"L{k} {name} [{unit}]")
+        ax.grid(alpha=0.3, which="both")
+    if scaled:
+        ax = axes[len(names)]
+        for log in scaled:
+            scale = log.report["task_scale"]
+            for k in range(scale.shape[1]):
+                ax.plot(log.t, scale[:, k], label=f"{_label(log)} L{k}", **_style(k))
+        ax.set_ylabel("task scale s")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].legend(fontsize=7)
+    for ax in axes[max(0, len(axes) - 2):]:
+        ax.set_xlabel("t [s]")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(out_dir) / "levels.png"
+    save_figure(fig, path)
+    plt.close(fig)
+    return [path]

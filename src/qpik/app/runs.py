@@ -15,6 +15,10 @@ from ..scenario import Setup, build_scenario, check_solver
 from ..solvers import available_solvers
 
 CLASSICAL_KINDS = ("pinv", "jt")
+# Controllers a scenario may offer besides qp: a variant with hard tasks, the strict
+# hierarchy and SNS (each run once, hqp and qp-hard with the first solver asked for).
+HIERARCHY_KINDS = ("qp-hard", "hqp", "sns")
+SOLVER_KINDS = ("qp", "mink", "qp-hard", "hqp")
 
 
 def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
@@ -22,22 +26,24 @@ def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp",
     """Build the scenario and roll one controller out on it."""
     if mode not in MODES:
         raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-    if controller in ("qp", "mink"):
+    if controller in SOLVER_KINDS:
         check_solver(solver)
     setup = setup or build_scenario(scenario, robot)
     ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
     log = simulate(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
                    manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
                    joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
-                   on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index)
+                   on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index,
+                   levels=setup.level_errors)
     return setup, log
 
 
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
-            classical: Sequence[str] = CLASSICAL_KINDS,
+            classical: Sequence[str] = HIERARCHY_KINDS + CLASSICAL_KINDS,
             peers: Sequence[str] = PEERS) -> tuple[Setup, list[RolloutLog], list[str]]:
-    """qp with each solver, the classical laws, then the peers (mink with each solver,
-    placo with its own), on identical fresh setups.
+    """qp with each solver, the other controllers the scenario offers among ``classical``
+    (qp-hard, hqp, sns, pinv, jt), then the peers (mink with each solver, placo with its
+    own), on identical fresh setups.
 
     A controller that fails mid-run (an infeasible QP, a singular pseudoinverse) is
     kept with ``completed = False`` and the reason, so the table can say why.
@@ -53,9 +59,10 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
         logs.append(log)
     for kind in classical:
         probe = build_scenario(scenario, robot)
-        if kind not in probe.classical:
+        if kind not in probe.controller_kinds():
             continue
-        setup, log = run(robot, scenario, kind, "none", mode, on_failure="stop", setup=probe)
+        solver = solvers[0] if kind in SOLVER_KINDS else "none"
+        setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop", setup=probe)
         logs.append(log)
     for kind in peers:
         if not peer_installed(kind):
@@ -91,9 +98,20 @@ def format_table(summaries: Sequence[dict], extra: Sequence[tuple[str, str, str]
                             ("constraint_violation_max", "loop resid. [m]", "{:.2e}")):
         if any(key in s for s in summaries) and key not in [c[0] for c in columns]:
             columns.insert(4, (key, label, fmt))
+    summaries = [_flatten_levels(s) for s in summaries]
+    levelled = next((s for s in summaries if "level_names" in s), None)
+    if levelled is not None:  # a task hierarchy: each level's error, then SNS's task scale
+        for i, (name, unit) in enumerate(zip(levelled["level_names"], levelled["level_units"])):
+            columns.insert(4 + i, (f"level_error_max[{i}]", f"L{i} {name} [{unit}]", "{:.2e}"))
+    for key, label, fmt in (("task_scale_min", "task scale min", "{:.3f}"),
+                            ("path_deviation_max", "off path [m]", "{:.2e}"),
+                            ("completion_time", "done at [s]", "{:.3f}")):
+        if any(key in s for s in summaries):
+            columns.append((key, label, fmt))
     rows = [[label for _, label, _ in columns]]
     for s in summaries:
-        rows.append([fmt.format(s[key]) if key in s else "-" for key, _, fmt in columns])
+        rows.append([("never" if s[key] is None else fmt.format(s[key])) if key in s else "-"
+                     for key, _, fmt in columns])
     widths = [max(len(r[i]) for r in rows) for i in range(len(columns))]
     lines = ["  ".join(cell.rjust(w) if i > 1 else cell.ljust(w) for i, (cell, w) in enumerate(zip(r, widths)))
              for r in rows]
@@ -102,6 +120,14 @@ def format_table(summaries: Sequence[dict], extra: Sequence[tuple[str, str, str]
         if not s.get("completed", True):
             lines.append(f"note: {s['controller']} ({s['solver']}) stopped early: {s.get('failure', '')}")
     return "\n".join(lines)
+
+
+def _flatten_levels(summary: dict) -> dict:
+    """The per-level list ``level_error_max`` as keys ``level_error_max[i]`` (table cells)."""
+    flat = dict(summary)
+    for i, value in enumerate(summary.get("level_error_max", [])):
+        flat[f"level_error_max[{i}]"] = value
+    return flat
 
 
 def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Sequence[dict], mode: str) -> Path:

@@ -1,6 +1,9 @@
-"""Controllers: the QP, and the classical laws on the same task objects."""
+"""Controllers: the QP, the strict hierarchy, SNS and the classical laws, on the same task objects."""
 
+from .hierarchy import HierarchicalController
 from .pinv import JacobianTransposeController, PseudoinverseController
 from .qp import QPController
+from .sns import SNSController
 
-__all__ = ["JacobianTransposeController", "PseudoinverseController", "QPController"]
+__all__ = ["HierarchicalController", "JacobianTransposeController", "PseudoinverseController", "QPController",
+           "SNSController"]

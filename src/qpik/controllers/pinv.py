@@ -42,6 +42,7 @@ class _StackedTasks:
             start += t.dim
 
     def stack(self) -> None:
+        self.robot.ensure_kinematics()
         for task, rows in zip(self.primary, self._rows):
             task.update()
             self.J[rows] = task.jacobian

@@ -10,6 +10,10 @@ import numpy as np
 from ..io import write_json, write_npz
 
 
+# Report series where small is bad (a task slowed down): summarised by their minimum.
+_LOWER_IS_WORSE = ("task_scale",)
+
+
 @dataclass
 class RolloutLog:
     """Time series of one rollout; ``summary()`` gives DESIGN.md's metrics."""
@@ -34,6 +38,14 @@ class RolloutLog:
     speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
     completed: bool = True
     failure: str = ""
+    # Per-level errors of a task hierarchy (steps x levels), measured for any controller.
+    level_error: np.ndarray | None = None
+    level_names: tuple[str, ...] = ()
+    level_units: tuple[str, ...] = ()
+    # The controller's own per-step numbers (its ``report()``), e.g. SNS's task scale.
+    report: dict[str, np.ndarray] = field(default_factory=dict)
+    # Whole-run numbers the reference computes (e.g. when a path was completed).
+    summary_extras: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """The summary.json record (plain Python types)."""
@@ -64,6 +76,20 @@ class RolloutLog:
         }
         for name, series in self.extras.items():
             out[f"{name}_max"] = float(np.max(series))
+        if self.level_error is not None:
+            out["level_names"] = list(self.level_names)
+            out["level_units"] = list(self.level_units)
+            out["level_error_max"] = [float(v) for v in np.max(self.level_error, axis=0)]
+            out["level_error_final"] = [float(v) for v in self.level_error[-1]]
+        for name, series in self.report.items():
+            if name in _LOWER_IS_WORSE:  # per level; the primary (level 0) also on its own
+                out[f"{name}_min"] = float(np.min(series[:, 0] if series.ndim == 2 else series))
+                if series.ndim == 2:
+                    out[f"level_{name}_min"] = [float(v) for v in np.min(series, axis=0)]
+            else:
+                peak = np.max(series, axis=0)
+                out[f"{name}_max"] = [float(v) for v in peak] if np.ndim(peak) else float(peak)
+        out.update(self.summary_extras)
         if not self.completed:
             out["failure"] = self.failure
         return out
@@ -73,6 +99,9 @@ class RolloutLog:
                     manipulability=self.manipulability, step_time=self.step_time,
                     limit_violation=self.limit_violation)
         data.update(self.extras)
+        if self.level_error is not None:
+            data["level_error"] = self.level_error
+        data.update(self.report)
         return data
 
     def save(self, out_dir: str | Path) -> None:

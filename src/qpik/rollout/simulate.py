@@ -20,7 +20,10 @@ actuated joints; ``closure`` then places the rest (the platform and the passive 
 of a closed chain) after each step, as the mechanism itself does.
 
 Per step the controller time covers the kinematics update and
-``compute_velocity``: the work of the control step, nothing of the logging.
+``compute_velocity``: the work of the control step, nothing of the logging. After it,
+and outside the timed part, ``levels`` (a task hierarchy's per-level errors, the same
+for every controller) are measured on the controller's robot, and a controller with a
+``report()`` method (SNS's task scale) has it logged.
 """
 
 from __future__ import annotations
@@ -76,6 +79,7 @@ def simulate(
     on_failure: str = "raise",
     closure: Callable[[Robot], None] | None = None,
     speed_dofs=None,
+    levels=None,
 ) -> RolloutLog:
     """Run ``controller`` along ``reference`` for ``duration`` seconds at period ``dt``.
 
@@ -83,6 +87,7 @@ def simulate(
     failure (singularity, infeasible QP, solver failure) raises its typed error,
     naming the time; with ``on_failure="stop"`` it ends the rollout instead and the
     log keeps the steps done, with the reason in ``completed``/``failure``.
+    ``levels`` (e.g. :class:`qpik.rollout.levels.LevelErrors`) gives per-level errors.
     """
     if on_failure not in ("raise", "stop"):
         raise InvalidInput(f"on_failure must be 'raise' or 'stop', got {on_failure!r}")
@@ -118,6 +123,9 @@ def simulate(
     viol_log = np.zeros(steps)
     manip_log = np.zeros(steps)
     x_log, xd_log, extras = [], [], {}
+    level_log = np.zeros((steps, len(levels.names))) if levels is not None else None
+    report = getattr(controller, "report", None)
+    report_log: dict[str, list] = {}
     failure = ""
     done = 0
     for k in range(steps):
@@ -135,6 +143,11 @@ def simulate(
             failure = f"{type(exc).__name__} at t = {t:.3f} s: {exc}"
             break
         time_log[k] = time.perf_counter() - start
+        if level_log is not None:
+            level_log[k] = levels.measure(qdot)
+        if report is not None:
+            for name, value in report().items():
+                report_log.setdefault(name, []).append(value)
         sample = reference.measure(plant)
         x_log.append(np.array(sample.pop("x"), dtype=float))
         xd_log.append(reference.desired().copy())
@@ -195,4 +208,9 @@ def simulate(
         speed_dofs=None if speed_dofs is None else np.asarray(speed_dofs, dtype=int),
         completed=not failure,
         failure=failure,
+        level_error=None if level_log is None else level_log[:done],
+        level_names=() if levels is None else tuple(levels.names),
+        level_units=() if levels is None else tuple(levels.units),
+        report={name: np.array(v[:done]) for name, v in report_log.items()},
+        summary_extras=reference.summarize(t_log[:done], x) if hasattr(reference, "summarize") else {},
     )

@@ -6,6 +6,8 @@ After :meth:`Task.update` a task exposes
 - ``error`` (dim,): what the task measures (its units: metres, radians, ...);
 - ``weight`` (dim,): the cost weight when soft;
 - ``hard``: enforced as an equality (QP) or weighed in the cost;
+- ``priority``: the task's level in a strict hierarchy (0 the highest; tasks of equal
+  priority share a level and are weighed against each other there);
 - ``lm_damping``: adaptive Levenberg–Marquardt weight μ, adding
   :math:`\tfrac12 \mu\, e^T W e\, \|\dot q\|^2` to the cost of a soft task;
 - ``joint_space``: True when J is a fixed selection of rows of the identity
@@ -151,6 +153,7 @@ class Task:
 
     name = "task"
     lm_damping = 0.0
+    _priority = 0  # a class default, so every subclass has one without a constructor argument
 
     def __init__(self, robot: Robot, dim: int, weight=1.0, hard: bool = False):
         self.robot = robot
@@ -168,6 +171,17 @@ class Task:
     def joint_space(self) -> bool:
         """Whether J is the fixed identity selection ``I[dofs]`` (never for a general task)."""
         return False
+
+    @property
+    def priority(self) -> int:
+        """Level in a strict hierarchy: 0 is the highest; equal priorities share a level."""
+        return self._priority
+
+    @priority.setter
+    def priority(self, value) -> None:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise InvalidInput(f"{self.name} priority must be an integer >= 0 (0 the highest), got {value!r}")
+        self._priority = int(value)
 
     def update(self) -> None:
         """Refresh ``jacobian``, ``target_velocity`` and ``error`` from the robot's kinematics."""

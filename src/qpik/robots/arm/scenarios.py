@@ -18,13 +18,17 @@ from __future__ import annotations
 import numpy as np
 
 from ...controllers.pinv import JacobianTransposeController, PseudoinverseController
+from ...controllers.qp import QPController
 from ...errors import UnknownName
 from ...limits import JointPositionLimit, JointVelocityLimit
 from ...robot import Robot
 from ...rollout import PositionReference
+from ...rollout.levels import Level, LevelErrors
 from ...scenario import JointPlotSpec, Setup, register
 from ...tasks import DampingTask, ManipulabilityTask, PositionTask, SigmaProxy, Yoshikawa
-from ...trajectories import Segment
+from ...trajectories import CubicTimeLaw, Segment
+from . import model as arm_model
+from .planar import PlanarOrientationTask
 
 ARM_GAIN = 500.0
 ARM_K0 = 5.0
@@ -69,8 +73,10 @@ def arm_setup(
     gain: float = ARM_GAIN,
     duration: float | None = None,
     scene: str = "arm",
+    speed_limits: dict[str, float] | None = None,
 ) -> Setup:
-    """The arm with its position task (x, y), optional σ task, limits and reference."""
+    """The arm with its position task (x, y), optional σ task, limits and reference;
+    ``speed_limits`` replaces some joints' velocity limits (rad/s or m/s)."""
     robot = Robot.load(scene)  # the scenarios start at ARM_START, home or not
     for joint in ARM_JOINTS:  # a custom scene must name what the arm scenarios use
         robot.joint_id(joint)
@@ -84,8 +90,20 @@ def arm_setup(
     # Without a secondary task the QP still needs a (tiny) cost on q̇: the minimum norm.
     regular = secondary if secondary is not None else DampingTask(robot, weight=1e-3 if hard else SOFT_DAMPING)
     joint_limits = robot.joint_limits.tightened(ranges or {})
+    max_velocity = robot.velocity_limits.copy()
+    for joint, speed in (speed_limits or {}).items():
+        max_velocity[robot.joint_dof_index(joint)] = speed
     limits = [JointPositionLimit(robot, joint_limits, influence=DAMPER_INFLUENCE, damper_rate=DAMPER_RATE),
-              JointVelocityLimit(robot)]
+              JointVelocityLimit(robot, max_velocity)]
+    # The hierarchy (hqp, sns): the path first, the σ task below it. The QP's damping
+    # task is a regulariser, not a level.
+    position.priority = 0
+    hierarchy = [position]
+    levels = [Level("path", (position,), "m")]
+    if secondary is not None:
+        secondary.priority = 1
+        hierarchy.append(secondary)
+        levels.append(Level("sigma", (secondary,), "rad/s", measure="residual"))
     return Setup(
         scenario=scenario,
         robot_name="arm",
@@ -102,8 +120,30 @@ def arm_setup(
             "jt": lambda: JacobianTransposeController(robot, [position], alpha=JT_ALPHA),
         },
         plot_joints=JointPlotSpec.from_limits(robot, joint_limits),
-        params={"gain": gain, "k0": k0 if redundant else 0.0, "hard": hard, "ranges": ranges or {}},
+        params={"gain": gain, "k0": k0 if redundant else 0.0, "hard": hard, "ranges": ranges or {},
+                "speed_limits": speed_limits or {}},
+        hierarchy=hierarchy,
+        level_errors=LevelErrors(levels),
+        variants={} if hard else {"qp-hard": _hard_variant(robot, [position, regular], [position], limits)},
     )
+
+
+def _hard_variant(robot: Robot, tasks, hard_tasks, limits, dt: float = 0.002):
+    """``qp-hard``: the scenario's QP with ``hard_tasks`` as equalities, the rest weighed."""
+
+    def build(solver: str, **options) -> QPController:
+        saved = [task.hard for task in hard_tasks]
+        for task in hard_tasks:  # the QP sorts hard and soft tasks once, when it is built
+            task.hard = True
+        try:
+            controller = QPController(robot, tasks, limits, solver=solver, dt=dt, **options)
+        finally:
+            for task, hard in zip(hard_tasks, saved):
+                task.hard = hard
+        controller.kind = "qp-hard"
+        return controller
+
+    return build
 
 
 def _seed_segment() -> Segment:
@@ -135,3 +175,157 @@ UNREACHABLE_TARGET = (2.4, 2.4)
 def unreachable(measure: str = "sigma", scene: str = "arm") -> Setup:
     trajectory = Segment(SEED_PATH[0], UNREACHABLE_TARGET, 3.0, time_law="cubic")
     return arm_setup("unreachable", trajectory, redundant=False, hard=False, measure=measure, duration=4.0, scene=scene)
+
+
+TOO_FAST_DURATION = 0.5  # s for the seed segment: 4.2 m/s at its peak
+TOO_FAST_RUN = 2.0  # s simulated: the path's end is then held
+# The minimum-norm law needs up to 1.5, 1.55, 1.96 rad/s and 0.9 m/s on this path, well
+# inside the scene's 8 rad/s and 2 m/s: too-fast gives the joints slower servos, so the
+# path is beyond them (every joint would have to exceed its limit).
+TOO_FAST_SPEEDS = {"theta1": 1.0, "theta2": 1.0, "theta3": 1.0, "d4": 0.5}
+
+
+class SegmentReference(PositionReference):
+    """A position reference along a straight segment that also measures how far the
+    tracked point strays from the segment (``path_deviation``, m) and, over the run,
+    when it reached the segment's end for good (``completion_time``: the first time from
+    which it stays within ``COMPLETION_TOLERANCE`` of the end; None if it never does)."""
+
+    COMPLETION_TOLERANCE = 1e-3  # m
+
+    def __init__(self, task: PositionTask, segment: Segment):
+        super().__init__(task, segment)
+        self._start, self._end = segment.start, segment.end
+        self._direction = segment.end - segment.start
+        self._length_sq = float(self._direction @ self._direction)
+
+    def measure(self, robot: Robot) -> dict:
+        sample = super().measure(robot)
+        along = float(np.clip((sample["x"] - self._start) @ self._direction / self._length_sq, 0.0, 1.0))
+        sample["path_deviation"] = float(np.linalg.norm(sample["x"] - self._start - along * self._direction))
+        return sample
+
+    def summarize(self, t: np.ndarray, x: np.ndarray) -> dict:
+        far = np.flatnonzero(np.linalg.norm(x - self._end, axis=1) > self.COMPLETION_TOLERANCE)
+        if not len(far):
+            return {"completion_time": float(t[0])}
+        return {"completion_time": float(t[far[-1] + 1]) if far[-1] + 1 < len(t) else None}
+
+
+@register("too-fast", "arm", "the source segment in 0.5 s (4.2 m/s peak), beyond joint speed limits "
+          "of 1 rad/s and 0.5 m/s; soft task")
+def too_fast(measure: str = "sigma", scene: str = "arm") -> Setup:
+    segment = Segment(SEED_PATH[0], SEED_PATH[1], TOO_FAST_DURATION, time_law="cubic")
+    setup = arm_setup("too-fast", segment, redundant=False, hard=False, measure=measure, duration=TOO_FAST_RUN,
+                      scene=scene, speed_limits=TOO_FAST_SPEEDS)
+    setup.reference = SegmentReference(setup.reference.task, segment)
+    return setup
+
+
+# three-tasks: φ = θ1 + θ2 + θ3 ramps from its start to PHI_END with a bump of
+# PHI_AMPLITUDE on top; with θ2, θ3 in [−1, 1] rad (as joint-limits) the arm cannot turn
+# that far while on the path in the middle of the run (about 1 s to 4.5 s).
+PHI_AMPLITUDE = 0.8  # rad
+PHI_END = 1.0  # rad
+# The start: the path's first point (0.5, 2) with θ2 = −0.5, θ3 = 0.5. The source's start
+# (θ2 = θ3 = 0, arm stretched) is singular for path and φ together (the y row of the
+# path's Jacobian is then half φ's): φ could not move at all there.
+THREE_TASKS_ELBOW = 0.5  # rad: θ2 = −0.5, θ3 = +0.5
+PHI_GAIN = ARM_GAIN
+# The soft QP's weights, level by level: the path, φ, the σ task.
+THREE_TASK_WEIGHTS = (1.0, 0.1, 0.01)
+
+
+class PhiProfile:
+    """φ_d(t) = φ0 + (φ1 − φ0) s(t) + A sin²(π t / T): a cubic ramp from φ0 to φ1 with a
+    bump of height A on top, at rest at both ends; held outside [0, T]."""
+
+    def __init__(self, start: float, end: float, amplitude: float, duration: float):
+        self.start, self.end, self.amplitude = float(start), float(end), float(amplitude)
+        self.law = CubicTimeLaw(duration)
+        self.duration, self.dim = self.law.duration, 1
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s, ds = self.law(t)
+        w = np.pi / self.duration
+        inside = 0.0 < t < self.duration
+        bump = self.amplitude * np.sin(w * t) ** 2 if inside else 0.0
+        bump_rate = self.amplitude * w * np.sin(2.0 * w * t) if inside else 0.0
+        return (np.array([self.start + (self.end - self.start) * s + bump]),
+                np.array([(self.end - self.start) * ds + bump_rate]))
+
+
+def three_tasks_start(elbow: float = THREE_TASKS_ELBOW) -> np.ndarray:
+    """q with the end effector at the path's start, θ2 = −elbow, θ3 = +elbow.
+
+    With θ2 + θ3 = 0 the ram is perpendicular to link 1, so in link 1's frame the end
+    effector sits at u = (a1 + a2 cos θ2, a2 sin θ2 − d4): |u| = |p| gives d4, and θ1
+    turns u onto p.
+    """
+    p = np.array(SEED_PATH[0])
+    reach = arm_model.A1 + arm_model.A2 * np.cos(elbow)
+    d4 = -arm_model.A2 * np.sin(elbow) + np.sqrt(p @ p - reach**2)
+    u = np.array([reach, -arm_model.A2 * np.sin(elbow) - d4])
+    theta1 = np.arctan2(p[1], p[0]) - np.arctan2(u[1], u[0])
+    return np.array([theta1, -elbow, elbow, d4])
+
+
+class PathAndOrientationReference(PositionReference):
+    """The seed path for the position task and a φ profile for the orientation task."""
+
+    def __init__(self, task: PositionTask, trajectory, orientation: PlanarOrientationTask, profile: PhiProfile):
+        super().__init__(task, trajectory)
+        self.orientation = orientation
+        self.profile = profile
+
+    def apply(self, t: float) -> None:
+        super().apply(t)
+        self.orientation.set_target(*self.profile.sample(t))
+
+
+@register("three-tasks", "arm", "levels: path (x, y), then phi = th1+th2+th3 (infeasible part of the time "
+          "with th2, th3 in [-1, 1]), then sigma")
+def three_tasks(scene: str = "arm") -> Setup:
+    """Three levels on the arm: the seed path, the orientation φ, the σ posture.
+
+    ``qp`` weighs all three (soft, weights 1, 0.1, 0.01); ``qp-hard`` makes the path an
+    equality and weighs the other two; ``hqp`` and ``sns`` order them strictly; ``pinv``
+    stacks path and φ as its primary task with σ in their null space.
+    """
+    robot = Robot.load(scene)
+    for joint in ARM_JOINTS:
+        robot.joint_id(joint)
+    robot.set_q(three_tasks_start())
+    robot.update_kinematics()
+    w_path, w_phi, w_sigma = THREE_TASK_WEIGHTS
+    sigma = SigmaProxy(robot, ("theta2", "theta3"))
+    position = PositionTask(robot, "end_effector", axes="xy", gain=ARM_GAIN, weight=w_path)
+    phi = PlanarOrientationTask(robot, "end_effector", gain=PHI_GAIN, weight=w_phi)
+    posture = ManipulabilityTask(robot, sigma, gain=ARM_K0, weight=w_sigma)
+    for level, task in enumerate((position, phi, posture)):
+        task.priority = level
+    joint_limits = robot.joint_limits.tightened(JOINT_LIMITS_RANGES)
+    limits = [JointPositionLimit(robot, joint_limits, influence=DAMPER_INFLUENCE, damper_rate=DAMPER_RATE),
+              JointVelocityLimit(robot)]
+    tasks = [position, phi, posture]
+    profile = PhiProfile(phi.angle(), PHI_END, PHI_AMPLITUDE, SEED_DURATION)
+    return Setup(
+        scenario="three-tasks",
+        robot_name="arm",
+        robot=robot,
+        duration=SEED_DURATION,
+        reference=PathAndOrientationReference(position, _seed_segment(), phi, profile),
+        qp_tasks=tasks,
+        limits=limits,
+        joint_limits=joint_limits,
+        manipulability=sigma.value,
+        manipulability_measure=sigma.label,
+        classical={"pinv": lambda: PseudoinverseController(robot, [position, phi], posture)},
+        plot_joints=JointPlotSpec.from_limits(robot, joint_limits),
+        params={"gain": ARM_GAIN, "phi_gain": PHI_GAIN, "k0": ARM_K0, "weights": list(THREE_TASK_WEIGHTS),
+                "phi_amplitude": PHI_AMPLITUDE, "ranges": JOINT_LIMITS_RANGES},
+        hierarchy=tasks,
+        level_errors=LevelErrors([Level("path", (position,), "m"), Level("phi", (phi,), "rad"),
+                                  Level("sigma", (posture,), "rad/s", measure="residual")]),
+        variants={"qp-hard": _hard_variant(robot, tasks, [position], limits)},
+    )

@@ -29,6 +29,7 @@ from .control import (
 from .kinematics import HexapodGeometry
 from ...limits import JointPositionLimit, JointVelocityLimit
 from ...robot import Robot
+from ...rollout.levels import Level, LevelErrors
 from ...scenario import JointPlotSpec, Setup, register
 from ...tasks import DampingTask, EqualityTask, FrameTask, PositionTask
 from ...trajectories import Circle, CircularTilt, PoseTrajectory, Segment
@@ -62,6 +63,11 @@ def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: boo
         tasks.append(PlatformManipulabilityTask(model, gain=k0, weight=1.0))
     # Every dof, the platform's free joint included (the mechanism's, not a floating base).
     tasks.append(DampingTask(robot, weight=1e-6 if hard else SOFT_DAMPING, joints=robot.joint_names))
+    # The hierarchy (hqp, sns): the loops closed first, then the platform, then the
+    # manipulability task, the damping last (the minimum-norm choice of what is left).
+    for level, level_task in enumerate([loops, task] + tasks[2:]):
+        level_task.priority = level
+    levels = [Level("loops", (loops,), "m"), Level("platform", (task,), "m, rad" if orientation else "m")]
     joint_limits = robot.joint_limits
     sliders = tuple(f"slider{i}" for i in range(1, 7))
     return Setup(
@@ -78,6 +84,8 @@ def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: boo
         classical={"pinv": lambda: HexapodClassicalController(model, task, k0=k0)},
         plot_joints=JointPlotSpec.from_limits(robot, joint_limits, names=sliders),
         params={"gain": HEXAPOD_GAIN, "loop_gain": LOOP_GAIN, "k0": k0, "hard": hard},
+        hierarchy=[loops, task] + tasks[2:],
+        level_errors=LevelErrors(levels),
         closure=StrokeDrivenClosure(model),
     )
 
