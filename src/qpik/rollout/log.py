@@ -34,6 +34,10 @@ class RolloutLog:
     speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
     completed: bool = True
     failure: str = ""
+    # Per step, the excursion of the commanded configuration alone (q ⊕ q̇Δt before the
+    # end stops; 0 where no command was made): what a controller asked for, without
+    # what a physics plant added. Not part of the summary or the saved log.
+    commanded_violation: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The summary.json record (plain Python types)."""
