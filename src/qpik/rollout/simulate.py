@@ -211,6 +211,12 @@ class Rollout:
                 self.progress(k + 1, self.steps)
         return self.done - start
 
+    @property
+    def q_commanded(self) -> np.ndarray:
+        """The commanded configuration q ⊕ q̇Δt of each step done, before the end stops
+        (a NaN row where no command was made: the last step, a failed one)."""
+        return self._q_commanded[: self.done]
+
     def _fail(self, error: type, message: str, reason: str | None = None) -> bool:
         """Raise ``error(message)`` or, with ``on_failure="stop"``, end the rollout."""
         if self.on_failure == "raise":
