@@ -134,7 +134,8 @@ def _arm(rng: np.random.Generator, mode: str, params: dict) -> Case:
     placements = []
     for i in range(robot.nq):
         low, high = tight.lower[i], tight.upper[i]
-        where = str(rng.choice(["inside", "lower", "upper", "near lower", "near upper"], p=[0.4, 0.15, 0.15, 0.15, 0.15]))
+        where = str(rng.choice(["inside", "lower", "upper", "near lower", "near upper"],
+                               p=[0.4, 0.15, 0.15, 0.15, 0.15]))
         gap = (high - low) * _log_uniform(rng, -12, -1)
         start[i] = {"inside": rng.uniform(low, high), "lower": low, "upper": high,
                     "near lower": low + gap, "near upper": high - gap}[where]
@@ -163,7 +164,8 @@ def _arm(rng: np.random.Generator, mode: str, params: dict) -> Case:
     damper = _log_uniform(rng, -1, 2)
     solver = str(rng.choice(_solvers()))
     damping = _log_uniform(rng, -8, -1)
-    params.update(robot="arm", mode=mode, gain_dt_max=gain * DT, ranges=ranges, start=start.tolist(), start_placement=placements,
+    params.update(robot="arm", mode=mode, gain_dt_max=gain * DT, ranges=ranges, start=start.tolist(),
+                  start_placement=placements,
                   target=target.tolist(), target_kind=target_kind, duration=duration, hold=hold, law=law, hard=hard,
                   gain=gain, lm_damping=lm, k0=k0, influence=influence, damper_rate=damper, solver=solver,
                   damping=damping)
@@ -265,7 +267,8 @@ def _hexapod(rng: np.random.Generator, mode: str, params: dict) -> Case:
     duration, hold = float(rng.uniform(0.2, 1.0)), float(rng.uniform(0.05, 0.4))
     law = str(rng.choice(["cubic", "quintic"]))
     solver = str(rng.choice(_solvers()))
-    params.update(robot="hexapod", mode=mode, gain_dt_max=max(gains.values()) * DT, start_pose=p0.tolist() + rpy0.tolist(), ranges=ranges,
+    params.update(robot="hexapod", mode=mode, gain_dt_max=max(gains.values()) * DT,
+                  start_pose=p0.tolist() + rpy0.tolist(), ranges=ranges,
                   start_inside=start_inside, frame_task=frame, hard=hard, gains=gains, lm_damping=lm, k0=k0,
                   damping=damping, target_pose=p1.tolist() + np.asarray(rpy1).tolist(), target_kind=target_kind,
                   duration=duration, hold=hold, law=law, solver=solver)
@@ -320,7 +323,8 @@ def mutate(text: str, mutation: str, rng: np.random.Generator) -> tuple[str, str
         m = attribute_values("qpos")[0]
         values = m.group(1).split()
         i = int(rng.integers(len(values)))
-        values[i] = "nan" if mutation == "keyframe_nan" else repr(float(values[i]) + float(rng.choice([-5.0, 5.0, 1.0])))
+        shift = float(rng.choice([-5.0, 5.0, 1.0]))
+        values[i] = "nan" if mutation == "keyframe_nan" else repr(float(values[i]) + shift)
         return replace(m, " ".join(values)), f"keyframe qpos[{i}] -> {values[i]}"
     if mutation in ("missing_joint", "missing_site"):
         kind = "joint" if mutation == "missing_joint" else "site"
@@ -619,7 +623,10 @@ def summarise(results: dict[str, dict]) -> dict:
                 per_solver[solver][c] += 1
         error = result["details"].get("error", "")
         # "Name: ...", "Name at t = ...: ..." (a stopped rollout), "at t = ...: ..." (a divergence)
-        name = ("DivergenceError" if error.startswith("at t") else error.split(":")[0].split(" at t")[0]) if error else ""
+        if not error:
+            name = ""
+        else:
+            name = "DivergenceError" if error.startswith("at t") else error.split(":")[0].split(" at t")[0]
         if "typed" in result["classes"] or "rejected" in result["classes"]:
             typed[kind][name] += 1
         if "untyped" in result["classes"]:
@@ -629,18 +636,29 @@ def summarise(results: dict[str, dict]) -> dict:
             bucket = "K·dt ≤ 1" if kdt <= 1 else "1 < K·dt ≤ 2" if kdt <= 2 else "K·dt > 2"
             loop_by_gain[bucket]["runs"] += 1
             loop_by_gain[bucket]["loop"] += "loop" in result["classes"]
-            loop_by_gain[bucket]["loop, start inside"] += "loop" in result["classes"] and result["params"]["start_inside"]
+            inside = result["params"]["start_inside"]
+            loop_by_gain[bucket]["loop, start inside"] += "loop" in result["classes"] and inside
         for key in ("crossing", "speed_excess", "loop_residual_commanded", "max_step_ms"):
             value = result["details"].get(key)
             if value is not None and np.isfinite(value):
                 worst[f"{kind}/{key}"] = max(worst[f"{kind}/{key}"], float(value))
     failing = sorted((r for r in results.values() if DEFECTS & set(r["classes"])),
                      key=lambda r: (r["case"].split(":")[0], int(r["case"].split(":")[1])))
-    return {"counts": {k: dict(v) for k, v in counts.items()}, "per_solver": {k: dict(v) for k, v in per_solver.items()},
+    return {"counts": {k: dict(v) for k, v in counts.items()},
+            "per_solver": {k: dict(v) for k, v in per_solver.items()},
             "typed_errors": {k: dict(v) for k, v in typed.items()}, "untyped_errors": dict(untyped.most_common()),
             "worst": dict(worst), "loop_by_gain": {k: dict(v) for k, v in loop_by_gain.items()},
-            "failing": [{"case": r["case"], "classes": r["classes"], "details": r["details"], "params": r["params"],
-                         "command": f"python benchmarks/fuzz.py --case {r['case']}"} for r in failing]}
+            "failing": [_failure(r) for r in failing]}
+
+
+def _failure(result: dict) -> dict:
+    """A failing case, short: its classes, solver, error and numbers (the rest comes back
+    with its command)."""
+    details = {k: v for k, v in result["details"].items() if k != "traceback"}
+    if "error" in details:
+        details["error"] = details["error"][:200]
+    return {"case": result["case"], "classes": result["classes"], "solver": result["params"].get("solver"),
+            "details": details, "command": f"python benchmarks/fuzz.py --case {result['case']}"}
 
 
 def to_markdown(summary: dict, meta: dict) -> str:
@@ -695,7 +713,8 @@ def main(argv=None) -> int:
     parser.add_argument("--chunk", type=int, default=25, help="cases per worker process")
     parser.add_argument("--cap", type=float, default=20.0, help="seconds a case may run before it is a hang")
     parser.add_argument("--case", help="run one case KIND:SEED here and print it")
-    parser.add_argument("--all-results", action="store_true", help="every case's result in fuzz.json, not only failures")
+    parser.add_argument("--all-results", action="store_true",
+                        help="every case's result in fuzz.json, not only the failures")
     parser.add_argument("--worker", nargs="*", help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)

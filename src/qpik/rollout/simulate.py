@@ -176,7 +176,8 @@ class Rollout:
             try:
                 qdot = controller.compute_velocity()
             except (DivergenceError, InfeasibleProblem, SolverError) as exc:
-                self._fail(type(exc), f"at t = {times[k]:.3f} s: {exc}", f"{type(exc).__name__} at t = {times[k]:.3f} s: {exc}")
+                when = f"at t = {times[k]:.3f} s"
+                self._fail(type(exc), f"{when}: {exc}", f"{type(exc).__name__} {when}: {exc}")
                 break
             time_log[k] = clock() - begin
             reference.record(k)
@@ -189,9 +190,10 @@ class Rollout:
                 break
             # A NaN velocity is the controller diverging, not a bad argument to integrate.
             if not math.isfinite(mujoco.mju_sum(qdot_log[k])):
-                if self._fail(DivergenceError, f"at t = {times[k]:.3f} s: the controller returned a non-finite velocity"):
+                message = f"at t = {times[k]:.3f} s: the controller returned a non-finite velocity"
+                if self._fail(DivergenceError, message):
                     break
-            robot.integrate(qdot, dt)
+            robot.integrate(qdot_log[k], dt)  # the logged copy: contiguous and writable
             q_cmd[k] = q
             if stop_view is not None:
                 np.clip(stop_view, lower, upper, out=stop_view)
