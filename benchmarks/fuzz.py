@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import queue
 import re
 import subprocess
@@ -755,7 +754,7 @@ def main(argv=None) -> int:
     meta = {"seed": args.seed, "cap_s": args.cap, "jobs": args.jobs, "chunk": args.chunk,
             "elapsed_s": time.monotonic() - started, "solvers": _solvers(), "python": sys.version.split()[0],
             "command": "python benchmarks/fuzz.py " + " ".join(f"--{k} {getattr(args, k)}" for k in KINDS)
-                       + f" --seed {args.seed}", "pid": os.getpid()}
+                       + f" --seed {args.seed}"}
     md = to_markdown(summary, meta)
     print(md)
     from qpik.io import write_json, write_text

@@ -60,6 +60,13 @@ def import_revision(revision: str, folder: Path) -> str:
     return name
 
 
+def tree_label() -> str:
+    """``this tree (abc1234)``, with ``+`` when the tree has uncommitted changes."""
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "src"], capture_output=True, text=True)
+    return f"this tree ({head.stdout.strip() or 'no git'}{'+' if dirty.stdout.strip() else ''})"
+
+
 def timed_rollout(runs_module, robot: str, scenario: str) -> tuple[float, dict]:
     gc.collect()
     gc.disable()
@@ -125,7 +132,7 @@ def main(argv=None) -> int:
     parser.add_argument("--against", help="a git revision to compare with (e.g. main)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    versions = {"this tree": importlib.import_module("qpik.app.runs")}
+    versions = {tree_label(): importlib.import_module("qpik.app.runs")}
     with tempfile.TemporaryDirectory() as folder:
         if args.against:
             name = import_revision(args.against, Path(folder))
