@@ -2,16 +2,18 @@
 
 On the arm's ``seed-redundant`` and the hexapod's ``hexapod-circle`` (platform pose task,
 six loop closures, stroke limits): qp with each solver, the classical law (pinv), mink
-with each solver and placo roll out the same scenario ``--rounds`` times in interleaved
-order (``step_time.measure``), so the ratios of medians come from one run on one machine
-state. A peer that cannot map a scenario is listed with its reason instead.
+with each solver and placo each run the scenario on their own copy, advancing side by
+side in blocks of 50 steps with the order rotated, ``--repeats`` times
+(:mod:`timing`), so the ratios of medians come from one run on one machine state; each
+ratio is the median over the repeats with its range. A peer that cannot map a scenario
+is listed with its reason instead.
 
-    python benchmarks/compare_peers.py [--rounds 5] [--solvers daqp,osqp,proxqp,quadprog]
+    python benchmarks/compare_peers.py [--repeats 5] [--solvers daqp,osqp,proxqp,quadprog]
 
-writes benchmarks/results/peers_<scenario>.json and .md: median / p99 step time, tracking
-error (and, on the hexapod, the largest loop-closure residual), final-q agreement with
-qp (daqp), the ratios qp(daqp)/mink(daqp), qp(osqp)/mink(osqp), qp(daqp)/pinv,
-qp(daqp)/placo and whether each bound holds.
+writes benchmarks/results/peers_<scenario>.json and .md: median / p99 step time (and
+whether p99 ≤ 3 medians), tracking error (and, on the hexapod, the largest loop-closure
+residual), final-q agreement with qp (daqp), the ratios qp(daqp)/mink(daqp),
+qp(osqp)/mink(osqp), qp(daqp)/pinv, qp(daqp)/placo and whether each bound holds.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from step_time import RESULTS, measure
+from step_time import RESULTS, label_of, measure
+from timing import P99_BOUND, ratio_cell
 
 from qpik.io import write_json, write_text
 from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
@@ -57,14 +60,15 @@ def entries_for(robot: str, scenario: str, solvers: list[str]) -> tuple[list[tup
     return entries, notes
 
 
-def ratios(rows: list[dict]) -> list[dict]:
-    by_key = {(r["controller"], r["solver"]): r for r in rows}
+def ratios(rows: list[dict], timing) -> list[dict]:
+    present = {(r["controller"], r["solver"]) for r in rows}
     out = []
     for label, num, den, bound in RATIOS:
-        if num in by_key and den in by_key:
-            value = by_key[num]["median_us"] / by_key[den]["median_us"]
-            out.append({"ratio": label, "value": value, "bound": bound,
-                        "holds": None if bound is None else bool(value <= bound)})
+        if num in present and den in present:
+            ratio = timing.ratio(label_of(*num), label_of(*den))
+            out.append({"ratio": label, "value": ratio["median"], "min": ratio["min"], "max": ratio["max"],
+                        "pooled": ratio["pooled"], "bound": bound,
+                        "holds": None if bound is None else bool(ratio["median"] <= bound)})
     return out
 
 
@@ -75,26 +79,30 @@ def agreement(rows: list[dict]) -> None:
         r["q_final_vs_qp_daqp"] = float(np.max(np.abs(np.array(r["summary"]["q_final"]) - ref)))
 
 
-def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict], notes: list[str]) -> str:
+def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict], notes: list[str],
+                repeats: int) -> str:
     loops = all("constraint_violation_max" in r["summary"] for r in rows)
     lines = [f"### {robot} / {scenario}", "",
-             f"Per-step time (kinematics update + controller), {rows[0]['steps']} steps per controller, "
-             f"interleaved rounds; tracking from the last round; Δq_final = max |q_final − q_final of qp (daqp)|.", "",
-             "| controller | solver | median [µs] | p99 [µs] | max error [m] | tracks (≤ 1e-3) | limit viol. | "
-             + ("loop resid. [m] | " if loops else "") + "Δq_final |",
-             "|---|---|---:|---:|---:|:---:|---:|" + ("---:|" if loops else "") + "---:|"]
+             f"Per-step time (kinematics update + controller), {rows[0]['steps']} steps per controller over "
+             f"{repeats} repeats, controllers interleaved in blocks of 50 steps; tracking from the last repeat; "
+             "Δq_final = max |q_final − q_final of qp (daqp)|.", "",
+             f"| controller | solver | median [µs] | p99 [µs] | p99 ≤ {P99_BOUND:g}× median | max error [m] | "
+             "tracks (≤ 1e-3) | limit viol. | " + ("loop resid. [m] | " if loops else "") + "Δq_final |",
+             "|---|---|---:|---:|:---:|---:|:---:|---:|" + ("---:|" if loops else "") + "---:|"]
     for r in rows:
         s = r["summary"]
         tracks = "yes" if s["completed"] and s["max_error"] <= TRACKING else f"no: {s.get('failure', 'error')}"
         loop = f"{s['constraint_violation_max']:.1e} | " if loops else ""
-        lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | "
+        p99 = f"{r['p99_over_median']:.2f} " + ("yes" if r["p99_within_3_medians"] else "**no**")
+        lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | {p99} | "
                      f"{s['max_error']:.2e} | {tracks} | {s['limit_violation_max']:.1e} | {loop}"
                      f"{r['q_final_vs_qp_daqp']:.1e} |")
-    lines += ["", "| ratio of medians | value | bound | holds |", "|---|---:|---:|:---:|"]
+    lines += ["", "| ratio of medians | median over repeats (range) | bound | holds |", "|---|---:|---:|:---:|"]
     for c in checks:
         bound = "-" if c["bound"] is None else f"≤ {c['bound']}"
         holds = "-" if c["holds"] is None else ("yes" if c["holds"] else "**no**")
-        lines.append(f"| {c['ratio']} | {c['value']:.3f} | {bound} | {holds} |")
+        lines.append(f"| {c['ratio']} | {ratio_cell({'median': c['value'], 'min': c['min'], 'max': c['max']})} | "
+                     f"{bound} | {holds} |")
     lines += [""] + [f"- {n}" for n in notes]
     return "\n".join(lines).rstrip() + "\n"
 
@@ -102,21 +110,21 @@ def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict],
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--solvers", default=",".join(available_solvers()))
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     solvers = [s for s in args.solvers.split(",") if s]
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
-            "rounds": args.rounds}
+            "repeats": args.repeats, "block": 50}
     for robot, scenario in RUNS:
         if scenario not in scenarios():
             print(f"{scenario}: no such scenario here, skipped")
             continue
         entries, notes = entries_for(robot, scenario, solvers)
-        rows = measure(robot, scenario, entries, args.rounds)
+        rows, timing = measure(robot, scenario, entries, args.repeats)
         agreement(rows)
-        checks = ratios(rows)
-        md = to_markdown(robot, scenario, rows, checks, notes)
+        checks = ratios(rows, timing)
+        md = to_markdown(robot, scenario, rows, checks, notes, args.repeats)
         print(md)
         write_json(args.out / f"peers_{scenario}.json", {"robot": robot, "scenario": scenario, "meta": meta,
                                                           "rows": rows, "ratios": checks, "notes": notes})

@@ -1,10 +1,13 @@
 """Per-step controller time, side by side in one run (ratios, since machines are noisy).
 
-Each controller rolls out the same scenario ``--rounds`` times, in interleaved order
-(round-robin), so slow phases of the machine hit every controller alike. The step
-time covers the kinematics update and the controller's ``compute_velocity``.
+Every controller runs the same scenario on its own copy, all advancing in turns of 50
+steps with the order rotated, the garbage collector off, ``--repeats`` times
+(:mod:`timing`). The step time covers the kinematics update and the controller's
+``compute_velocity``. Reported per controller: median and p99 of the step, whether the
+p99 stays within 3 medians and within the 2 ms control period, and the ratio of its
+median to the reference controller's with its range over the repeats.
 
-    python benchmarks/step_time.py --robot arm --scenario seed-redundant
+    python benchmarks/step_time.py --robot arm --scenario seed-redundant [--repeats 5]
 writes benchmarks/results/step_time_<scenario>.json and .md.
 """
 
@@ -16,19 +19,20 @@ import platform
 import sys
 from pathlib import Path
 
-import numpy as np
+from timing import P99_BOUND, Contender, interleave, ratio_cell
 
+from qpik.app.runs import run, start_run
 from qpik.io import write_json, write_text
-from qpik.app.runs import run
 from qpik.scenario import scenarios
 from qpik.solvers import available_solvers
 
 RESULTS = Path(__file__).resolve().parent / "results"
+CONTROL_PERIOD_US = 2000.0  # the scenarios' Δt: a step must fit in it to run in real time
 
 
 def timed_run(*args, **kwargs):
     """``qpik.app.runs.run`` with the garbage collector off, so no collector pause lands in a
-    measured step."""
+    measured step (the Monte Carlo's whole rollouts)."""
     gc.collect()
     gc.disable()
     try:
@@ -37,34 +41,37 @@ def timed_run(*args, **kwargs):
         gc.enable()
 
 
-def measure(robot: str, scenario: str, entries: list[tuple[str, str]], rounds: int) -> list[dict]:
-    """Step times of each (controller, solver) over ``rounds`` interleaved rollouts; each
-    row also keeps the summary of the controller's last rollout."""
-    times = {e: [] for e in entries}
-    last_logs = {}
-    for _ in range(rounds):
-        for controller, solver in entries:
-            _, log = timed_run(robot, scenario, controller, solver)
-            times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
-            last_logs[(controller, solver)] = log
+def label_of(controller: str, solver: str) -> str:
+    return controller if solver == "none" else f"{controller} ({solver})"
+
+
+def measure(robot: str, scenario: str, entries: list[tuple[str, str]], repeats: int = 3):
+    """Interleaved step times of each (controller, solver); each row keeps the summary of
+    the controller's last rollout. Returns the rows and the :class:`timing.Timing`."""
+    contenders = [Contender(label_of(c, s), lambda c=c, s=s: start_run(robot, scenario, c, s, on_failure="stop")[1])
+                  for c, s in entries]
+    timing = interleave(contenders, repeats=repeats)
     rows = []
-    for (controller, solver), chunks in times.items():
-        t = np.concatenate(chunks) * 1e6
-        rows.append({"controller": controller, "solver": solver, "steps": int(t.size),
-                     "median_us": float(np.median(t)), "p99_us": float(np.percentile(t, 99)),
-                     "mean_us": float(np.mean(t)), "summary": last_logs[(controller, solver)].summary()})
-    return rows
+    for (controller, solver), row in zip(entries, timing.rows()):
+        log = timing.contenders[row["label"]].last_log
+        rows.append({"controller": controller, "solver": solver, **row, "summary": log.summary()})
+    return rows, timing
 
 
-def to_markdown(robot: str, scenario: str, rows: list[dict], reference: str) -> str:
-    ref = next(r for r in rows if r["controller"] == reference)
+def to_markdown(robot: str, scenario: str, rows: list[dict], timing, reference: str) -> str:
     lines = [f"Per-step controller time, {robot} / {scenario} (kinematics update + controller), "
-             f"{rows[0]['steps']} steps each; ratio = median / median of `{reference}`.", "",
-             "| controller | solver | median [µs] | p99 [µs] | ratio to " + reference + " |",
-             "|---|---|---:|---:|---:|"]
+             f"{rows[0]['steps']} steps each over {timing.repeats} repeats, controllers interleaved in blocks "
+             f"of {timing.block} steps; ratio = median / median of `{reference}`, median over the repeats "
+             "(range).", "",
+             f"| controller | solver | median [µs] | p99 [µs] | p99 / median (≤ {P99_BOUND:g}) | "
+             f"p99 ≤ {CONTROL_PERIOD_US / 1000:g} ms | ratio to {reference} |",
+             "|---|---|---:|---:|---:|:---:|---:|"]
     for r in rows:
+        ratio = timing.ratio(r["label"], reference)
+        holds = "yes" if r["p99_within_3_medians"] else "**no**"
+        period = "yes" if r["p99_us"] <= CONTROL_PERIOD_US else "**no**"
         lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | "
-                     f"{r['median_us'] / ref['median_us']:.2f} |")
+                     f"{r['p99_over_median']:.2f} {holds} | {period} | {ratio_cell(ratio)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -74,20 +81,23 @@ def main(argv=None) -> int:
     parser.add_argument("--scenario", default="seed-redundant", choices=sorted(scenarios()))
     parser.add_argument("--solvers", default=",".join(available_solvers()))
     parser.add_argument("--classical", default="pinv,jt")
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    if args.repeats < 3:
+        parser.error("--repeats must be at least 3 (the spread of the ratios needs them)")
     solvers = [s for s in args.solvers.split(",") if s]
     classical = [c for c in args.classical.split(",") if c]
-    rows = measure(args.robot, args.scenario, [("qp", s) for s in solvers] + [(c, "none") for c in classical],
-                   args.rounds)
-    reference = "pinv" if "pinv" in classical else rows[0]["controller"]
-    md = to_markdown(args.robot, args.scenario, rows, reference)
+    rows, timing = measure(args.robot, args.scenario,
+                           [("qp", s) for s in solvers] + [(c, "none") for c in classical], args.repeats)
+    reference = "pinv" if "pinv" in classical else rows[0]["label"]
+    md = to_markdown(args.robot, args.scenario, rows, timing, reference)
     print(md)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
-            "rounds": args.rounds}
+            "repeats": args.repeats, "block": timing.block}
+    ratios = [timing.ratio(r["label"], reference) for r in rows]
     write_json(args.out / f"step_time_{args.scenario}.json",
-               {"robot": args.robot, "scenario": args.scenario, "meta": meta, "rows": rows})
+               {"robot": args.robot, "scenario": args.scenario, "meta": meta, "rows": rows, "ratios": ratios})
     write_text(args.out / f"step_time_{args.scenario}.md", md)
     return 0
 

@@ -28,6 +28,7 @@ _EXPORTS = {
     "SolverError": "qpik.errors",
     "ConvergenceError": "qpik.errors",
     "DivergenceError": "qpik.errors",
+    "GainWarning": "qpik.errors",
     # tasks
     "Task": "qpik.tasks",
     "JointSpaceTask": "qpik.tasks",
@@ -95,6 +96,7 @@ if TYPE_CHECKING:  # static type checkers see the real imports
     from .errors import (
         ConvergenceError,
         DivergenceError,
+        GainWarning,
         InfeasibleProblem,
         InvalidInput,
         ModelError,

@@ -50,3 +50,7 @@ class ConvergenceError(QpikError, RuntimeError):
 
 class DivergenceError(QpikError, RuntimeError):
     """A controller produced a non-finite command (e.g. at a singularity)."""
+
+
+class GainWarning(UserWarning):
+    """A feedback gain K with K·Δt > 1: the task's error overshoots every control step."""

@@ -21,11 +21,18 @@ at that keyframe, which must exist. ``Robot.load`` of a bundled robot starts at 
 
 Joint velocity limits are not part of MJCF; a scene declares them as custom numerics
 named ``qpik_velocity_limit_<joint>`` holding one value per degree of freedom.
+
+At load a :class:`Robot` checks what MuJoCo's compiler lets through silently and raises
+:class:`~qpik.errors.ModelError` for it: a timestep that is not positive and finite, a
+joint range with a NaN or with its lower bound not below its upper one (MuJoCo then
+drops the limit without a word), the start keyframe outside the joint ranges (beyond
+:data:`KEYFRAME_TOLERANCE`) or not finite, and non-finite kinematics at the start.
 """
 
 from __future__ import annotations
 
 import difflib
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +45,30 @@ from .robots import BUNDLED
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
 _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+# A keyframe may sit this far (joint units) outside a range: the rounding of a range
+# written in degrees and a keyframe written in radians, not a start outside the limits.
+KEYFRAME_TOLERANCE = 1e-9
+
+
+def check_model(model: mujoco.MjModel, label: str = "model") -> None:
+    """Raise :class:`ModelError` for a model MuJoCo compiles but qpik cannot trust.
+
+    Checks the timestep (positive, finite) and every joint range: a NaN, or a written
+    range whose lower bound is not below its upper one, makes MuJoCo drop the limit
+    silently (with ``autolimits``) or keep a NaN bound.
+    """
+    timestep = float(model.opt.timestep)
+    if not (math.isfinite(timestep) and timestep > 0.0):
+        raise ModelError(f"{label}: the timestep must be positive and finite, got {timestep}")
+    for j in range(model.njnt):
+        lower, upper = (float(v) for v in model.jnt_range[j])
+        joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+        if math.isnan(lower) or math.isnan(upper):
+            raise ModelError(f"{label}: joint {joint!r} has a NaN in its range [{lower}, {upper}]")
+        written = (lower, upper) != (0.0, 0.0)  # MuJoCo's default: no range given
+        if written and int(model.jnt_type[j]) in _SCALAR_JOINTS and not lower < upper:
+            raise ModelError(f"{label}: joint {joint!r} has range [{lower}, {upper}]: the lower bound must be "
+                             "below the upper one (MuJoCo ignores such a range, leaving the joint unlimited)")
 
 FRAME_TYPES = ("site", "body", "geom")
 # frame type -> (object type, position array, rotation array, Jacobian function)
@@ -92,11 +123,18 @@ def name_to_id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str, model_name
     where = f" in model {model_name!r}" if model_name else ""
     if not names:
         raise UnknownName(f"unknown {label} {name!r}{where}: the model has no named {label}")
-    close = difflib.get_close_matches(name, names, n=5, cutoff=0.5)
-    hint = f"close matches: {close}" if close else f"no close match among its {len(names)} {label} names"
-    if not close and len(names) <= 12:
-        hint = f"known: {names}"
-    raise UnknownName(f"unknown {label} {name!r}{where}; {hint}")
+    raise UnknownName(f"unknown {label} {name!r}{where}; {name_hint(name, names, label)}")
+
+
+def name_hint(name: str, names, label: str = "") -> str:
+    """What to say after an unknown name: its close matches (difflib), else the names."""
+    names = [n for n in names if n]
+    close = difflib.get_close_matches(str(name), names, n=5, cutoff=0.5)
+    if close:
+        return f"close matches: {close}"
+    if len(names) <= 12:
+        return f"known: {names}"
+    return f"no close match among its {len(names)} {label} names".replace("  ", " ")
 
 
 class Frame:
@@ -173,15 +211,37 @@ class JointLimits:
         values = q[self.qpos_index]
         return float(max(0.0, np.max(self.lower - values), np.max(values - self.upper)))
 
+    def violations(self, qs: np.ndarray) -> np.ndarray:
+        """:meth:`violation` of each row of ``qs`` (steps x nq), in one vectorised pass.
+
+        A row with a NaN counts 0.0, as :meth:`violation` does.
+        """
+        qs = np.asarray(qs, dtype=float)
+        if len(self.names) == 0 or len(qs) == 0:
+            return np.zeros(len(qs))
+        values = qs[:, self.qpos_index]
+        below = np.max(self.lower - values, axis=1)
+        above = np.max(values - self.upper, axis=1)
+        return np.fmax(np.fmax(0.0, below), above) + 0.0  # + 0.0: never -0.0, as max(0.0, ...)
+
     def tightened(self, ranges: dict[str, tuple[float, float]]) -> JointLimits:
-        """A copy with some joints' ranges replaced (each must lie inside the old one)."""
+        """A copy with some joints' ranges replaced, each inside the old one.
+
+        Raises:
+            UnknownName: a joint that has no limit here.
+            InvalidInput: a range that is empty, not finite where the old one is, or
+                reaches outside the old one.
+        """
         lower, upper = self.lower.copy(), self.upper.copy()
         for name, (lo, hi) in ranges.items():
             if name not in self.names:
-                raise UnknownName(f"unknown limited joint {name!r}; known: {list(self.names)}")
+                raise UnknownName(f"unknown limited joint {name!r}; {name_hint(name, self.names, 'limited joint')}")
             if not lo < hi:
                 raise InvalidInput(f"joint {name!r}: lower limit {lo} must be below upper {hi}")
             i = self.names.index(name)
+            if not (self.lower[i] <= lo and hi <= self.upper[i]):
+                raise InvalidInput(f"joint {name!r}: range [{lo}, {hi}] reaches outside the joint's range "
+                                   f"[{self.lower[i]}, {self.upper[i]}]")
             lower[i], upper[i] = lo, hi
         return JointLimits(self.names, self.qpos_index, self.dof_index, lower, upper)
 
@@ -195,6 +255,9 @@ class Robot:
         keyframe: keyframe to start from (default: none, the model's ``qpos0``).
 
     Raises:
+        ModelError: the model fails :func:`check_model`, or the start keyframe is not
+            finite or lies outside the joint ranges, or the start kinematics are not
+            finite (e.g. a NaN body position).
         UnknownName: ``keyframe`` names no keyframe of the model.
     """
 
@@ -202,14 +265,19 @@ class Robot:
         self.model = model
         self.data = mujoco.MjData(model)
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
+        check_model(model, f"model {self.name!r}")
         self.nq = model.nq
         self.nv = model.nv
         self._kinematics_state = b""
-        if keyframe is not None:
-            mujoco.mj_resetDataKeyframe(model, self.data, self.keyframe_id(keyframe))
+        self._velocity_shape = (model.nv,)
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
+        if keyframe is not None:
+            self._reset_to_keyframe(keyframe)
         self.update_kinematics()
+        if not (np.all(np.isfinite(self.data.xpos)) and np.all(np.isfinite(self.data.xmat))):
+            raise ModelError(f"model {self.name!r}: the kinematics at the start are not finite "
+                             "(a NaN or inf in a body, joint or site placement?)")
 
     @classmethod
     def load(cls, scene: str | Path, keyframe: str | None | _BundledDefault = BUNDLED_HOME) -> Robot:
@@ -263,8 +331,43 @@ class Robot:
         return data.qpos.tobytes()
 
     def integrate(self, qdot: np.ndarray, dt: float) -> None:
-        """q <- q (+) qdot dt on the configuration manifold (``mj_integratePos``)."""
+        """q <- q (+) qdot dt on the configuration manifold (``mj_integratePos``).
+
+        Args:
+            qdot: joint velocity, shape (nv,), finite.
+            dt: time step, positive and finite.
+
+        Raises:
+            InvalidInput: a wrong shape, a non-finite velocity, or a time step that is not
+                positive and finite (the configuration is left unchanged).
+        """
+        # On every step of every rollout, so a few hundred nanoseconds: MuJoCo's sum is NaN
+        # or inf when an entry is; the exact tests run only when a cheap one fails.
+        try:
+            ok = 0.0 < dt < math.inf and qdot.shape == self._velocity_shape and math.isfinite(mujoco.mju_sum(qdot))
+        except (AttributeError, TypeError):  # not a number, or not a writable contiguous float array
+            ok = False
+        if not ok:
+            qdot = self._checked_velocity(qdot, dt)
         mujoco.mj_integratePos(self.model, self.data.qpos, qdot, dt)
+
+    def _checked_velocity(self, qdot, dt) -> np.ndarray:
+        """The slow path of :meth:`integrate`: raise the precise error, or return a clean copy."""
+        try:
+            dt_ok = 0.0 < dt < math.inf
+        except TypeError:
+            dt_ok = False
+        if not dt_ok:
+            raise InvalidInput(f"integration step dt must be positive and finite, got {dt!r}")
+        try:
+            qdot = np.array(qdot, dtype=float)
+        except (TypeError, ValueError):
+            raise InvalidInput(f"joint velocity must be an array of numbers, got {qdot!r}") from None
+        if qdot.shape != self._velocity_shape:
+            raise InvalidInput(f"joint velocity must have shape ({self.nv},), got {qdot.shape}")
+        if not np.all(np.isfinite(qdot)):
+            raise InvalidInput(f"joint velocity contains NaN or inf: {qdot}")
+        return qdot
 
     # Names -------------------------------------------------------------------------
     @property
@@ -276,6 +379,22 @@ class Robot:
     def object_id(self, kind: mujoco.mjtObj, name: str) -> int:
         """The id of a named model object; :class:`UnknownName` lists the closest names."""
         return name_to_id(self.model, kind, name, self.name)
+
+    def _reset_to_keyframe(self, keyframe: str) -> None:
+        m = self.model
+        key_id = self.keyframe_id(keyframe)
+        qpos = m.key_qpos[key_id]
+        if not np.all(np.isfinite(qpos)):
+            raise ModelError(f"model {self.name!r}: keyframe {keyframe!r} has a non-finite qpos: {qpos}")
+        limits = self.joint_limits
+        values = qpos[limits.qpos_index]
+        outside = (values < limits.lower - KEYFRAME_TOLERANCE) | (values > limits.upper + KEYFRAME_TOLERANCE)
+        if np.any(outside):
+            bad = ", ".join(f"{limits.names[i]} = {values[i]:.6g} not in [{limits.lower[i]:.6g}, {limits.upper[i]:.6g}]"
+                            for i in np.flatnonzero(outside))
+            raise ModelError(f"model {self.name!r}: keyframe {keyframe!r} lies outside the joint ranges ({bad}); "
+                             "fix the keyframe or the ranges, or start elsewhere with keyframe=None")
+        mujoco.mj_resetDataKeyframe(m, self.data, key_id)
 
     def site_id(self, name: str) -> int:
         return self.object_id(mujoco.mjtObj.mjOBJ_SITE, name)
@@ -379,11 +498,14 @@ class Robot:
                 continue
             joint = name[len(VELOCITY_LIMIT_PREFIX):]
             jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
-            if jid < 0 or int(m.jnt_type[jid]) not in _SCALAR_JOINTS:
-                raise ModelError(f"numeric {name!r} names no hinge or slide joint")
+            if jid < 0:
+                raise ModelError(f"numeric {name!r} names no joint of the model; "
+                                 f"{name_hint(joint, object_names(m, mujoco.mjtObj.mjOBJ_JOINT), 'joint')}")
+            dofs = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}.get(int(m.jnt_type[jid]), 1)
             adr, size = m.numeric_adr[k], m.numeric_size[k]
-            value = float(m.numeric_data[adr]) if size >= 1 else np.nan
-            if size != 1 or not value > 0 or not np.isfinite(value):
-                raise ModelError(f"numeric {name!r} must hold one positive finite value")
-            vmax[m.jnt_dofadr[jid]] = value
+            values = np.array(m.numeric_data[adr:adr + size], dtype=float)
+            if size not in (1, dofs) or not np.all(values > 0) or not np.all(np.isfinite(values)):
+                raise ModelError(f"numeric {name!r} must hold one positive finite value"
+                                 + (f" or {dofs}, one per dof" if dofs > 1 else ""))
+            vmax[m.jnt_dofadr[jid]:m.jnt_dofadr[jid] + dofs] = values
         return vmax

@@ -7,6 +7,11 @@ A time law maps t ∈ [0, T] to the path fraction s ∈ [0, 1] with zero end vel
 - quintic: s = 10τ³ − 15τ⁴ + 6τ⁵ (zero end accelerations too).
 
 Before t = 0 and after T the reference holds its end point with zero velocity.
+
+Every trajectory samples one time (``sample(t)``) or a whole array of times in one
+vectorised pass (``sample_many(times)``, rows in the order of ``times``), with the same
+floating-point operations in the same order, so both give the same bits; a rollout
+samples its whole reference before the first step (:func:`sample_many`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,15 @@ def _time(t: float) -> float:
     if not np.isfinite(t):
         raise InvalidInput(f"time must be finite, got {t}")
     return float(t)
+
+
+def _times(times) -> np.ndarray:
+    arr = np.asarray(times, dtype=float)
+    if arr.ndim != 1:
+        raise InvalidInput(f"times must be a 1-D array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InvalidInput("times contain NaN or inf")
+    return arr
 
 
 class TimeLaw:
@@ -47,6 +61,17 @@ class TimeLaw:
         s, ds = self._shape(tau)
         return s, ds / self.duration
 
+    def many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        """s and ds/dt at each of ``times`` (arrays; the same values as calling the law)."""
+        tau = _times(times) / self.duration
+        s = np.where(tau <= 0.0, 0.0, 1.0)
+        ds = np.zeros_like(tau)
+        inside = (tau > 0.0) & (tau < 1.0)
+        s_in, ds_in = self._shape(tau[inside])
+        s[inside] = s_in
+        ds[inside] = ds_in / self.duration
+        return s, ds
+
 
 class CubicTimeLaw(TimeLaw):
     """s = 3τ² − 2τ³: zero velocity at both ends (the source's law)."""
@@ -64,7 +89,9 @@ class QuinticTimeLaw(TimeLaw):
 
     def _shape(self, tau: float) -> tuple[float, float]:
         t2 = tau * tau
-        return t2 * tau * (10.0 + tau * (-15.0 + 6.0 * tau)), 30.0 * t2 * (1.0 - tau) ** 2
+        # float_power: C's pow, as Python's ** on a float (NumPy's ** squares instead,
+        # which differs in the last bit now and then), for the same bits on arrays.
+        return t2 * tau * (10.0 + tau * (-15.0 + 6.0 * tau)), 30.0 * t2 * np.float_power(1.0 - tau, 2.0)
 
 
 TIME_LAWS = {"cubic": CubicTimeLaw, "quintic": QuinticTimeLaw}
@@ -83,6 +110,29 @@ class Trajectory(Protocol):
     duration: float
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def sample_many(trajectory: Trajectory, times) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (len(times) x dim) of any trajectory: its own vectorised
+    ``sample_many`` when it has one, else one ``sample`` per time.
+
+    Raises:
+        InvalidInput: a non-finite time, or a sample that is not finite or not of the
+            trajectory's dimension.
+    """
+    times = _times(times)
+    if hasattr(trajectory, "sample_many"):
+        positions, velocities = trajectory.sample_many(times)
+    else:
+        samples = [trajectory.sample(t) for t in times]
+        positions = np.array([p for p, _ in samples], dtype=float).reshape(len(times), -1)
+        velocities = np.array([v for _, v in samples], dtype=float).reshape(len(times), -1)
+    dim = trajectory.dim
+    if positions.shape != (len(times), dim) or velocities.shape != (len(times), dim):
+        raise InvalidInput(f"trajectory samples must have {dim} coordinates, got {positions.shape[1:]}")
+    if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(velocities))):
+        raise InvalidInput("trajectory samples contain NaN or inf")
+    return positions, velocities
 
 
 def _point(value, what: str) -> np.ndarray:
@@ -110,6 +160,11 @@ class Segment:
         s, ds = self.law(t)
         delta = self.end - self.start
         return self.start + s * delta, ds * delta
+
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        s, ds = self.law.many(times)
+        delta = self.end - self.start
+        return self.start + s[:, None] * delta, ds[:, None] * delta
 
 
 class Circle:
@@ -142,11 +197,24 @@ class Circle:
         sweep = 2.0 * np.pi * self.turns
         return self.start_angle + sweep * s, sweep * ds
 
+    def angle_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        """φ and φ̇ at each of ``times``."""
+        s, ds = self.law.many(times)
+        sweep = 2.0 * np.pi * self.turns
+        return self.start_angle + sweep * s, sweep * ds
+
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         phi, dphi = self.angle(t)
         c, s = np.cos(phi), np.sin(phi)
         position = self.center + self.radius * (c * self.u + s * self.w)
         velocity = self.radius * dphi * (-s * self.u + c * self.w)
+        return position, velocity
+
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        phi, dphi = self.angle_many(times)
+        c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
+        position = self.center + self.radius * (c * self.u + s * self.w)
+        velocity = (self.radius * dphi)[:, None] * (-s * self.u + c * self.w)
         return position, velocity
 
 
@@ -165,6 +233,10 @@ class Hold:
         _time(t)
         return self.point, self._zero
 
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        n = len(_times(times))
+        return np.tile(self.point, (n, 1)), np.zeros((n, self.dim))
+
 
 def rpy_rotation_and_rate(rpy_deg: np.ndarray, rpy_rate_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """R = Rz(θz) Ry(θy) Rx(θx) and its world angular velocity from the angle rates.
@@ -178,6 +250,19 @@ def rpy_rotation_and_rate(rpy_deg: np.ndarray, rpy_rate_deg: np.ndarray) -> tupl
     Ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
     Rx = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
     omega = dc * np.array([0.0, 0.0, 1.0]) + db * Rz[:, 1] + da * (Rz @ Ry)[:, 0]
+    return Rz @ Ry @ Rx, omega
+
+
+def rpy_rotations_and_rates(rpy_deg: np.ndarray, rpy_rate_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rpy_rotation_and_rate` of each row: (n, 3) angles and rates -> (n, 3, 3), (n, 3)."""
+    a, b, c = np.radians(rpy_deg).T
+    da, db, dc = np.radians(rpy_rate_deg).T
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    zero, one = np.zeros_like(a), np.ones_like(a)
+    Rz = np.stack([cc, -sc, zero, sc, cc, zero, zero, zero, one], axis=-1).reshape(-1, 3, 3)
+    Ry = np.stack([cb, zero, sb, zero, one, zero, -sb, zero, cb], axis=-1).reshape(-1, 3, 3)
+    Rx = np.stack([one, zero, zero, zero, ca, -sa, zero, sa, ca], axis=-1).reshape(-1, 3, 3)
+    omega = dc[:, None] * np.array([0.0, 0.0, 1.0]) + db[:, None] * Rz[:, :, 1] + da[:, None] * (Rz @ Ry)[:, :, 0]
     return Rz @ Ry @ Rx, omega
 
 
@@ -202,6 +287,14 @@ class CircularTilt:
         rate = self.amplitude * dphi * np.array([np.cos(delta), np.sin(delta), 0.0])
         return rpy, rate
 
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        phi, dphi = self.circle.angle_many(times)
+        delta = phi - self.circle.start_angle
+        zero = np.zeros_like(delta)
+        rpy = self.amplitude * np.stack([np.sin(delta), 1.0 - np.cos(delta), zero], axis=-1)
+        rate = (self.amplitude * dphi)[:, None] * np.stack([np.cos(delta), np.sin(delta), zero], axis=-1)
+        return rpy, rate
+
 
 class PoseTrajectory:
     """A position trajectory plus an orientation path of [θx, θy, θz] (deg) and rates: any
@@ -221,6 +314,23 @@ class PoseTrajectory:
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self.position.sample(t)
+
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray]:
+        return sample_many(self.position, times)
+
+    def sample_pose_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sample_pose` at each of ``times``: (n, 3), (n, 3), (n, 3, 3), (n, 3).
+
+        Raises:
+            InvalidInput: a non-finite time or sample.
+        """
+        p, v = sample_many(self.position, times)
+        n = len(p)
+        if self.rpy is None:
+            return p, v, np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3))
+        rpy, rate = sample_many(self.rpy, times)
+        R, omega = rpy_rotations_and_rates(rpy, rate)
+        return p, v, R, omega
 
     def sample_pose(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, linear velocity, rotation matrix, angular velocity (world)."""

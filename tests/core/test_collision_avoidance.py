@@ -112,7 +112,7 @@ def test_far_pairs_add_no_constraint(robot):
 
 
 def test_bad_input(robot):
-    with pytest.raises(UnknownName, match="close matches: hand"):
+    with pytest.raises(UnknownName, match="close matches: .*hand"):
         CollisionAvoidanceLimit(robot, [(["hnd"], ["box"])])
     with pytest.raises(InvalidInput, match="detection distance"):
         CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], minimum_distance=0.1, detection_distance=0.05)

@@ -17,7 +17,10 @@ def test_scene_numerics_are_read_when_no_values_are_given():
     limit = JointVelocityLimit(hexapod)
     sliders = [hexapod.joint_dofs(f"slider{i}")[0] for i in range(1, 7)]
     np.testing.assert_array_equal(limit.max_velocity[sliders], 0.5)
-    assert np.all(np.isinf(np.delete(limit.max_velocity, sliders)))
+    hinges = [hexapod.joint_dofs(f"u{i}_{side}")[0] for i in range(1, 7) for side in "ab"]
+    np.testing.assert_array_equal(limit.max_velocity[hinges], 5.0)
+    # The platform's free joint: one value per dof, linear (m/s) then angular (rad/s).
+    np.testing.assert_array_equal(limit.max_velocity[hexapod.joint_dofs("platform")], [1, 1, 1, 5, 5, 5])
 
 
 def test_a_model_without_speed_limits_needs_them_given(humanoid_path):

@@ -2,9 +2,12 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from qpik.errors import InvalidInput
-from qpik.trajectories import Circle, CubicTimeLaw, Hold, QuinticTimeLaw, Segment
+from qpik.trajectories import (Circle, CircularTilt, CubicTimeLaw, Hold, PoseTrajectory, QuinticTimeLaw, Segment,
+                               sample_many)
 
 SQRT2 = np.sqrt(2.0)
 
@@ -70,3 +73,60 @@ def test_hold_and_bad_arguments():
         Circle([0, 0, 0], 0.1, 1.0, u=(1, 0, 0), w=(1, 0, 0))
     with pytest.raises(InvalidInput):
         Segment([0, 0], [1, 1], 1.0).sample(np.inf)
+
+
+# Vectorised sampling: a rollout samples its whole reference up front with sample_many;
+# it must give the bits one sample(t) per step gives (the baseline rollouts depend on it).
+finite = st.floats(-3.0, 3.0, allow_nan=False)
+vectors3 = st.lists(finite, min_size=3, max_size=3)
+laws = st.sampled_from(["cubic", "quintic"])
+
+
+def _same_bits(many, single):
+    many, single = np.asarray(many), np.asarray(single)
+    return np.array_equal(many, single) and np.array_equal(np.signbit(many), np.signbit(single))
+
+
+def _times(duration, step=0.002):
+    return np.concatenate([np.arange(int(duration / step) + 50) * step, [-1.0, 0.0, duration, 1e6]])
+
+
+@settings(max_examples=25, deadline=None)
+@given(vectors3, vectors3, vectors3, vectors3, st.floats(0.1, 4.0), laws)
+def test_pose_paths_sampled_many_at_once_equal_one_sample_per_time(a, b, c, d, duration, law):
+    segment = PoseTrajectory(Segment(a, b, duration, law), Segment(np.array(c) * 10, np.array(d) * 10, duration, law))
+    circle = Circle(a, 0.1 + abs(b[0]), duration, start_angle=c[0], turns=1.0 + abs(d[0]), time_law=law)
+    tilted = PoseTrajectory(circle, CircularTilt(circle, 3.0 * c[1]))
+    times = _times(duration, step=0.0123)
+    for trajectory in (segment, tilted, PoseTrajectory(circle)):
+        batch = trajectory.sample_pose_many(times)
+        for i, t in enumerate(times):
+            assert all(_same_bits(m[i], s) for m, s in zip(batch, trajectory.sample_pose(t)))
+
+
+def test_every_bundled_trajectory_samples_many_as_one_by_one():
+    circle = Circle([0.05, 0.02, 0.11], 0.03, 4.0, time_law="quintic")
+    trajectories = [Segment([0.5, 2.0], [1.5, 1.0], 5.0), Hold([1.0, 2.0], 2.0), circle, CircularTilt(circle, 3.0),
+                    Circle([0.5, 1.0], 0.7, 3.3, u=(0.6, 0.8), w=(-0.8, 0.6), start_angle=0.4, turns=1.7)]
+    times = _times(5.0)
+    for trajectory in trajectories:
+        positions, velocities = sample_many(trajectory, times)
+        for i, t in enumerate(times):
+            p, v = trajectory.sample(t)
+            assert _same_bits(positions[i], p) and _same_bits(velocities[i], v)
+
+
+def test_sample_many_of_a_user_trajectory_and_its_errors():
+    class Wobble:
+        dim, duration = 2, 1.0
+
+        def sample(self, t):
+            return np.array([t, 1.0 / (1.0 - t)]), np.array([1.0, 0.0])
+
+    positions, _ = sample_many(Wobble(), [0.0, 0.5])
+    np.testing.assert_array_equal(positions, [[0.0, 1.0], [0.5, 2.0]])
+    with pytest.raises(InvalidInput, match="NaN or inf"):
+        sample_many(Wobble(), [0.5, float("inf")])
+    with pytest.raises(InvalidInput, match="NaN or inf"):
+        with np.errstate(divide="ignore"):
+            sample_many(Wobble(), np.array([0.5, 1.0]))

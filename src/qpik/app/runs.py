@@ -10,7 +10,7 @@ from typing import Sequence
 from ..errors import InvalidInput
 from ..io import write_json
 from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
-from ..rollout import MODES, RolloutLog, simulate
+from ..rollout import MODES, Rollout, RolloutLog
 from ..scenario import Setup, build_scenario, check_solver
 from ..solvers import available_solvers
 
@@ -21,21 +21,29 @@ HIERARCHY_KINDS = ("qp-hard", "hqp", "sns")
 SOLVER_KINDS = ("qp", "mink", "qp-hard", "hqp")
 
 
-def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
-        on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, RolloutLog]:
-    """Build the scenario and roll one controller out on it."""
+def start_run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
+              on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, Rollout]:
+    """Build the scenario and one controller on it: the rollout, not yet advanced."""
     if mode not in MODES:
         raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
     if controller in SOLVER_KINDS:
         check_solver(solver)
     setup = setup or build_scenario(scenario, robot)
     ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
-    log = simulate(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
-                   manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
-                   joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
-                   on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index,
-                   levels=setup.level_errors)
-    return setup, log
+    rollout = Rollout(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
+                      manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
+                      joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
+                      on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index,
+                      levels=setup.level_errors)
+    return setup, rollout
+
+
+def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
+        on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, RolloutLog]:
+    """Build the scenario and roll one controller out on it."""
+    setup, rollout = start_run(robot, scenario, controller, solver, mode, on_failure, setup)
+    rollout.advance()
+    return setup, rollout.log()
 
 
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",

@@ -156,6 +156,8 @@ class HierarchicalController:
                                          **solver_settings)
             self.levels.append(level)
         self.tasks = [t for level in grouped for t in level]
+        for task in self.tasks:
+            task.attach(self.dt)
         self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
         for limit in self.limits:
             if limit.constant and limit.box:

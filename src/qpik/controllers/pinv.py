@@ -32,6 +32,10 @@ class _StackedTasks:
             raise InvalidInput("the controller needs at least one primary task")
         self.robot = robot
         self.primary = list(primary)
+        for task in self.primary:
+            if getattr(task, "needs_period", False):
+                raise InvalidInput(f"{task.name}: its default gain is 1/dt of a QP controller's period; this "
+                                   "law has none: give the task a gain (1/s)")
         m = sum(t.dim for t in self.primary)
         self.J = np.zeros((m, robot.nv))
         self.v = np.zeros(m)

@@ -22,7 +22,7 @@ from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..limits import Limit, order_limits
 from ..limits.limit import as_slice
 from ..robot import Robot
-from ..solvers import make_backend
+from ..solvers import available_solvers, make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormStep
 from .diagnostics import explain_infeasibility
@@ -77,6 +77,8 @@ class QPController:
         self.dt = check_dt(dt)
         self.robot = robot
         self.tasks = list(tasks)
+        for task in self.tasks:
+            task.attach(self.dt)
         self.limits = order_limits(limits)
         self.solver = solver
         nv = robot.nv
@@ -119,6 +121,8 @@ class QPController:
             and self._diagonal_dofs[0] == slice(0, nv)
         self._closed_form = ClosedFormStep(None if self._soft_general else self._H0, meq) if fast_path else None
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
+        self.fallbacks = 0  # steps the solver failed on and quadprog solved
+        self._fallback = None
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
@@ -195,19 +199,46 @@ class QPController:
         return True
 
     def _retry_regularized(self, failure: SolverError) -> np.ndarray:
-        """A solver that cycles or stalls on a (nearly) singular Hessian gets one more try
-        with a little damping on every dof; if that fails too, the error says what to do."""
+        """A solver that cycles or stalls on a (nearly) singular or badly scaled problem gets
+        one more try with a little damping on every dof, then (when the failing solver is
+        not it) one with quadprog, an exact dual active-set solver that needs no tolerance
+        tuning; if those fail too, the error says what to do."""
         nv = self.robot.nv
         damping = 1e-9 * max(1.0, float(np.trace(self.H)) / nv)
-        self.H.reshape(-1)[:: nv + 1] += damping
+        H = self.H.copy()  # the constant Hessian must not keep the damping
+        H.reshape(-1)[:: nv + 1] += damping
         try:
-            return self._backend.solve(self.H, self.c, hessian_changed=True)
+            return self._backend.solve(H, self.c, hessian_changed=True)
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
                                     exc.variable) from None
         except SolverError:
-            raise SolverError(f"{failure} (also with {damping:.1g} of damping on every dof): the cost is "
-                              "nearly singular; add a DampingTask (weight 1e-6 or more) or try another solver") from None
+            pass
+        fallback = self._fallback_backend()
+        if fallback is not None:
+            try:
+                x = fallback.solve(H, self.c)
+            except SolverError:
+                pass
+            else:
+                self.fallbacks += 1
+                return x
+        raise SolverError(f"{failure} (also with {damping:.1g} of damping on every dof"
+                          f"{', and with quadprog' if fallback is not None else ''}): the cost is nearly "
+                          "singular or badly scaled; add a DampingTask (weight 1e-6 or more), lower the task "
+                          "gains or try another solver") from None
+
+    def _fallback_backend(self):
+        """quadprog through qpsolvers, sized like the problem, with this step's data."""
+        if self.solver == "quadprog" or "quadprog" not in available_solvers():
+            return None
+        if self._fallback is None:
+            self._fallback = make_backend("quadprog", self.robot.nv, self._backend.meq, self._backend.mineq)
+        fallback = self._fallback
+        fallback.A[:], fallback.b[:] = self.A, self.b
+        fallback.G[:], fallback.h[:] = self.G, self.h
+        fallback.lb[:], fallback.ub[:] = self.lb, self.ub
+        return fallback
 
 
 def _row_slices(items, size) -> list[slice]:

@@ -177,6 +177,8 @@ class SNSController:
         self.dt = float(dt)
         self.levels = [StackedLevel(robot, level, weighted=True) for level in grouped]
         self.tasks = [t for level in grouped for t in level]
+        for task in self.tasks:
+            task.attach(self.dt)
         self.limits = order_limits(limits)
         rows = [type(lim).__name__ for lim in self.limits if lim.inequality_rows]
         if rows:

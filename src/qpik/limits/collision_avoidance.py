@@ -26,7 +26,6 @@ toward the obstacle vanishes in proportion to the margin, so the second-order te
 
 from __future__ import annotations
 
-import difflib
 import itertools
 from typing import Sequence
 
@@ -34,7 +33,7 @@ import mujoco
 import numpy as np
 
 from ..errors import InvalidInput, UnknownName
-from ..robot import Robot
+from ..robot import Robot, name_hint
 from .limit import Limit
 
 GeomGroup = Sequence[str | int]
@@ -147,9 +146,7 @@ class CollisionAvoidanceLimit(Limit):
                 ids.extend(int(g) for g in np.flatnonzero(model.geom_bodyid == body))
                 continue
             names = [model.geom(g).name for g in range(model.ngeom)] + [model.body(b).name for b in range(model.nbody)]
-            close = difflib.get_close_matches(str(entry), [n for n in names if n], n=5)
-            hint = f"; close matches: {', '.join(close)}" if close else ""
-            raise UnknownName(f"no geom or body named {entry!r} in the model{hint}")
+            raise UnknownName(f"no geom or body named {entry!r} in the model; {name_hint(entry, names, 'geom or body')}")
         return ids
 
     @classmethod

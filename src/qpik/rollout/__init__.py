@@ -1,7 +1,8 @@
 """Headless rollouts: the simulate loop, the physics plant, references and the log."""
 
 from .log import RolloutLog
-from .references import PositionReference
-from .simulate import MODES, Controller, Reference, simulate
+from .references import PositionReference, Reference, ReferenceRun
+from .simulate import MODES, Controller, Rollout, simulate
 
-__all__ = ["MODES", "Controller", "PositionReference", "Reference", "RolloutLog", "simulate"]
+__all__ = ["MODES", "Controller", "PositionReference", "Reference", "ReferenceRun", "Rollout", "RolloutLog",
+           "simulate"]

@@ -46,6 +46,10 @@ class RolloutLog:
     report: dict[str, np.ndarray] = field(default_factory=dict)
     # Whole-run numbers the reference computes (e.g. when a path was completed).
     summary_extras: dict = field(default_factory=dict)
+    # Per step, the excursion of the commanded configuration alone (q ⊕ q̇Δt before the
+    # end stops; 0 where no command was made): what a controller asked for, without
+    # what a physics plant added. Not part of the summary or the saved log.
+    commanded_violation: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The summary.json record (plain Python types)."""

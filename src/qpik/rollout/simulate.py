@@ -7,8 +7,9 @@ Two modes, both at the control period Δt (2 ms):
 - ``physics``: the controller integrates its own commanded configuration (as IK
   front-ends do) and the plant, a second MjData on the same model, tracks it with
   its position actuators (velocity actuators, if the scene has them, get q̇ as
-  feed-forward) through ``mj_step``. Everything logged (x, error, q) is measured on
-  the plant.
+  feed-forward) through ``mj_step`` (:class:`~qpik.rollout.plant.PhysicsPlant`).
+  Everything logged (x, error, q) is measured on the plant. MuJoCo's "unstable, reset"
+  stops the rollout with a :class:`~qpik.errors.DivergenceError`.
 
 ``limit_violation`` is, per step, the larger excursion beyond the limits the controllers
 were given (a scenario may tighten the model's ranges) of the measured configuration
@@ -24,10 +25,18 @@ Per step the controller time covers the kinematics update and
 and outside the timed part, ``levels`` (a task hierarchy's per-level errors, the same
 for every controller) are measured on the controller's robot, and a controller with a
 ``report()`` method (SNS's task scale) has it logged.
+
+The loop itself only sets targets and copies numbers into preallocated arrays: the
+reference is sampled for every step before the first (:mod:`qpik.rollout.references`),
+and errors, limit violations and the measures of the bundled robots are evaluated,
+vectorised, when the log is made. :class:`Rollout` runs in blocks of steps (the timing
+harness of the benchmarks interleaves controllers that way); :func:`simulate` runs one
+to the end.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable, Protocol
 
@@ -37,9 +46,13 @@ import numpy as np
 from ..errors import DivergenceError, InfeasibleProblem, InvalidInput, SolverError
 from ..robot import JointLimits, Robot
 from .log import RolloutLog
-from .plant import Actuation
+from .plant import PhysicsPlant
+from ..limits.limit import as_slice
+from .references import Reference, start_measurement, start_reference
 
 MODES = ("kinematic", "physics")
+
+__all__ = ["MODES", "Controller", "Reference", "Rollout", "simulate"]
 
 
 class Controller(Protocol):
@@ -50,167 +63,235 @@ class Controller(Protocol):
     def compute_velocity(self) -> np.ndarray: ...
 
 
-class Reference(Protocol):
-    """Drives a tracking task along a trajectory and measures how well it is tracked."""
+class Rollout:
+    """A rollout of ``controller`` along ``reference`` for ``duration`` seconds at period
+    ``dt``, advanced in blocks of steps; :meth:`log` gives its :class:`RolloutLog`.
 
-    def apply(self, t: float) -> None:
-        """Set the task's target (and feed-forward velocity) for time t."""
+    The controller's robot starts from its current configuration. A controller failure
+    (singularity, infeasible QP, solver failure) or a divergence (non-finite velocity or
+    configuration, an unstable physics simulation) raises its typed error naming the
+    time; with ``on_failure="stop"`` it ends the rollout instead and the log keeps the
+    steps done, with the reason in ``completed``/``failure``.
 
-    def desired(self) -> np.ndarray:
-        """The desired tracked position at the last ``apply``."""
+    Args:
+        controller: anything with ``robot``, ``kind``, ``solver`` and ``compute_velocity()``.
+        reference: a :class:`~qpik.rollout.references.Reference` (or any object with
+            ``apply``, ``desired``, ``measure``).
+        duration: seconds; the rollout has ``round(duration / dt) + 1`` steps.
+        dt: control period.
+        mode: ``"kinematic"`` or ``"physics"``.
+        manipulability: a measure of the plant logged per step (a callable of a robot,
+            or one with ``start``, see :func:`~qpik.rollout.references.start_measurement`).
+        joint_limits: the limits ``limit_violation`` is measured against (default the
+            robot's).
+        closure: places the passive joints after each step (controllers that move only
+            the actuated joints).
+        speed_dofs: the dofs whose speed ``peak_joint_speed`` reports (default all).
+        levels: per-level errors to log (e.g. :class:`qpik.rollout.levels.LevelErrors`:
+            ``names``, ``units`` and ``measure(qdot)``).
 
-    def measure(self, robot: Robot) -> dict[str, np.ndarray | float]:
-        """``{"x": tracked position, **extras}`` on a robot with up-to-date kinematics."""
-
-
-def simulate(
-    controller: Controller,
-    reference: Reference,
-    duration: float,
-    *,
-    dt: float = 0.002,
-    mode: str = "kinematic",
-    manipulability: Callable[[Robot], float] | None = None,
-    manipulability_measure: str = "sigma",
-    joint_limits: JointLimits | None = None,
-    scenario: str = "custom",
-    robot_name: str | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    on_failure: str = "raise",
-    closure: Callable[[Robot], None] | None = None,
-    speed_dofs=None,
-    levels=None,
-) -> RolloutLog:
-    """Run ``controller`` along ``reference`` for ``duration`` seconds at period ``dt``.
-
-    The controller's robot starts from its current configuration. A controller
-    failure (singularity, infeasible QP, solver failure) raises its typed error,
-    naming the time; with ``on_failure="stop"`` it ends the rollout instead and the
-    log keeps the steps done, with the reason in ``completed``/``failure``.
-    ``levels`` (e.g. :class:`qpik.rollout.levels.LevelErrors`) gives per-level errors.
+    Raises:
+        InvalidInput: a bad mode, duration, dt, ``on_failure``, or a reference whose
+            samples are not finite.
+        ModelError: physics mode on a model without position actuators or with a bad
+            timestep.
     """
-    if on_failure not in ("raise", "stop"):
-        raise InvalidInput(f"on_failure must be 'raise' or 'stop', got {on_failure!r}")
-    if mode not in MODES:
-        raise InvalidInput(f"unknown mode {mode!r}; expected one of {MODES}")
-    if not (np.isfinite(duration) and duration > 0 and np.isfinite(dt) and dt > 0):
-        raise InvalidInput(f"duration and dt must be positive, got {duration}, {dt}")
-    robot = controller.robot
-    limits = robot.joint_limits if joint_limits is None else joint_limits
-    actuated_only = getattr(controller, "actuated_only", False)
-    if actuated_only and closure is None:
-        raise InvalidInput(f"controller {controller.kind!r} moves only the actuated joints: give a loop closure")
-    stops = robot.joint_limits
-    stop_buffer = np.zeros(len(stops.names))
-    steps = int(round(duration / dt)) + 1
-    plant = robot
-    actuation = None
-    substeps = 1
-    if mode == "physics":
-        plant = Robot(robot.model, name=robot.name, keyframe=None)
-        plant.data.qpos[:] = robot.q
-        actuation = Actuation(robot.model)
-        substeps = max(1, int(round(dt / robot.model.opt.timestep)))
-        if abs(substeps * robot.model.opt.timestep - dt) > 1e-12:
-            raise InvalidInput(f"dt={dt} is not a multiple of the model timestep {robot.model.opt.timestep}")
-        actuation.write(plant.data, robot.q, np.zeros(robot.nv))
-        mujoco.mj_forward(plant.model, plant.data)
 
-    t_log = np.zeros(steps)
-    q_log = np.zeros((steps, robot.nq))
-    qdot_log = np.zeros((steps, robot.nv))
-    time_log = np.zeros(steps)
-    viol_log = np.zeros(steps)
-    manip_log = np.zeros(steps)
-    x_log, xd_log, extras = [], [], {}
-    level_log = np.zeros((steps, len(levels.names))) if levels is not None else None
-    report = getattr(controller, "report", None)
-    report_log: dict[str, list] = {}
-    failure = ""
-    done = 0
-    for k in range(steps):
-        t = k * dt
-        if plant is not robot:
-            plant.update_kinematics()
-        reference.apply(t)
-        start = time.perf_counter()
-        robot.update_kinematics()
+    def __init__(
+        self,
+        controller: Controller,
+        reference,
+        duration: float,
+        *,
+        dt: float = 0.002,
+        mode: str = "kinematic",
+        manipulability: Callable[[Robot], float] | None = None,
+        manipulability_measure: str = "sigma",
+        joint_limits: JointLimits | None = None,
+        scenario: str = "custom",
+        robot_name: str | None = None,
+        progress: Callable[[int, int], None] | None = None,
+        on_failure: str = "raise",
+        closure: Callable[[Robot], None] | None = None,
+        speed_dofs=None,
+        levels=None,
+    ):
+        if on_failure not in ("raise", "stop"):
+            raise InvalidInput(f"on_failure must be 'raise' or 'stop', got {on_failure!r}")
+        if mode not in MODES:
+            raise InvalidInput(f"unknown mode {mode!r}; expected one of {MODES}")
         try:
-            qdot = controller.compute_velocity()
-        except (DivergenceError, InfeasibleProblem, SolverError) as exc:
-            if on_failure == "raise":
-                raise type(exc)(f"at t = {t:.3f} s: {exc}") from None
-            failure = f"{type(exc).__name__} at t = {t:.3f} s: {exc}"
-            break
-        time_log[k] = time.perf_counter() - start
-        if level_log is not None:
-            level_log[k] = levels.measure(qdot)
-        if report is not None:
-            for name, value in report().items():
-                report_log.setdefault(name, []).append(value)
-        sample = reference.measure(plant)
-        x_log.append(np.array(sample.pop("x"), dtype=float))
-        xd_log.append(reference.desired().copy())
-        for name, value in sample.items():
-            extras.setdefault(name, []).append(float(value))
-        t_log[k] = t
-        q_log[k] = plant.q
-        viol_log[k] = limits.violation(plant.q)
-        qdot_log[k] = qdot
-        manip_log[k] = manipulability(plant) if manipulability else np.nan
-        done = k + 1
-        if k == steps - 1:
-            break
-        robot.integrate(qdot, dt)
-        # Worst of the measured configuration and the commanded one (before the end stops
-        # act): a controller is charged with what it asks for, and with what the plant does.
-        viol_log[k] = max(viol_log[k], limits.violation(robot.q))
-        np.clip(robot.q[stops.qpos_index], stops.lower, stops.upper, out=stop_buffer)
-        robot.q[stops.qpos_index] = stop_buffer
-        if actuated_only:
-            closure(robot)
-        if actuation is not None:
-            actuation.write(plant.data, robot.q, qdot)
-            for _ in range(substeps):
-                mujoco.mj_step(plant.model, plant.data)
-            if not np.all(np.isfinite(plant.data.qpos)):
-                failure = f"at t = {t:.3f} s: physics simulation diverged (non-finite state)"
-        if not failure and not np.all(np.isfinite(robot.q)):
-            failure = f"at t = {t:.3f} s: the controller drove the configuration to non-finite values"
-        if failure:
-            if on_failure == "raise":
-                raise DivergenceError(failure)
-            break
-        if progress is not None:
-            progress(k + 1, steps)
-    if done == 0:
-        raise DivergenceError(f"the controller failed at the first step: {failure}")
-    x = np.array(x_log)
-    x_des = np.array(xd_log)
-    return RolloutLog(
-        robot=robot_name or robot.name,
-        controller=controller.kind,
-        solver=controller.solver,
-        scenario=scenario,
-        mode=mode,
-        dt=dt,
-        t=t_log[:done],
-        q=q_log[:done],
-        qdot=qdot_log[:done],
-        x=x,
-        x_des=x_des,
-        error=np.linalg.norm(x_des - x, axis=1),
-        manipulability=manip_log[:done],
-        step_time=time_log[:done],
-        limit_violation=viol_log[:done],
-        extras={name: np.array(v) for name, v in extras.items()},
-        manipulability_measure=manipulability_measure,
-        speed_dofs=None if speed_dofs is None else np.asarray(speed_dofs, dtype=int),
-        completed=not failure,
-        failure=failure,
-        level_error=None if level_log is None else level_log[:done],
-        level_names=() if levels is None else tuple(levels.names),
-        level_units=() if levels is None else tuple(levels.units),
-        report={name: np.array(v[:done]) for name, v in report_log.items()},
-        summary_extras=reference.summarize(t_log[:done], x) if hasattr(reference, "summarize") else {},
-    )
+            valid = math.isfinite(duration) and duration > 0 and math.isfinite(dt) and dt > 0
+        except TypeError:
+            valid = False
+        if not valid:
+            raise InvalidInput(f"duration and dt must be positive and finite, got {duration!r}, {dt!r}")
+        robot = controller.robot
+        self.controller = controller
+        self.robot = robot
+        self.dt = float(dt)
+        self.mode = mode
+        self.on_failure = on_failure
+        self.progress = progress
+        self.limits = robot.joint_limits if joint_limits is None else joint_limits
+        self.actuated_only = getattr(controller, "actuated_only", False)
+        if self.actuated_only and closure is None:
+            raise InvalidInput(f"controller {controller.kind!r} moves only the actuated joints: give a loop closure")
+        self.closure = closure
+        self._meta = dict(robot=robot_name or robot.name, controller=controller.kind, solver=controller.solver,
+                          scenario=scenario, mode=mode, dt=self.dt, manipulability_measure=manipulability_measure,
+                          speed_dofs=None if speed_dofs is None else np.asarray(speed_dofs, dtype=int))
+        self.steps = int(round(duration / dt)) + 1
+        self.times = np.arange(self.steps) * self.dt  # k·dt, the same bits as in a loop
+        self.physics = PhysicsPlant(robot, self.dt) if mode == "physics" else None
+        self.plant = self.physics.robot if self.physics else robot
+        self._reference = start_reference(reference, self.plant, self.times)
+        self._manipulability = start_measurement(manipulability, self.plant, self.steps)
+        # End stops: the model's ranges, clipped in place (on a view when the joints are consecutive).
+        stops = robot.joint_limits
+        self._stop_index = as_slice(stops.qpos_index)
+        self._stop_lower, self._stop_upper = stops.lower, stops.upper
+        self._has_stops = len(stops.names) > 0
+        self._stop_view = robot.data.qpos[self._stop_index] if isinstance(self._stop_index, slice) else None
+        self._q = np.empty((self.steps, robot.nq))
+        self._q_commanded = np.full((self.steps, robot.nq), np.nan)  # NaN rows: no command (last step)
+        self._qdot = np.empty((self.steps, robot.nv))
+        self._step_time = np.empty(self.steps)
+        self.levels = levels
+        self._level_error = np.empty((self.steps, len(levels.names))) if levels is not None else None
+        self._report = getattr(controller, "report", None)
+        self._report_log: dict[str, list] = {}
+        self._source_reference = reference
+        self.done = 0  # steps logged
+        self.failure = ""
+        self.finished = False
+
+    def advance(self, count: int | None = None) -> int:
+        """Run up to ``count`` more steps (all the remaining by default); the steps run."""
+        if self.finished:
+            return 0
+        start = self.done
+        stop = self.steps if count is None else min(self.steps, start + int(count))
+        robot, plant, controller, reference = self.robot, self.plant, self.controller, self._reference
+        manipulability, physics, times, dt = self._manipulability, self.physics, self.times, self.dt
+        q_log, q_cmd, qdot_log, time_log = self._q, self._q_commanded, self._qdot, self._step_time
+        last = self.steps - 1
+        clock = time.perf_counter
+        q, plant_q = robot.data.qpos, plant.data.qpos  # views, valid for the data's life
+        stops, stop_view, lower, upper = self._has_stops, self._stop_view, self._stop_lower, self._stop_upper
+        for k in range(start, stop):
+            if physics is not None:
+                plant.update_kinematics()
+            reference.apply(k)
+            begin = clock()
+            robot.update_kinematics()
+            try:
+                qdot = controller.compute_velocity()
+            except (DivergenceError, InfeasibleProblem, SolverError) as exc:
+                when = f"at t = {times[k]:.3f} s"
+                self._fail(type(exc), f"{when}: {exc}", f"{type(exc).__name__} {when}: {exc}")
+                break
+            time_log[k] = clock() - begin
+            if self._level_error is not None:
+                self._level_error[k] = self.levels.measure(qdot)
+            if self._report is not None:
+                for name, value in self._report().items():
+                    self._report_log.setdefault(name, []).append(value)
+            reference.record(k)
+            manipulability.record(k)
+            q_log[k] = plant_q
+            qdot_log[k] = qdot
+            self.done = k + 1
+            if k == last:
+                self.finished = True
+                break
+            # A NaN velocity is the controller diverging, not a bad argument to integrate.
+            if not math.isfinite(mujoco.mju_sum(qdot_log[k])):
+                message = f"at t = {times[k]:.3f} s: the controller returned a non-finite velocity"
+                if self._fail(DivergenceError, message):
+                    break
+            robot.integrate(qdot_log[k], dt)  # the logged copy: contiguous and writable
+            q_cmd[k] = q
+            if stop_view is not None:
+                np.clip(stop_view, lower, upper, out=stop_view)
+            elif stops:
+                index = self._stop_index
+                q[index] = np.clip(q[index], lower, upper)
+            if self.actuated_only:
+                self.closure(robot)
+            failure = ""
+            if physics is not None:
+                failure = physics.step(q, qdot)
+            if not failure and not math.isfinite(mujoco.mju_sum(q)):
+                failure = "the controller drove the configuration to non-finite values"
+            if failure and self._fail(DivergenceError, f"at t = {times[k]:.3f} s: {failure}"):
+                break
+            if self.progress is not None:
+                self.progress(k + 1, self.steps)
+        return self.done - start
+
+    @property
+    def q_commanded(self) -> np.ndarray:
+        """The commanded configuration q ⊕ q̇Δt of each step done, before the end stops
+        (a NaN row where no command was made: the last step, a failed one)."""
+        return self._q_commanded[: self.done]
+
+    def _fail(self, error: type, message: str, reason: str | None = None) -> bool:
+        """Raise ``error(message)`` or, with ``on_failure="stop"``, end the rollout."""
+        if self.on_failure == "raise":
+            raise error(message) from None
+        self.failure = reason or message
+        self.finished = True
+        return True
+
+    def log(self) -> RolloutLog:
+        """The log of the steps done so far, with its metrics evaluated (vectorised).
+
+        Raises:
+            DivergenceError: the controller failed at the first step.
+        """
+        n = self.done
+        if n == 0:
+            raise DivergenceError(f"the controller failed at the first step: {self.failure}")
+        x, x_des, extras = self._reference.results(n)
+        q = self._q[:n]
+        commanded = self.limits.violations(self._q_commanded[:n])
+        violation = np.maximum(self.limits.violations(q), commanded)
+        meta = self._meta
+        return RolloutLog(
+            robot=meta["robot"],
+            controller=meta["controller"],
+            solver=meta["solver"],
+            scenario=meta["scenario"],
+            mode=meta["mode"],
+            dt=meta["dt"],
+            t=self.times[:n],
+            q=q,
+            qdot=self._qdot[:n],
+            x=x,
+            x_des=x_des,
+            error=np.linalg.norm(x_des - x, axis=1),
+            manipulability=self._manipulability.values(n),
+            step_time=self._step_time[:n],
+            limit_violation=violation,
+            extras=extras,
+            manipulability_measure=meta["manipulability_measure"],
+            speed_dofs=meta["speed_dofs"],
+            completed=not self.failure,
+            failure=self.failure,
+            commanded_violation=commanded,
+            level_error=None if self._level_error is None else self._level_error[:n],
+            level_names=() if self.levels is None else tuple(self.levels.names),
+            level_units=() if self.levels is None else tuple(self.levels.units),
+            report={name: np.array(values[:n]) for name, values in self._report_log.items()},
+            summary_extras=(self._source_reference.summarize(self.times[:n], x)
+                            if hasattr(self._source_reference, "summarize") else {}),
+        )
+
+
+def simulate(controller: Controller, reference, duration: float, **options) -> RolloutLog:
+    """Run ``controller`` along ``reference`` for ``duration`` seconds: a :class:`Rollout`
+    (same arguments) advanced to its end, and its log."""
+    rollout = Rollout(controller, reference, duration, **options)
+    rollout.advance()
+    return rollout.log()

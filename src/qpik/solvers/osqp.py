@@ -94,7 +94,7 @@ class OsqpBackend(QPBackend):
         Status = self._osqp.SolverStatus
         # "Solved inaccurate" (the iteration limit hit with a relaxed tolerance) is kept
         # when the constraints hold: only optimality is a little off (dual residual).
-        inaccurate_but_feasible = status == Status.OSQP_SOLVED_INACCURATE and info.prim_res <= 1e-9
+        inaccurate_but_feasible = status == Status.OSQP_SOLVED_INACCURATE and info.prim_res <= self._settings["eps_abs"]
         if status != Status.OSQP_SOLVED and not inaccurate_but_feasible:
             infeasible = status in (Status.OSQP_PRIMAL_INFEASIBLE, Status.OSQP_PRIMAL_INFEASIBLE_INACCURATE)
             self._fail(str(info.status), infeasible)

@@ -75,6 +75,9 @@ class ComTask(Task):
         (valid after its kinematics update)."""
         return (robot or self.robot).data.subtree_com[self.body][self.rows]
 
+    def feedback_gains(self) -> np.ndarray:
+        return self.gain
+
     def update(self) -> None:
         mujoco.mj_jacSubtreeCom(self.robot.model, self.robot.data, self._jacp, self.body)
         np.take(self._jacp, self.rows, axis=0, out=self.jacobian)

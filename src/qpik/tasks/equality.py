@@ -66,7 +66,11 @@ class EqualityTask(Task):
         robot: the robot.
         equalities: names of the equalities to enforce (default: every equality active
             when the task is built, ``data.eq_active``).
-        gain: K (1/s).
+        gain: K (1/s); by default 1/Δt of the controller the task is given to
+            (dead-beat): the rows J_e q̇ = −e_e/Δt remove the whole residual in one step, so
+            the commanded configuration meets the constraints up to the step's second-order
+            (linearisation) error. A smaller K leaves a fraction (1 − KΔt) of each step's
+            residual behind, and those second-order errors accumulate.
         hard: enforce the rows as equalities in the QP (else weighed in the cost).
         weight: cost weight of a soft task, a scalar or one per row.
 
@@ -82,8 +86,8 @@ class EqualityTask(Task):
 
     name = "equality task"
 
-    def __init__(self, robot: Robot, equalities: Sequence[str] | None = None, gain: float = 1.0, hard: bool = True,
-                 weight=1.0):
+    def __init__(self, robot: Robot, equalities: Sequence[str] | None = None, gain: float | None = None,
+                 hard: bool = True, weight=1.0):
         model, data = robot.model, robot.data
         active = [i for i in range(model.neq) if data.eq_active[i]]
         if equalities is None:
@@ -106,7 +110,7 @@ class EqualityTask(Task):
                 kind = mujoco.mjtEq(int(model.eq_type[i])).name
                 raise ModelError(f"{self.name}: equality {label!r} is a {kind}; supported: "
                                  f"{[name for name, _ in SUPPORTED.values()]}")
-        if not (np.isfinite(gain) and gain >= 0):
+        if gain is not None and not (np.isfinite(gain) and gain >= 0):
             raise InvalidInput(f"{self.name}: gain must be finite and >= 0, got {gain}")
         self.equalities = tuple(ids)  # model equality ids, in row order
         self._tendons = any(int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_TENDON) for i in ids)
@@ -118,7 +122,8 @@ class EqualityTask(Task):
         efc_id = np.array(data.efc_id[: self._ne])
         rows = np.flatnonzero(np.isin(efc_id, ids))
         super().__init__(robot, len(rows), weight, hard)
-        self.gain = float(gain)
+        self.dead_beat = gain is None
+        self.gain = np.nan if gain is None else float(gain)  # set by attach() when dead-beat
         self._rows = rows
         self._all_rows = len(rows) == self._ne
         self._dense = None if self._all_rows and self._sparse else np.zeros((self._ne, robot.nv))
@@ -127,6 +132,19 @@ class EqualityTask(Task):
             where = np.flatnonzero(efc_id[rows] == i)
             self._slices.append(slice(int(where[0]), int(where[-1]) + 1))
         self._scratch = None
+
+    def feedback_gains(self) -> np.ndarray:
+        return np.full(self.dim, self.gain)
+
+    def attach(self, dt: float) -> None:
+        if self.dead_beat:
+            self.gain = 1.0 / dt
+        super().attach(dt)
+
+    @property
+    def needs_period(self) -> bool:
+        """Whether the gain is still to come from a controller's period (see ``gain``)."""
+        return self.gain != self.gain  # NaN
 
     def update(self) -> None:
         model, data = self.robot.model, self.robot.data

@@ -99,6 +99,9 @@ class FrameTask(Task):
         self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
         self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
 
+    def feedback_gains(self) -> np.ndarray:
+        return np.concatenate([self.position_gain, self.orientation_gain])
+
     def update(self) -> None:
         if self._whole:
             self.frame.jacobian(self._jacp, self._jacr)

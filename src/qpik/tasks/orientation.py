@@ -61,6 +61,9 @@ class OrientationTask(Task):
         self.target_angular_velocity[:] = (0.0 if angular_velocity is None
                                            else finite_vector(angular_velocity, 3, "target angular velocity"))
 
+    def feedback_gains(self) -> np.ndarray:
+        return self.gain
+
     def update(self) -> None:
         self._pose_rows.jacobian(self.jacobian)
         self.update_target_velocity()

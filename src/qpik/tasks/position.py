@@ -92,6 +92,9 @@ class PositionTask(Task):
         position = (robot or self.robot).frame_position(self.frame)
         return position.copy() if self.local else position[self.rows]
 
+    def feedback_gains(self) -> np.ndarray:
+        return self.gain
+
     def update(self) -> None:
         if self.local:
             self._pose_rows.jacobian(self.jacobian)

@@ -34,6 +34,9 @@ class PostureTask(JointSpaceTask):
     def set_target(self, target) -> None:
         self.target[:] = finite_vector(target, self.robot.nq, "posture target")
 
+    def feedback_gains(self) -> np.ndarray:
+        return np.full(self.dim, self.gain)
+
     def update(self) -> None:
         mujoco.mj_differentiatePos(self.robot.model, self._difference, 1.0, self.robot.q, self.target)
         np.take(self._difference, self.dofs, out=self.error)

@@ -28,12 +28,13 @@ All arrays are preallocated: ``update`` writes in place and allocates nothing bi
 
 from __future__ import annotations
 
+import warnings
 from typing import Sequence
 
 import mujoco
 import numpy as np
 
-from ..errors import InvalidInput
+from ..errors import GainWarning, InvalidInput
 from ..robot import Robot
 
 _AXES = "xyz"
@@ -182,6 +183,34 @@ class Task:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
             raise InvalidInput(f"{self.name} priority must be an integer >= 0 (0 the highest), got {value!r}")
         self._priority = int(value)
+
+    def feedback_gains(self) -> np.ndarray | None:
+        """The gains K (1/s) of the task's error feedback v = ẋ_d + K e, one per row, or
+        None for a task without one (a gradient, a damping)."""
+        return None
+
+    def attach(self, dt: float) -> None:
+        """Called by a controller with its control period Δt before the first step.
+
+        The error of a met task follows e_{k+1} = (1 − KΔt) e_k: it overshoots (changes
+        sign every step) for KΔt > 1 and grows for KΔt > 2. The first is warned about
+        (:class:`~qpik.errors.GainWarning`), the second refused.
+
+        Raises:
+            InvalidInput: a gain with KΔt > 2.
+        """
+        gains = self.feedback_gains()
+        if gains is None or not len(gains):
+            return
+        worst = float(np.max(gains)) * dt
+        if worst > 2.0:
+            raise InvalidInput(f"{self.name}: gain {float(np.max(gains)):g} 1/s with dt = {dt:g} s gives K·dt = "
+                               f"{worst:.3g} > 2: the discrete error e(k+1) = (1 - K·dt) e(k) grows every step; "
+                               f"use K <= {1.0 / dt:g} 1/s")
+        if worst > 1.0:
+            warnings.warn(f"{self.name}: gain {float(np.max(gains)):g} 1/s with dt = {dt:g} s gives K·dt = "
+                          f"{worst:.3g} > 1: the error overshoots, changing sign every step; "
+                          f"K <= {1.0 / dt:g} 1/s converges without overshoot", GainWarning, stacklevel=3)
 
     def update(self) -> None:
         """Refresh ``jacobian``, ``target_velocity`` and ``error`` from the robot's kinematics."""

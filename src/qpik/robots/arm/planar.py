@@ -48,6 +48,9 @@ class PlanarOrientationTask(Task):
         self.target[:] = finite_vector(np.reshape(angle, -1), 1, "target angle")
         self.target_rate[:] = 0.0 if rate is None else finite_vector(np.reshape(rate, -1), 1, "target rate")
 
+    def feedback_gains(self) -> np.ndarray:
+        return np.array([self.gain])
+
     def update(self) -> None:
         mujoco.mj_jacSite(self.robot.model, self.robot.data, None, self._jacr, self.site_id)
         difference = float(self.target[0]) - self.angle()

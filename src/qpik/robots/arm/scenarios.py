@@ -53,6 +53,36 @@ DAMPER_RATE = 2.0
 LM_DAMPING = 10.0
 
 
+class LoggedSigma:
+    """σ as a rollout logs it: callable on a robot (:meth:`SigmaProxy.value`); in a
+    rollout the joint angles are copied per step and σ of every step is evaluated in one
+    pass afterwards, with the same floating-point operations (the same bits, tested)."""
+
+    def __init__(self, proxy: SigmaProxy):
+        self.proxy = proxy
+
+    def __call__(self, robot: Robot) -> float:
+        return self.proxy.value(robot)
+
+    def start(self, plant: Robot, steps: int) -> _SigmaRecorder:
+        return _SigmaRecorder(self.proxy, plant, steps)
+
+
+class _SigmaRecorder:
+    def __init__(self, proxy: SigmaProxy, plant: Robot, steps: int):
+        self._qpos = plant.data.qpos  # a view of the plant's configuration
+        self._index = proxy.qpos_index
+        self.angles = np.empty((steps, len(self._index)))
+
+    def record(self, k: int) -> None:
+        self.angles[k] = self._qpos[self._index]
+
+    def values(self, count: int) -> np.ndarray:
+        s = np.sin(self.angles[:count])
+        # ½ s·s per row as a batched dot product: SigmaProxy.value's ½ (s @ s).
+        return 0.5 * np.matmul(s[:, None, :], s[:, :, None])[:, 0, 0]
+
+
 def _arm_measure(robot: Robot, measure: str):
     if measure == "sigma":
         return SigmaProxy(robot, ("theta2", "theta3"))
@@ -113,7 +143,7 @@ def arm_setup(
         qp_tasks=[position, regular],
         limits=limits,
         joint_limits=joint_limits,
-        manipulability=manip.value,
+        manipulability=LoggedSigma(manip) if isinstance(manip, SigmaProxy) else manip.value,
         manipulability_measure=manip.label,
         classical={
             "pinv": lambda: PseudoinverseController(robot, [position], secondary),

@@ -24,6 +24,7 @@ central difference over three small rotations.
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -31,7 +32,9 @@ from ...errors import ConvergenceError, DivergenceError
 from .kinematics import N_LEGS, Hexapod
 from .scene import assembly_qpos
 from ...robot import Robot
+from ...rollout.references import Reference, ReferenceRun
 from ...tasks import EqualityTask, FrameTask, PositionTask, Task, rotation_error
+from ...trajectories import sample_many
 
 CHARACTERISTIC_LENGTH = 0.1  # m, the platform radius: makes rotations commensurate
 _GRADIENT_STEP = 1e-5  # rad
@@ -70,7 +73,8 @@ class HexapodModel:
         return robot.site_position(self.center_site).copy(), robot.site_rotation(self.center_site).copy()
 
     def scaled_inverse_jacobian(self, position: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """Jinv diag(I, I/c) at a pose, or at a batch of rotations R (B, 3, 3) -> (B, 6, 6).
+        """Jinv diag(I, I/c) at a pose, or at a batch of rotations R (B, 3, 3) -> (B, 6, 6)
+        with one position (3,) or one per rotation (B, 3).
 
         The hot-path twin of :meth:`Hexapod.inverse_jacobian` (tested against it): the
         strokes come from IK on each leg's side, q = s·d + side·√disc, since every slider
@@ -78,7 +82,7 @@ class HexapodModel:
         """
         g = self.hexapod.geometry
         r = np.matmul(g.platform_points, np.swapaxes(R, -1, -2))  # (..., 6, 3)
-        d = position + r - g.slider_origins
+        d = np.expand_dims(position, -2) + r - g.slider_origins  # one position, or one per rotation
         sd = d @ g.slider_axes[0] if self._common_axis else np.einsum("ij,...ij->...i", g.slider_axes, d)
         disc = sd * sd - (np.einsum("...ij,...ij->...i", d, d) - g.leg_lengths**2)
         q = sd + self._side * np.sqrt(np.maximum(disc, 0.0))
@@ -94,7 +98,8 @@ class HexapodModel:
         return rows
 
     def manipulability(self, position: np.ndarray, R: np.ndarray) -> float | np.ndarray:
-        """σmin/σmax of the scaled forward Jacobian (0 where IK fails); batched over R."""
+        """σmin/σmax of the scaled forward Jacobian (0 where IK fails); batched over R (and
+        over positions (B, 3), if given one per rotation)."""
         scaled = self.scaled_inverse_jacobian(position, R)
         bad = ~np.all(np.isfinite(scaled), axis=(-2, -1))
         sigma = np.linalg.svd(np.where(bad[..., None, None], 1.0, scaled), compute_uv=False)
@@ -110,6 +115,41 @@ class HexapodModel:
     def manipulability_of(self, robot: Robot) -> float:
         """The logged measure, on any robot of this model (e.g. the physics plant)."""
         return self.manipulability(*self.platform_pose(robot))
+
+
+class PlatformManipulability:
+    """The hexapod's logged manipulability measure (:meth:`HexapodModel.manipulability`
+    at the platform pose): callable on a robot, and, in a rollout, the platform pose
+    copied per step and the measure evaluated for every step in one batch afterwards."""
+
+    def __init__(self, model: HexapodModel):
+        self.model = model
+
+    def __call__(self, robot: Robot) -> float:
+        return self.model.manipulability_of(robot)
+
+    def start(self, plant: Robot, steps: int) -> _PlatformPoses:
+        return _PlatformPoses(self.model, plant, steps)
+
+
+class _PlatformPoses:
+    """The platform pose of each step of a rollout; the measure of all of them at the end."""
+
+    def __init__(self, model: HexapodModel, plant: Robot, steps: int):
+        self.model = model
+        self._position = plant.data.site_xpos[model.center_site]  # views into the plant's data
+        self._rotation = plant.data.site_xmat[model.center_site]
+        self.positions = np.empty((steps, 3))
+        self.rotations = np.empty((steps, 9))
+
+    def record(self, k: int) -> None:
+        self.positions[k] = self._position
+        self.rotations[k] = self._rotation
+
+    def values(self, count: int) -> np.ndarray:
+        if count == 0:
+            return np.empty(0)
+        return np.asarray(self.model.manipulability(self.positions[:count], self.rotations[:count].reshape(-1, 3, 3)))
 
 
 class PlatformManipulabilityTask(Task):
@@ -203,7 +243,7 @@ class StrokeDrivenClosure:
         self._last[:] = robot.q
 
 
-class PlatformReference:
+class PlatformReference(Reference):
     """Feeds a pose trajectory to the platform task; measures pose error and loops."""
 
     def __init__(self, model: HexapodModel, task: FrameTask | PositionTask, trajectory, loops: EqualityTask):
@@ -229,6 +269,96 @@ class PlatformReference:
         sample = {"x": position}
         if isinstance(self.task, FrameTask):
             sample["orientation_error"] = float(np.linalg.norm(rotation_error(self._desired_rotation, R)))
-        sample["constraint_violation"] = self.loops.max_residual(robot)
+        sample["constraint_violation"] = self.loop_residual(robot)
         return sample
 
+    def loop_residual(self, robot: Robot) -> float:
+        """The largest loop-closure gap (m): between the two anchor sites of each site
+        ``connect`` (what the rollout's run evaluates after the run, the same bits), else
+        MuJoCo's own constraint residual."""
+        model = robot.model
+        loops = self.loops.equalities
+        if all(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in loops):
+            sites = robot.data.site_xpos
+            gaps = sites[[model.eq_obj1id[eq] for eq in loops]] - sites[[model.eq_obj2id[eq] for eq in loops]]
+            return float(np.max(np.linalg.norm(gaps, axis=1)))
+        return self.loops.max_residual(robot)
+
+    def start(self, plant: Robot, times: np.ndarray) -> ReferenceRun:
+        return _PlatformRun(self, plant, times)
+
+
+class _PlatformRun(ReferenceRun):
+    """The pose trajectory sampled once; per step a target set and the platform pose and
+    loop anchors copied; orientation errors and loop residuals evaluated after the run
+    (the same bits as :meth:`PlatformReference.measure`, tested)."""
+
+    def __init__(self, reference: PlatformReference, plant: Robot, times: np.ndarray):
+        super().__init__(reference, plant, times)
+        self.task = reference.task
+        self.frame = isinstance(self.task, FrameTask)
+        trajectory = reference.trajectory
+        if hasattr(trajectory, "sample_pose_many"):
+            self.positions, self.velocities, self.rotations, self.angular = trajectory.sample_pose_many(times)
+        else:
+            self.positions, self.velocities = sample_many(trajectory, times)
+            poses = [trajectory.sample_pose(t) for t in times]
+            self.rotations = np.array([pose[2] for pose in poses], dtype=float).reshape(-1, 3, 3)
+            self.angular = np.array([pose[3] for pose in poses], dtype=float).reshape(-1, 3)
+        data, model = plant.data, plant.model
+        center = reference.model.center_site
+        self._position, self._rotation = data.site_xpos[center], data.site_xmat[center]  # views
+        self._sites = data.site_xpos
+        steps = len(times)
+        self._x = np.empty((steps, 3))
+        self._measured_rotations = np.empty((steps, 9))
+        # Site-based loop closures: their anchors are sites, copied per step; otherwise
+        # (body anchors) the residual is computed per step.
+        loops = reference.loops.equalities
+        self._site_loops = all(model.eq_objtype[eq] == mujoco.mjtObj.mjOBJ_SITE for eq in loops)
+        self._anchor1 = np.array([model.eq_obj1id[eq] for eq in loops], dtype=int)
+        self._anchor2 = np.array([model.eq_obj2id[eq] for eq in loops], dtype=int)
+        self._site_positions = np.empty((steps,) + self._sites.shape) if self._site_loops else None
+        self._residuals = np.empty(steps)
+
+    def apply(self, k: int) -> None:
+        if self.frame:
+            self.task.set_target(self.positions[k], self.rotations[k], self.velocities[k], self.angular[k])
+        else:
+            self.task.set_target(self.positions[k], self.velocities[k])
+
+    def record(self, k: int) -> None:
+        self._x[k] = self._position
+        if self.frame:
+            self._measured_rotations[k] = self._rotation
+        if self._site_loops:
+            self._site_positions[k] = self._sites
+        else:
+            self._residuals[k] = self.reference.loops.max_residual(self.plant)
+
+    def results(self, count: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        extras = {}
+        if self.frame:
+            extras["orientation_error"] = _rotation_error_norms(self.rotations[:count],
+                                                                self._measured_rotations[:count].reshape(-1, 3, 3))
+        if self._site_loops:
+            sites = self._site_positions[:count]
+            gaps = sites[:, self._anchor1] - sites[:, self._anchor2]
+            extras["constraint_violation"] = np.max(np.linalg.norm(gaps, axis=2), axis=1) if count else np.empty(0)
+        else:
+            extras["constraint_violation"] = self._residuals[:count]
+        return self._x[:count], self.positions[:count], extras
+
+
+def _rotation_error_norms(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """‖rotation_error(desired[i], current[i])‖ for each i (n, 3, 3): MuJoCo's quaternion
+    difference per row, then the world-frame rotation and its norm for all rows at once."""
+    local = np.empty((len(desired), 3))
+    qd, qc = np.empty(4), np.empty(4)
+    for i in range(len(desired)):
+        mujoco.mju_mat2Quat(qd, desired[i].ravel())
+        mujoco.mju_mat2Quat(qc, current[i].ravel())
+        mujoco.mju_subQuat(local[i], qd, qc)
+    world = np.matmul(current, local[:, :, None])  # (n, 3, 1)
+    # The norm as np.linalg.norm takes it, sqrt(x·x), with x·x as a batched dot product.
+    return np.sqrt(np.matmul(np.swapaxes(world, 1, 2), world)[:, 0, 0])

@@ -22,6 +22,7 @@ import numpy as np
 from .control import (
     HexapodClassicalController,
     HexapodModel,
+    PlatformManipulability,
     PlatformManipulabilityTask,
     PlatformReference,
     StrokeDrivenClosure,
@@ -79,7 +80,7 @@ def hexapod_setup(scenario: str, trajectory: PoseTrajectory, *, orientation: boo
         qp_tasks=tasks,
         limits=[JointPositionLimit(robot, joint_limits), JointVelocityLimit(robot)],
         joint_limits=joint_limits,
-        manipulability=model.manipulability_of,
+        manipulability=PlatformManipulability(model),
         manipulability_measure="hexapod inverse condition number",
         classical={"pinv": lambda: HexapodClassicalController(model, task, k0=k0)},
         plot_joints=JointPlotSpec.from_limits(robot, joint_limits, names=sliders),

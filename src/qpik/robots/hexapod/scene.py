@@ -39,6 +39,11 @@ from .kinematics import N_LEGS, Hexapod, HexapodGeometry
 
 SCENE_PATH = Path(__file__).resolve().parent / "hexapod.xml"
 SLIDER_VELOCITY_LIMIT = 0.5  # m/s, the slider drives' rated speed
+# The passive joints' speeds, bounded so that no command drives the chain at a speed its
+# linearised loop closures cannot follow: at 5 rad/s a 0.2 m leg's chord misses its arc
+# by 1e-5 m per 2 ms step. 6x the largest hinge rate (0.8 rad/s) of the bundled scenarios.
+HINGE_VELOCITY_LIMIT = 5.0  # rad/s
+PLATFORM_VELOCITY_LIMIT = (1.0, 1.0, 1.0, 5.0, 5.0, 5.0)  # m/s (linear), rad/s (angular)
 _LEG_RADIUS = 0.006
 
 
@@ -83,6 +88,8 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
         sigma = -g.leg_side[i]
         tip = _fmt(sigma * g.leg_lengths[i], 0, 0)
         numerics.append(f'    <numeric name="qpik_velocity_limit_slider{n}" data="{_fmt(SLIDER_VELOCITY_LIMIT)}"/>')
+        for hinge_name in (f"u{n}_a", f"u{n}_b"):
+            numerics.append(f'    <numeric name="qpik_velocity_limit_{hinge_name}" data="{_fmt(HINGE_VELOCITY_LIMIT)}"/>')
         rail = g.slider_origins[i] + np.outer([g.stroke_min, g.stroke_max], g.slider_axes[i])
         rails.append(f'    <geom name="rail{n}" class="rail" fromto="{_fmt(np.round(rail, 12))}"/>')
         legs.append(f"""    <body name="slider{n}" pos="{_fmt(g.slider_origins[i])}">
@@ -109,7 +116,8 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
   slide joint's qpos, range [{stroke}] m. Universal joint u<i>_a (world z) then u<i>_b
   (rotated y), leg along -leg_side*x at zero angles; hinge ranges are radians. The
   spherical joints are the site connects loop<i> (leg<i>_tip to platform_point<i>).
-  Slider velocity limit {_fmt(SLIDER_VELOCITY_LIMIT)} m/s (qpik_velocity_limit_slider<i>).
+  Slider velocity limit {_fmt(SLIDER_VELOCITY_LIMIT)} m/s (qpik_velocity_limit_slider<i>); hinges {_fmt(HINGE_VELOCITY_LIMIT)} rad/s,
+  platform {_fmt(PLATFORM_VELOCITY_LIMIT[0])} m/s and {_fmt(PLATFORM_VELOCITY_LIMIT[3])} rad/s (qpik_velocity_limit_u<i>_a/b, _platform).
   Home keyframe: platform at {_fmt(g.home_position)} m, identity rotation,
   strokes {_fmt(np.round(home_q, 6))} m (rounded here; exact in the keyframe).
   qpos = [slider1, u1_a, u1_b, ..., slider6, u6_a, u6_b, platform xyz, platform quat wxyz].
@@ -160,6 +168,7 @@ def hexapod_mjcf(geometry: HexapodGeometry | None = None) -> str:
 
   <custom>
 {nl.join(numerics)}
+    <numeric name="qpik_velocity_limit_platform" data="{_fmt(PLATFORM_VELOCITY_LIMIT)}"/>
   </custom>
 
   <asset>
