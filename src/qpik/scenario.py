@@ -65,6 +65,7 @@ class Setup:
     params: dict = field(default_factory=dict)
     dt: float = DT
     closure: Callable[[Robot], None] | None = None  # closes the loops of a closed chain
+    rolled_out: bool = False  # set by qpik.app.runs.run, which refuses a setup twice
 
     def controller(self, kind: str = "qp", solver: str = "daqp", **options):
         if kind == "qp":

@@ -51,7 +51,7 @@ Identifiability (the SVD of the Jacobian in :func:`identifiability`; see the tes
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -410,7 +410,8 @@ def resolve_poses(poses: str | int | np.ndarray | Sequence, rng: np.random.Gener
 def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence = "seed", *,
               params: str | ParameterSet = "legs", noise_um: float = 0.0, seed: int = 0,
               repeats: int = 1, nominal: HexapodGeometry | None = None,
-              imposed: np.ndarray | None = None) -> Calibration:
+              imposed: np.ndarray | None = None,
+              progress: Callable[[int, int], None] | None = None) -> Calibration:
     """Simulate measurements with imposed errors, identify them, analyse the result.
 
     Args:
@@ -422,6 +423,7 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
         repeats: noise realisations (same poses) for the Monte-Carlo spread; the first
             gives the reported estimate.
         imposed: true θ (metres); default :meth:`ParameterSet.imposed`.
+        progress: called as ``progress(r, repeats)`` after each noise realisation's fit.
 
     Raises:
         InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError.
@@ -442,8 +444,12 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
     ident = identifiability(model.jacobian(np.zeros(params.size)), params.names)
     reference = ident.in_gauge(imposed)
     sigma = noise_um * UM
-    fits = [fit(model, exact + sigma * np.random.default_rng(s).standard_normal(exact.shape),
-                method, ident.free) for s in noise_streams]
+    fits = []
+    for r, stream in enumerate(noise_streams, 1):
+        noise = sigma * np.random.default_rng(stream).standard_normal(exact.shape)
+        fits.append(fit(model, exact + noise, method, ident.free))
+        if progress is not None:
+            progress(r, repeats)
     cov_std = np.full(params.size, np.nan)
     J = fits[0].jacobian
     cov_std[ident.free] = sigma * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
