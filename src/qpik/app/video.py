@@ -137,7 +137,7 @@ class GhostScene:
         extent = float(np.max(high - low))
         self.camera.lookat[:] = (low + high) / 2
         fovy = np.radians(self.model.vis.global_.fovy)
-        self.camera.distance = 0.6 * extent / np.tan(fovy / 2) + 0.1 * extent
+        self.camera.distance = 0.8 * extent / np.tan(fovy / 2)
         self.camera.elevation = -70.0 if planar else -25.0
         self.camera.azimuth = 90.0 if planar else 120.0
         self._radius = 0.004 * max(extent, 0.05) / 0.3
@@ -276,15 +276,26 @@ def render_logs(model, logs: Sequence, path: str | Path, *, labels: Sequence[str
                 progress(n + 1, len(steps))
     finally:
         scene.close()
-    _encode(frames, path, fps)
+    _encode(frames, path, fps, colours)
     return path
 
 
-def _encode(frames: list[np.ndarray], path: Path, fps: float) -> None:
+def _encode(frames: list[np.ndarray], path: Path, fps: float, colours: Sequence[str] = ()) -> None:
     if path.suffix.lower() == ".gif":
         from PIL import Image
 
-        images = [Image.fromarray(f).quantize(colors=128, method=Image.Quantize.MEDIANCUT) for f in frames]
+        # One palette for the whole clip (no flicker): a grey ramp for the floor, shades of
+        # every run's colour (their ghosts cover few pixels: a median cut alone merges their
+        # hues), the rest from a median cut of a montage of frames.
+        sample = np.concatenate(frames[:: max(1, len(frames) // 8)], axis=0)
+        greys = np.repeat(np.linspace(0, 255, 64)[:, None], 3, axis=1)
+        shades = [np.outer(np.linspace(0.35, 1.0, 16), np.array(_rgb(c)) * 255) for c in (colours or ())]
+        fixed = np.concatenate([greys, *shades]).round().astype(np.uint8)
+        rest = 256 - len(fixed)
+        cut = Image.fromarray(sample).quantize(colors=rest, method=Image.Quantize.MEDIANCUT).getpalette()[: 3 * rest]
+        palette = Image.new("P", (1, 1))
+        palette.putpalette(list(fixed.ravel()) + cut)
+        images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
         images[0].save(path, format="GIF", save_all=True, append_images=images[1:], loop=0,
                        duration=int(round(1000 / fps)), optimize=True)
         return
