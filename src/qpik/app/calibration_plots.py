@@ -86,6 +86,6 @@ def plot_calibration(result: Calibration, progress: Callable[[int, int], None] |
     right.set_ylabel("RMS parameter error (µm)")
     right.set_title(f"{result.method}, random poses, noise σ = {noise:g} µm", fontsize=10)
     right.grid(True, which="both", alpha=0.3)
-    right.legend(fontsize=8)
+    right.legend(fontsize=8, loc="lower left")  # the curves fall from upper left to lower right
     fig.tight_layout()
     return fig

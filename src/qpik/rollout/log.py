@@ -12,7 +12,12 @@ from ..io import write_json, write_npz
 
 @dataclass
 class RolloutLog:
-    """Time series of one rollout; ``summary()`` gives DESIGN.md's metrics."""
+    """Time series of one rollout; ``summary()`` gives the metrics of ``summary.json``.
+
+    ``q`` is the configuration at time ``t`` (measured on the plant in physics mode);
+    ``q_commanded[k]`` is the configuration the controller asked for at step k,
+    q ⊕ q̇Δt, reached (or not: end stops, servos) at t + Δt; NaN at the last step.
+    """
 
     robot: str
     controller: str
@@ -34,6 +39,7 @@ class RolloutLog:
     speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
     completed: bool = True
     failure: str = ""
+    q_commanded: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The summary.json record (plain Python types)."""
@@ -72,6 +78,8 @@ class RolloutLog:
         data = dict(t=self.t, q=self.q, qdot=self.qdot, x=self.x, x_des=self.x_des, error=self.error,
                     manipulability=self.manipulability, step_time=self.step_time,
                     limit_violation=self.limit_violation)
+        if self.q_commanded is not None:
+            data["q_commanded"] = self.q_commanded
         data.update(self.extras)
         return data
 

@@ -114,6 +114,7 @@ def simulate(
     t_log = np.zeros(steps)
     q_log = np.zeros((steps, robot.nq))
     qdot_log = np.zeros((steps, robot.nv))
+    q_commanded_log = np.full((steps, robot.nq), np.nan)  # q ⊕ q̇Δt asked for at step k
     time_log = np.zeros(steps)
     viol_log = np.zeros(steps)
     manip_log = np.zeros(steps)
@@ -149,6 +150,7 @@ def simulate(
         if k == steps - 1:
             break
         robot.integrate(qdot, dt)
+        q_commanded_log[k] = robot.q
         # Worst of the measured configuration and the commanded one (before the end stops
         # act): a controller is charged with what it asks for, and with what the plant does.
         viol_log[k] = max(viol_log[k], limits.violation(robot.q))
@@ -184,6 +186,7 @@ def simulate(
         t=t_log[:done],
         q=q_log[:done],
         qdot=qdot_log[:done],
+        q_commanded=q_commanded_log[:done],
         x=x,
         x_des=x_des,
         error=np.linalg.norm(x_des - x, axis=1),
