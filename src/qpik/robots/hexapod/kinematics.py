@@ -1,4 +1,4 @@
-r"""The 6-PUS Gough–Stewart hexapod of SPEC §3: geometry, analytic IK, FK and Jacobians.
+r"""The 6-PUS Gough–Stewart hexapod: geometry, analytic IK, FK and Jacobians (docs/hexapod.md).
 
 Leg i joins an actuated slider on the base to the moving platform:
 
@@ -19,7 +19,8 @@ points (``with_*`` helpers).
 Assembly modes: the sliders lie in the plane z = 0, so a pose (p, R) and its mirror
 image through that plane, (M p, M R M) with M = diag(1, 1, −1), have identical strokes.
 Forward kinematics follows the branch of its starting pose (by default the home pose,
-above the plane). SPEC's calibration pose 4 (z = −0.02 m) lies below the plane.
+above the plane), or returns the assembly nearest to a given pose, or the one on a given
+side of the plane. The source's calibration pose 4 (z = −0.02 m) lies below the plane.
 """
 
 from __future__ import annotations
@@ -38,10 +39,10 @@ CHARACTERISTIC_LENGTH_M = 0.1  # platform radius: makes a rotation commensurate 
 NEAR_START_SHIFT_M = 0.002  # FK ``near``: extra starts this far from the given pose,
 NEAR_START_TILT_DEG = 1.0  # and tilted this much about each axis
 
-# Slider i (1-based) is tied to the platform point at this polar angle (degrees). SPEC
-# lists two legs on one point; of the 6! assignments of its six distinct points, 12 reach
-# all four calibration poses, and this one (SPEC's suggestion) has the widest stroke
-# margin over them (23.6 mm).
+# Slider i (1-based) is tied to the platform point at this polar angle (degrees). The
+# source lists two legs on one point; of the 6! assignments of its six distinct points, 12
+# reach all four calibration poses, and this one has the widest stroke margin over them
+# (23.6 mm). docs/hexapod.md, "The platform-point inconsistency".
 PLATFORM_POINT_ANGLES_DEG = (10.0, 230.0, 130.0, -10.0, 110.0, 250.0)
 
 
@@ -142,7 +143,7 @@ class HexapodGeometry:
 
     @classmethod
     def default(cls) -> HexapodGeometry:
-        """SPEC §3 values; home = identity rotation at (0.08, 0.02, 0.11) m.
+        """The source's values (docs/hexapod.md); home = identity rotation at (0.08, 0.02, 0.11) m.
 
         The home position maximises the manipulability of :meth:`Hexapod.manipulability`
         over y and z (it does not depend on x: all sliders run along x), with x chosen
@@ -165,7 +166,7 @@ class HexapodGeometry:
         return dataclasses.replace(self, **changes)
 
     def with_leg_length_errors(self, dl) -> HexapodGeometry:
-        """Leg lengths l_i + dl_i (the error model of SPEC §3.3)."""
+        """Leg lengths l_i + dl_i (the source's error model, docs/calibration.md)."""
         return self.replace(leg_lengths=self.leg_lengths + _finite(dl, (N_LEGS,), "dl"))
 
     def with_slider_home_offsets(self, dq0) -> HexapodGeometry:
@@ -196,7 +197,7 @@ class Hexapod:
         return self.inverse_kinematics_matrix(position, rotation_from_rpy(rpy_deg))
 
     def inverse_kinematics_matrix(self, position, R) -> np.ndarray:
-        r"""Strokes (6,) of the pose (position, R), with SPEC §3.1's root selection.
+        r"""Strokes (6,) of the pose (position, R), with the source's root rules (docs/hexapod.md).
 
         The slider line :math:`S_{0,i} + q s_i` meets the sphere of radius :math:`l_i`
         about :math:`P_i` where, with :math:`d = P_i - S_{0,i}`,
