@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InvalidInput, QpikError
+from ..io import atomic_path
 
 FFMPEG_SUFFIXES = (".mp4", ".mkv", ".webm", ".avi", ".mov")
 SUFFIXES = FFMPEG_SUFFIXES + (".gif",)
@@ -276,7 +277,8 @@ def render_logs(model, logs: Sequence, path: str | Path, *, labels: Sequence[str
                 progress(n + 1, len(steps))
     finally:
         scene.close()
-    _encode(frames, path, fps, colours)
+    with atomic_path(path) as partial:  # written whole or not at all
+        _encode(frames, partial, fps, colours)
     return path
 
 
