@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from qpik.io import write_json, write_text
+from qpik.app.progress import iterate, wanted
 from qpik.app.runs import run
+from qpik.io import write_json, write_text
 from qpik.scenario import scenarios
 from qpik.solvers import available_solvers
 
@@ -39,14 +40,15 @@ def timed_run(*args, **kwargs):
 
 def measure(robot: str, scenario: str, entries: list[tuple[str, str]], rounds: int) -> list[dict]:
     """Step times of each (controller, solver) over ``rounds`` interleaved rollouts; each
-    row also keeps the summary of the controller's last rollout."""
+    row also keeps the summary of the controller's last rollout. A progress bar counts
+    the rollouts (on a terminal; it draws between rollouts, never inside a timed step)."""
     times = {e: [] for e in entries}
     last_logs = {}
-    for _ in range(rounds):
-        for controller, solver in entries:
-            _, log = timed_run(robot, scenario, controller, solver)
-            times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
-            last_logs[(controller, solver)] = log
+    order = [entry for _ in range(rounds) for entry in entries]
+    for controller, solver in iterate(order, desc=f"{robot} / {scenario}", enabled=wanted(), unit="rollout"):
+        _, log = timed_run(robot, scenario, controller, solver)
+        times[(controller, solver)].append(log.step_time[1:])  # the first step sets up solvers
+        last_logs[(controller, solver)] = log
     rows = []
     for (controller, solver), chunks in times.items():
         t = np.concatenate(chunks) * 1e6
