@@ -179,11 +179,13 @@ def calibration_table() -> str:
     return "\n".join(lines) + "\n"
 
 
-def scenarios_table(progress: bool = False) -> str:
+def scenarios_table() -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from scenarios_table import compute_rows, to_markdown
 
-    return to_markdown(compute_rows(progress=progress))
+    from qpik.app.progress import wanted
+
+    return to_markdown(compute_rows(progress=wanted()))
 
 
 @dataclass(frozen=True)

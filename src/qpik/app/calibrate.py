@@ -159,7 +159,7 @@ def check_options(args: argparse.Namespace, poses) -> None:
                            "with the seed poses and no noise there is nothing random")
 
 
-def cmd_calibrate(args: argparse.Namespace, guard=None) -> int:
+def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..robots.hexapod.calibration import calibrate  # scipy only when the command runs
     from .output import OutputFolder
     from .progress import StepBars, wanted
@@ -167,6 +167,7 @@ def cmd_calibrate(args: argparse.Namespace, guard=None) -> int:
     poses = load_poses(args.pose_file) if args.pose_file else parse_poses_option(args.poses)
     check_options(args, poses)
     seed = 0 if args.seed is None else args.seed
+    guard = getattr(args, "interrupt_guard", None)
     with OutputFolder(args.out, guard) as out, StepBars(wanted(args.quiet), unit="fit") as bars:
         result = calibrate(args.method, poses, params=args.params, noise_um=args.noise_um,
                            seed=seed, repeats=args.repeats, progress=bars.callback("noise draws"))

@@ -173,11 +173,11 @@ def _video(setup, logs, out, args, caption: str) -> None:
                           progress=bars.callback(f"video {args.video.name}"))
 
 
-def _start_output(args, default: str, guard):
+def _start_output(args, default: str):
     """The output folder (and video file), checked before any work."""
     from .output import OutputFolder
 
-    out = OutputFolder(args.out or default, guard)
+    out = OutputFolder(args.out or default, args.interrupt_guard)
     if getattr(args, "video", None) is not None:
         from .video import check_video_path, probe_gl
 
@@ -190,7 +190,7 @@ def _start_output(args, default: str, guard):
     return out
 
 
-def cmd_scenarios(args, guard) -> int:
+def cmd_scenarios(args) -> int:
     from ..scenario import scenarios
 
     known = scenarios()
@@ -200,17 +200,17 @@ def cmd_scenarios(args, guard) -> int:
     return 0
 
 
-def cmd_run(args, guard) -> int:
+def cmd_run(args) -> int:
     from ..errors import InvalidInput
-    from .runs import QP_KINDS, format_table, run
+    from .runs import QP_KINDS, format_table, run, run_label
 
     if args.solver is not None and args.controller not in QP_KINDS:
         raise InvalidInput(f"--solver applies to {' and '.join(QP_KINDS)} only; controller "
                            f"{args.controller!r} uses no QP solver of ours")
     solver = args.solver or "daqp"
-    out = _start_output(args, f"out/run-{args.scenario}-{args.controller}-{args.mode}", guard)
+    out = _start_output(args, f"out/run-{args.scenario}-{args.controller}-{args.mode}")
     with out, _bars(args) as bars:
-        label = args.controller if args.controller not in QP_KINDS else f"{args.controller} ({solver})"
+        label = run_label(args.controller, solver if args.controller in QP_KINDS else "none")
         setup, log = run(args.robot, args.scenario, args.controller, solver, args.mode,
                          progress=bars.callback(label))
         bars.close()
@@ -226,10 +226,10 @@ def cmd_run(args, guard) -> int:
     return 0
 
 
-def cmd_compare(args, guard) -> int:
+def cmd_compare(args) -> int:
     from .runs import compare, format_table, write_compare
 
-    out = _start_output(args, f"out/compare-{args.scenario}-{args.mode}", guard)
+    out = _start_output(args, f"out/compare-{args.scenario}-{args.mode}")
     with out, _bars(args) as bars:
         setup, logs, notes = compare(args.robot, args.scenario, args.solvers, args.mode,
                                       progress=bars if bars.enabled else None)
@@ -285,7 +285,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with InterruptGuard() as guard:
             args = build_parser().parse_args(argv)
-            return args.handler(args, guard)
+            args.interrupt_guard = guard  # output folders shield their final move with it
+            return args.handler(args)
     except _UsageError as exc:
         print(f"{exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

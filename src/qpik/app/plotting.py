@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 from ..io import save_figure  # noqa: E402
 from ..rollout import RolloutLog  # noqa: E402
 from ..scenario import JointPlotSpec  # noqa: E402
+from .runs import run_label  # noqa: E402
 
 # Extra series: label and unit.
 EXTRA_LABELS = {
@@ -40,7 +41,7 @@ OFF_SCALE_FACTOR = 4.0
 
 
 def _label(log: RolloutLog) -> str:
-    return log.controller if log.solver in ("none", "") else f"{log.controller} ({log.solver})"
+    return run_label(log.controller, log.solver)
 
 
 def _style(i: int) -> dict:

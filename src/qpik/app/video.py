@@ -314,10 +314,6 @@ def _encode(frames: list[np.ndarray], path: Path, fps: float, colours: Sequence[
         writer.close()
 
 
-def run_label(log) -> str:
-    return log.controller if log.solver in ("none", "") else f"{log.controller} ({log.solver})"
-
-
 def coincident_groups(logs: Sequence, tol: float = 1e-3) -> list[list[int]]:
     """Indices of runs grouped by motion: runs whose configurations stay within ``tol``
     (rad or m) of a group's first run over the whole rollout share one ghost."""
@@ -338,11 +334,13 @@ def render_comparison(model, logs: Sequence, path: str | Path, *, caption: str =
     """:func:`render_logs` for a comparison: runs that move alike (within 1 mm / 1 mrad over the
     whole rollout) are one ghost with a joint label; each ghost has the colour of its first
     run's curves in the figures."""
+    from .runs import run_label
+
     groups = coincident_groups(logs)
     labels, colours = [], []
     for group in groups:
-        names = [run_label(logs[i]) for i in group]
-        stopped = [run_label(logs[i]) for i in group if not getattr(logs[i], "completed", True)]
+        names = [run_label(logs[i].controller, logs[i].solver) for i in group]
+        stopped = [i for i in group if not getattr(logs[i], "completed", True)]
         text = " = ".join(names) if len(names) <= 3 else f"{' = '.join(names[:2])} = {len(names) - 2} more"
         labels.append(text + (f" (stopped at t = {logs[group[0]].t[-1]:.2f} s)" if stopped else ""))
         colours.append(CYCLE[group[0] % len(CYCLE)])
