@@ -278,12 +278,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .interrupt import InterruptGuard
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if any(a == "--video" or a.startswith("--video=") for a in argv):
-        from .video import prefer_headless_gl
-
-        prefer_headless_gl()  # before MuJoCo is imported: it reads MUJOCO_GL once
     try:
+        # The guard comes first: threads started later (NumPy's BLAS pool) inherit its mask.
         with InterruptGuard() as guard:
+            if any(a == "--video" or a.startswith("--video=") for a in argv):
+                from .video import prefer_headless_gl
+
+                prefer_headless_gl()  # before MuJoCo is imported: it reads MUJOCO_GL once
             args = build_parser().parse_args(argv)
             args.interrupt_guard = guard  # output folders shield their final move with it
             return args.handler(args)
