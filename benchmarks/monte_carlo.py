@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from qpik.app.progress import wanted
+
 from qpik.robots.hexapod.calibration import sample_poses
 from qpik.io import save_figure, write_json, write_npz, write_text
 from qpik.robots.hexapod.kinematics import HexapodGeometry
@@ -115,7 +117,8 @@ def sweep(robot: str, targets: np.ndarray, hard: bool, controllers: list[tuple[s
     failures = {c: [] for c in controllers}
     label = "hard" if hard else "soft"
     trial = ROBOTS[robot][1]
-    bar = tqdm(total=n * len(controllers), desc=f"{robot}, {label} task", unit="run")
+    bar = tqdm(total=n * len(controllers), desc=f"{robot}, {label} task", unit="run", file=sys.stderr,
+               disable=not wanted())
     for k, target in enumerate(targets):
         for controller, solver in controllers:
             setup = trial(target, hard)

@@ -80,6 +80,7 @@ class Setup:
     def controller_kinds(self) -> list[str]:
         """Every controller this setup builds (the peers aside)."""
         return ["qp", *self.variants, *(["hqp", "sns"] if self.hierarchy else []), *self.classical]
+    rolled_out: bool = False  # set by qpik.app.runs.run, which refuses a setup twice
 
     def controller(self, kind: str = "qp", solver: str = "daqp", **options):
         if kind == "qp":

@@ -2,6 +2,7 @@
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -59,6 +60,9 @@ def test_compare_runs_qp_and_pinv_side_by_side(tmp_path, capsys):
 
 BAD_INPUTS = [
     (["run", "arm", "--scenario", "no-such-scenario"], "unknown scenario"),
+    (["run", "arm", "--scenario", "seed-primary", "--controller", "pinv", "--solver", "osqp"], "--solver applies"),
+    (["run", "arm", "--scenario", "seed-primary", "--controller", "placo", "--solver", "daqp"], "--solver applies"),
+    (["run", "arm", "--scenario", "seed-primary", "--video", "clip.avi.txt"], "unknown video format"),
     (["run", "robot9", "--scenario", "seed-primary"], "unknown robot"),
     (["run", "arm", "--scenario", "seed-primary", "--solver", "nosolver"], "solver"),
     (["run", "arm", "--scenario", "seed-primary", "--controller", "magic"], "unknown controller"),
@@ -95,12 +99,14 @@ def test_malformed_mjcf_is_a_clear_error(tmp_path, capsys):
 
 
 def test_infeasible_hard_task_fails_cleanly_without_output(tmp_path, capsys, monkeypatch):
-    # A hard task that asks for more than the velocity limits allow: the QP is infeasible.
+    # A hard task that asks for more than the velocity limits allow: the path starts 0.14 m
+    # from the end effector, so K e = 500 × 0.14 = 70 m/s at t = 0 (the joints allow 8 rad/s).
     import qpik.robots.arm.scenarios as scenarios
 
-    monkeypatch.setattr(scenarios, "ARM_GAIN", 5e5)
-    monkeypatch.setattr(scenarios, "SEED_PATH", ((0.6, 1.9), (1.5, 1.0)))
     out = tmp_path / "o"
+    assert main(["run", "arm", "--scenario", "seed-primary", "--out", str(out)]) == 0  # feasible as shipped
+    monkeypatch.setattr(scenarios, "SEED_PATH", ((0.6, 1.9), (1.5, 1.0)))
+    out = tmp_path / "o2"
     assert main(["run", "arm", "--scenario", "seed-primary", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "infeasible" in err and "t = 0.000 s" in err and len(err.strip().splitlines()) == 1
@@ -115,3 +121,159 @@ def test_console_script_entry_point(tmp_path):
     assert ok.returncode == 0 and "seed-redundant" in ok.stdout
     bad = subprocess.run(cmd + ["run", "arm", "--scenario", "nope"], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "Traceback" not in bad.stderr
+
+
+def _qpik(*args, **kwargs):
+    """The command in a fresh interpreter (``python -m qpik``), as a user runs it."""
+    env = {**os.environ, "MPLBACKEND": "Agg", **kwargs.pop("env", {})}
+    return subprocess.run([sys.executable, "-m", "qpik", *args], capture_output=True, text=True, env=env, **kwargs)
+
+
+def test_version_and_python_m():
+    import qpik
+
+    done = _qpik("--version")
+    assert done.returncode == 0 and done.stdout.strip() == f"qpik {qpik.__version__}"
+
+
+def test_help_imports_nothing_heavy():
+    # `qpik --help` stays fast by importing no numerical library (measured: README); the
+    # subcommands' help does, as it lists the installed solvers and the scenarios.
+    probe = ("import sys\nfrom qpik.app.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+             "print(sorted(m for m in ('mujoco', 'numpy', 'scipy', 'matplotlib', 'qpsolvers') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "usage: qpik" in done.stdout and done.stdout.strip().endswith("[]"), done.stdout
+    sub = _qpik("run", "--help")
+    assert sub.returncode == 0
+    text = " ".join(sub.stdout.split())
+    from qpik.solvers import available_solvers
+
+    for name in (*available_solvers(), "seed-redundant", "hexapod-circle", "pinv", "placo", "(default: kinematic)"):
+        assert name in text, name
+
+
+def test_out_that_names_a_file_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    import qpik.app.runs as runs
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the run started before --out was checked")
+
+    monkeypatch.setattr(runs, "run", must_not_run)
+    monkeypatch.setattr(runs, "compare", must_not_run)
+    target = tmp_path / "file.txt"
+    target.write_text("mine")
+    for argv in (["run", "arm", "--scenario", "seed-primary", "--out", str(target)],
+                 ["compare", "arm", "--scenario", "seed-primary", "--out", str(target)],
+                 ["run", "arm", "--scenario", "seed-primary", "--out", str(target / "below")],
+                 ["calibrate", "--out", str(target)]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and str(target) in err and "Traceback" not in err, err
+    assert target.read_text() == "mine" and sorted(tmp_path.iterdir()) == [target]
+
+
+def _unwritable_folder(tmp_path) -> Path:
+    if os.geteuid() != 0:
+        folder = tmp_path / "locked"
+        folder.mkdir()
+        folder.chmod(0o500)
+        return folder
+    try:  # root writes anywhere permissions allow: use a file system that refuses folders
+        os.mkdir("/sys/qpik-probe")
+    except OSError:
+        return Path("/sys")
+    os.rmdir("/sys/qpik-probe")
+    pytest.skip("running as root and /sys accepts new folders: no unwritable folder to test with")
+
+
+def test_out_in_an_unwritable_folder_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    import qpik.app.runs as runs
+
+    monkeypatch.setattr(runs, "run", lambda *a, **k: pytest.fail("ran before --out was checked"))
+    folder = _unwritable_folder(tmp_path)
+    assert main(["run", "arm", "--scenario", "seed-primary", "--out", str(folder / "o")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "cannot write" in err, err
+
+
+def test_output_goes_into_an_existing_folder_whole(tmp_path, capsys):
+    out = tmp_path / "existing"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")
+    assert main(["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["log.npz", "notes.txt", "summary.json"]
+
+
+def test_options_that_do_not_apply_to_calibrate_are_errors(tmp_path, capsys):
+    for argv, fragment in ((["--repeats", "5"], "--noise-um"), (["--seed", "3"], "nothing random")):
+        assert main(["calibrate", *argv, "--out", str(tmp_path / "c")]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "c").exists()
+    # The same options where they apply.
+    assert main(["calibrate", "--poses", "8", "--seed", "3", "--noise-um", "1", "--repeats", "3",
+                 "--out", str(tmp_path / "c")]) == 0
+    data = json.loads((tmp_path / "c" / "calibration.json").read_text())
+    assert data["seed"] == 3 and data["repeats"] == 3 and len(data["poses"]) == 8
+
+
+def test_ctrl_c_stops_compare_within_a_solve_and_leaves_nothing(tmp_path):
+    """SIGINT during `qpik compare` (OSQP installs its own SIGINT handler during each solve
+    and swallows it): exit 130, no output, no staging folder left."""
+    out = tmp_path / "X"
+    proc = subprocess.Popen([sys.executable, "-m", "qpik", "compare", "hexapod", "--scenario", "hexapod-circle",
+                             "--solvers", "osqp,daqp", "--out", str(out), "--plot"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "MPLBACKEND": "Agg"})
+    # Wait until the command is past its checks and working (the staging folder exists),
+    # then interrupt it during the first run, qp with OSQP (~2000 solves).
+    import time
+
+    while not any(p.name.startswith(".qpik-partial-") for p in tmp_path.iterdir()):
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (proc.returncode, stdout, stderr)
+    assert "interrupted" in stderr and "Traceback" not in stderr and "Solver interrupted" not in stdout + stderr
+    assert list(tmp_path.iterdir()) == []  # no X, no compare.json, summary, figure, staging
+
+
+OSQP_LOOP = """
+import sys
+from qpik.app.interrupt import InterruptGuard
+statuses = []
+try:
+    with InterruptGuard():  # first, as in the CLI: NumPy's BLAS threads must start under it
+        import numpy as np, scipy.sparse as sp, osqp
+        rng = np.random.default_rng(0)
+        n = 150
+        M = rng.standard_normal((n, n))
+        solver = osqp.OSQP()
+        solver.setup(sp.csc_matrix(M @ M.T + np.eye(n)), rng.standard_normal(n), sp.csc_matrix(np.eye(n)),
+                     -np.ones(n), np.ones(n), verbose=False, eps_abs=1e-12, eps_rel=1e-12, max_iter=100000)
+        print("ready", flush=True)
+        for _ in range(200000):
+            statuses.append(solver.solve(raise_error=False).info.status)
+    print("finished", len(statuses))
+except KeyboardInterrupt:
+    print("stopped after", len(statuses), "solves;", "interrupted" in statuses)
+    sys.exit(130)
+"""
+
+
+def test_interrupt_guard_stops_a_loop_of_osqp_solves():
+    """Almost all of this loop's time is inside OSQP's solve, where OSQP catches SIGINT
+    (status "interrupted") and Python never sees it; with the guard the first SIGINT stops
+    the loop, and OSQP never reports an interruption."""
+    proc = subprocess.Popen([sys.executable, "-c", OSQP_LOOP], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    import time
+
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (stdout, stderr)
+    assert stdout.strip().endswith("False"), stdout  # no solve saw the SIGINT

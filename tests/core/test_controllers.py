@@ -29,7 +29,7 @@ def _random_configurations(n, seed=0):
 
 
 def _null_space_law(q, v, k0):
-    """SPEC §1: q̇ = J†v + (I − J†J) k0 ∇σ with J† = Jᵀ(JJᵀ)⁻¹, from the DH formulas."""
+    """The source's law (docs/clik.md): q̇ = J†v + (I − J†J) k0 ∇σ with J† = Jᵀ(JJᵀ)⁻¹, from the DH formulas."""
     J = arm.position_jacobian(q)
     Jp = J.T @ np.linalg.inv(J @ J.T)
     return Jp @ v + (np.eye(4) - Jp @ J) @ (k0 * arm.sigma_gradient(q))

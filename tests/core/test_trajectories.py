@@ -1,4 +1,4 @@
-"""Trajectories against SPEC §1's closed forms and finite differences."""
+"""Trajectories against the reference task's closed forms (docs/arm.md) and finite differences."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The arm's MJCF scene against the DH formulas of SPEC §1 (independent reference)."""
+"""The arm's MJCF scene against the DH formulas of docs/arm.md (independent reference)."""
 
 import mujoco
 import numpy as np

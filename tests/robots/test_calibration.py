@@ -1,4 +1,4 @@
-"""Hexapod calibration (SPEC §3.3): the source's linear identification, Gauss–Newton / LM,
+"""Hexapod calibration (docs/calibration.md): the source's linear identification, Gauss–Newton / LM,
 noise and spread, identifiability of extended parameter sets, and the `qpik calibrate` command."""
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from qpik.errors import ConvergenceError, InvalidInput, UnreachablePose
 from qpik.robots.hexapod.kinematics import Hexapod, HexapodGeometry, rotation_from_rpy, rpy_from_rotation
 
-# SPEC §3.3 calibration poses: position (m), [θx, θy, θz] (deg).
+# The source's four calibration poses (docs/calibration.md): position (m), [θx, θy, θz] (deg).
 SEED_POSES = [
     ((0.15, 0.10, 0.05), (-3.0, 2.0, 3.0)),
     ((0.07, 0.08, 0.04), (4.0, -3.0, -2.0)),
@@ -169,16 +169,54 @@ def test_fk_recovers_seed_poses_from_home(hexapod, k):
 
 def test_fk_of_seed_pose_4_depends_on_the_assembly_branch(hexapod):
     """Pose 4 (z = −0.02 m) is below the slider plane, near a singularity (manipulability
-    0.006): continuation from home reaches another assembly with the same strokes, Newton
-    from a nearby pose recovers pose 4 itself."""
+    0.006): continuation from home reaches another assembly with the same strokes, above
+    the plane; asking for the assembly nearest to a pose close to pose 4 gives pose 4."""
     position, rpy = SEED_POSES[3]
     R4 = rotation_from_rpy(rpy)
     q = hexapod.inverse_kinematics_matrix(position, R4)
-    p, R = hexapod.forward_kinematics(q, initial=(np.add(position, 0.002), rotation_from_rpy(np.add(rpy, 0.5))))
-    assert pose_error(p, R, position, R4) <= 1e-8, f"strokes {q} -> {p}, {rpy_from_rotation(R)}"
-    p_home, R_home = hexapod.forward_kinematics(q)
-    assert p_home[2] > 0 and pose_error(p_home, R_home, position, R4) > 1e-2
+    from_home = hexapod.forward_kinematics(q)
+    p_home, R_home = from_home
+    assert from_home.side == "above" and p_home[2] > 0 and pose_error(p_home, R_home, position, R4) > 1e-2
     assert np.allclose(hexapod.inverse_kinematics_matrix(p_home, R_home), q, atol=1e-12)
+    near = hexapod.forward_kinematics(q, near=(np.add(position, 0.002), rotation_from_rpy(np.add(rpy, 0.5))))
+    assert near.side == "below" and pose_error(*near, position, R4) <= 1e-8
+
+
+# Every corner of a 5 mm box about pose 4 (8.7 mm away), each angle 0.5° off. From these,
+# plain Newton reaches another assembly (3 mm, 3° away) from the 4 corners with z + 5 mm
+# and tilt (0.5, 0.5, 0.5)°, and continuation from the guess fails for 7 of the 16.
+CORNERS = [(np.array(sx), np.array(sa)) for sx in np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T
+           for sa in ([0.5, 0.5, 0.5], [-0.5, 0.5, -0.5])]
+
+
+@pytest.mark.parametrize("signs,tilt", CORNERS)
+def test_fk_near_finds_seed_pose_4_from_5_mm_away(hexapod, signs, tilt):
+    position, rpy = SEED_POSES[3]
+    R4 = rotation_from_rpy(rpy)
+    q = hexapod.inverse_kinematics_matrix(position, R4)
+    guess = (np.add(position, 0.005 * signs), rotation_from_rpy(np.add(rpy, tilt)))
+    found = hexapod.forward_kinematics(q, near=guess)
+    assert pose_error(*found, position, R4) <= 1e-8, found
+    assert found.side == "below" and "nearest" in found.method
+
+
+def test_fk_side_chooses_the_mirror_assembly(hexapod):
+    """Sliders and platform points are coplanar, so every pose has a mirror twin through the
+    slider plane with the same strokes; ``side`` picks it."""
+    position, rpy = SEED_POSES[0]
+    R1 = rotation_from_rpy(rpy)
+    q = hexapod.inverse_kinematics_matrix(position, R1)
+    above = hexapod.forward_kinematics(q, side="above")
+    assert above.side == "above" and pose_error(*above, position, R1) <= 1e-8 and above.method == "continuation from home"
+    below = hexapod.forward_kinematics(q, side="below")
+    mirror_p, mirror_R = hexapod.mirror_pose(position, R1)
+    assert below.side == "below" and mirror_p[2] < 0 and pose_error(*below, mirror_p, mirror_R) <= 1e-8
+    assert "mirror" in below.method
+    assert np.max(np.abs(hexapod.leg_residuals(q, *below))) <= 1e-12
+    with pytest.raises(InvalidInput):
+        hexapod.forward_kinematics(q, side="left")
+    with pytest.raises(InvalidInput):
+        hexapod.forward_kinematics(q, initial=above, near=above)
 
 
 @settings(max_examples=40, deadline=None)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import qpsolvers
 
-from qpik.app.plotting import plot_level_errors
+from qpik.app.plotting import make_figures
 from qpik.app.runs import compare, format_table, run
 from qpik.rollout import simulate
 from qpik.scenario import build_scenario
@@ -18,6 +18,13 @@ from qpik.scenario import build_scenario
 @pytest.fixture(scope="module")
 def logs():
     return {kind: run("arm", "three-tasks", kind)[1] for kind in ("qp", "qp-hard", "hqp", "sns", "pinv")}
+
+
+@pytest.fixture(scope="module")
+def setup_joints():
+    from qpik.scenario import build_scenario
+
+    return build_scenario("three-tasks").plot_joints
 
 
 @pytest.fixture(scope="module")
@@ -98,8 +105,17 @@ def test_compare_shows_the_hierarchy_columns(scenario, columns):
         assert column in table
 
 
-def test_level_error_figure(logs, tmp_path):
-    written = plot_level_errors(list(logs.values()), tmp_path, "arm / three-tasks")
-    assert written == [tmp_path / "levels.png"] and written[0].stat().st_size > 10_000
+def test_level_error_figure(logs, setup_joints):
+    import matplotlib.pyplot as plt
+
+    figures = make_figures(list(logs.values()), setup_joints, "arm / three-tasks")
+    assert "levels.png" in figures
+    levels = figures["levels.png"]
+    # One panel per level (log scale, every controller drawn) and one for SNS's task scale.
+    panels = [ax for ax in levels.axes if ax.get_visible()]
+    assert len(panels) == 4
+    assert all(len(ax.lines) == len(logs) for ax in panels[:3])
+    assert panels[3].get_ylabel().startswith("task scale")
     without = dataclasses.replace(logs["pinv"], level_error=None)
-    assert plot_level_errors([without], tmp_path / "none", "no levels") == []
+    assert "levels.png" not in make_figures([without], setup_joints, "no levels")
+    plt.close("all")

@@ -1,12 +1,12 @@
-"""The ``qpik calibrate`` command: hexapod geometric identification (SPEC §3.3).
+"""The ``qpik calibrate`` command: hexapod geometric identification (docs/calibration.md).
 
     qpik calibrate [--method linear|gauss-newton|lm] [--poses seed|N | --pose-file FILE]
                    [--params legs|legs+offsets|full|GROUP+GROUP...] [--noise-um SIGMA]
-                   [--seed S] [--repeats R] [--out DIR] [--plot]
+                   [--seed S] [--repeats R] [--out DIR] [--plot] [--quiet]
 
 Prints a table (leg, parameter, imposed, estimated, error, relative error) and writes
-``DIR/calibration.json`` (and ``DIR/calibration.png`` with ``--plot``). Everything is
-computed before anything is written, so bad input leaves no file behind.
+``DIR/calibration.json`` (and ``DIR/calibration.png`` with ``--plot``), all or nothing
+(:class:`qpik.app.output.OutputFolder`).
 """
 
 from __future__ import annotations
@@ -27,29 +27,32 @@ if TYPE_CHECKING:
 DEFAULT_OUT = "out/calibrate"
 
 
-def register(sub) -> None:
-    """Add the ``calibrate`` subcommand to the ``qpik`` subparsers."""
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The ``calibrate`` subcommand's options (on the parser ``qpik`` made for it)."""
     from ..robots.hexapod.calibration import METHODS, PARAMETER_SETS
 
-    p = sub.add_parser("calibrate", help="identify hexapod geometric errors from strokes (SPEC §3.3)")
     p.add_argument("--method", choices=METHODS, default="linear",
                    help="linear: the source's first-order least squares; gauss-newton: undamped "
                         "iterations to convergence; lm: scipy's Levenberg-Marquardt")
     poses = p.add_mutually_exclusive_group()
     poses.add_argument("--poses", default="seed",
-                       help="'seed' (SPEC's four poses) or N random reachable poses about home")
+                       help="'seed' (the source's four poses, docs/calibration.md) or N random reachable "
+                            "poses about home")
     poses.add_argument("--pose-file", type=Path,
                        help="CSV (one pose a line) or JSON list of [x, y, z, thx, thy, thz] (m, deg)")
     p.add_argument("--params", default="legs",
                    help=f"identified errors: {', '.join(PARAMETER_SETS)} (= legs+offsets+points), or "
                         "groups legs, offsets, points, zeros (encoder zero errors) joined by '+'")
     p.add_argument("--noise-um", type=float, default=0.0, help="σ of Gaussian stroke noise (µm)")
-    p.add_argument("--seed", type=int, default=0, help="seed of pose sampling and noise")
+    p.add_argument("--seed", type=int, default=None,
+                   help="seed of the random poses and the noise (default: 0); an error when there is "
+                        "neither (seed poses, no noise)")
     p.add_argument("--repeats", type=int, default=1,
-                   help="noise realisations for the Monte-Carlo spread (same poses)")
-    p.add_argument("--out", type=Path, default=Path(DEFAULT_OUT), help=f"output folder (default {DEFAULT_OUT})")
+                   help="noise realisations for the Monte-Carlo spread (same poses); needs --noise-um > 0")
+    p.add_argument("--out", type=Path, default=Path(DEFAULT_OUT), help="output folder")
     p.add_argument("--plot", action="store_true",
                    help="write calibration.png (imposed vs estimated, error vs number of poses)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_calibrate)
 
 
@@ -146,22 +149,38 @@ def format_report(result: Calibration) -> str:
     return "\n".join(lines)
 
 
+def check_options(args: argparse.Namespace, poses) -> None:
+    """Options that would be silently ignored are an error instead."""
+    if args.repeats > 1 and not args.noise_um > 0:
+        raise InvalidInput("--repeats draws noise realisations: give --noise-um > 0 "
+                           "(without noise every repeat is the same)")
+    if args.seed is not None and isinstance(poses, str) and not args.noise_um > 0:
+        raise InvalidInput("--seed seeds random poses (--poses N) and noise (--noise-um); "
+                           "with the seed poses and no noise there is nothing random")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..robots.hexapod.calibration import calibrate  # scipy only when the command runs
+    from .output import OutputFolder
+    from .progress import StepBars, wanted
 
     poses = load_poses(args.pose_file) if args.pose_file else parse_poses_option(args.poses)
-    result = calibrate(args.method, poses, params=args.params, noise_um=args.noise_um,
-                       seed=args.seed, repeats=args.repeats)
-    figure = None
-    if args.plot:
-        from .calibration_plots import plot_calibration
+    check_options(args, poses)
+    seed = 0 if args.seed is None else args.seed
+    guard = getattr(args, "interrupt_guard", None)
+    with OutputFolder(args.out, guard) as out, StepBars(wanted(args.quiet), unit="fit") as bars:
+        result = calibrate(args.method, poses, params=args.params, noise_um=args.noise_um,
+                           seed=seed, repeats=args.repeats, progress=bars.callback("noise draws"))
+        figure = None
+        if args.plot:
+            from .calibration_plots import plot_calibration
 
-        figure = plot_calibration(result)
-    print(format_report(result))
-    write_json(args.out / "calibration.json", to_json(result))
-    written = [args.out / "calibration.json"]
-    if figure is not None:
-        save_figure(figure, args.out / "calibration.png")
-        written.append(args.out / "calibration.png")
+            figure = plot_calibration(result, progress=bars.callback("error vs number of poses"))
+        bars.close()
+        print(format_report(result))
+        write_json(out.path("calibration.json"), to_json(result))
+        if figure is not None:
+            save_figure(figure, out.path("calibration.png"))
+        written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

@@ -1,11 +1,23 @@
-"""The ``qpik`` command.
+"""The ``qpik`` command (``python -m qpik`` is the same).
 
     qpik scenarios
-    qpik run ROBOT --controller {qp,qp-hard,hqp,sns,pinv,jt,mink,placo} --scenario NAME [--solver S]
-             [--mode {kinematic,physics}] [--out DIR] [--plot]
-    qpik compare ROBOT --scenario NAME [--solvers daqp,osqp,...] [--mode M] [--out DIR] [--plot]
+    qpik run ROBOT --scenario NAME [--controller {qp,qp-hard,hqp,sns,pinv,jt,mink,placo}] [--solver S]
+             [--mode {kinematic,physics}] [--out DIR] [--plot] [--video FILE] [--quiet]
+    qpik compare ROBOT --scenario NAME [--solvers daqp,osqp,...] [--mode M] [--out DIR]
+             [--plot] [--video FILE] [--quiet]
+    qpik calibrate [...]           (see ``qpik calibrate --help``)
+    qpik --version
 
-Bad input gives one line on stderr and exit code 2, never a traceback.
+Contract: bad input gives one line on stderr and exit code 2, never a traceback, and
+nothing written; the output folder is checked before any work. Ctrl-C stops the command
+within a step (exit code 130) and leaves nothing of its output behind: every file is
+assembled in a hidden folder next to the target and moved into place at the end
+(:mod:`qpik.app.output`, :mod:`qpik.app.interrupt`). Runs show a progress bar on stderr
+when it is a terminal (``--quiet`` hides it).
+
+Start-up is kept light: this module imports nothing heavy (no MuJoCo, NumPy, SciPy);
+each subcommand declares its options, whose help lists the installed solvers and the
+registered scenarios, only when it is the one invoked.
 """
 
 from __future__ import annotations
@@ -16,21 +28,52 @@ import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..errors import QpikError
-from ..rollout import MODES
-
 EXIT_BAD_INPUT = 2
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (and exit code 2)."""
-
-    def error(self, message: str):
-        raise _UsageError(f"{self.prog}: {message}")
+EXIT_INTERRUPTED = 130
+MODES = ("kinematic", "physics")  # qpik.rollout.MODES, without importing the rollout at start-up
 
 
 class _UsageError(Exception):
     pass
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows "(default: X)" where there is a default worth saying (not None, not a flag's False)."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False or "(default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line usage error and options declared on first use.
+
+    ``populate(parser)`` (if given) adds the parser's arguments when it first parses or
+    prints its help: a subcommand's options (and the imports its help needs) cost
+    nothing unless that subcommand runs.
+    """
+
+    def __init__(self, *args, populate: Callable[[argparse.ArgumentParser], None] | None = None, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+        self._populate = populate
+
+    def _ensure_populated(self) -> None:
+        if self._populate is not None:
+            populate, self._populate = self._populate, None
+            populate(self)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._ensure_populated()
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        self._ensure_populated()
+        return super().format_help()
+
+    def error(self, message: str):
+        raise _UsageError(f"{self.prog}: {message}")
 
 
 def _solver_list(text: str) -> list[str]:
@@ -40,10 +83,113 @@ def _solver_list(text: str) -> list[str]:
     return names
 
 
-def _plot(setup, logs, out_dir: Path, title: str) -> list[Path]:
-    from .plotting import plot_level_errors, plot_logs  # matplotlib only when asked for
+def _catalogue() -> tuple[list[str], str]:
+    """Installed solvers, and the scenario names by robot (for help texts)."""
+    from ..scenario import scenarios
+    from ..solvers import available_solvers
 
-    return plot_logs(logs, setup.plot_joints, out_dir, title) + plot_level_errors(logs, out_dir, title)
+    by_robot: dict[str, list[str]] = {}
+    for info in scenarios().values():
+        by_robot.setdefault(info.robot, []).append(info.name)
+    listing = "; ".join(f"{robot}: {', '.join(names)}" for robot, names in by_robot.items())
+    return available_solvers(), listing
+
+
+ROBOT_HELP = ("arm or hexapod (the bundled scenes), or the path of an MJCF file to run the "
+              "scenario on instead: it must define every name the scenario uses (arm: joints "
+              "theta1, theta2, theta3, d4 and site end_effector; hexapod: the generated scene's "
+              "slider, universal-joint and platform joints, sites and loop equalities) and the "
+              "qpik_velocity_limit_<joint> numerics")
+MODE_HELP = ("kinematic: integrate the commanded joint velocity (the source's scheme); physics: "
+             "MuJoCo steps the scene, whose position (and velocity) servos track the command")
+
+
+def _robot_and_scenario(p: argparse.ArgumentParser, scenario_listing: str) -> None:
+    p.add_argument("robot", help=ROBOT_HELP)
+    p.add_argument("--scenario", required=True, metavar="NAME",
+                   help=f"scenario ({scenario_listing}; `qpik scenarios` describes them)")
+
+
+def _outputs(p: argparse.ArgumentParser, out_default: str) -> None:
+    p.add_argument("--mode", choices=MODES, default="kinematic", help=MODE_HELP)
+    p.add_argument("--out", metavar="DIR", help=f"output folder (default: {out_default})")
+    p.add_argument("--plot", action="store_true", help="also write PNG figures")
+    p.add_argument("--video", metavar="FILE", type=Path,
+                   help="also write a video of the rollout (.mp4 or .gif; headless: MUJOCO_GL=egl)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+
+
+def _run_arguments(p: argparse.ArgumentParser) -> None:
+    from .peers import PEERS, PLACO_SOLVER
+    from .runs import CLASSICAL_KINDS, HIERARCHY_KINDS, QP_KINDS
+
+    solvers, listing = _catalogue()
+    _robot_and_scenario(p, listing)
+    p.add_argument("--controller", default="qp", metavar="NAME",
+                   help=f"one of {', '.join(('qp', *HIERARCHY_KINDS, *CLASSICAL_KINDS, *PEERS))}: qp (qpik's "
+                        "QP), qp-hard (the scenario's QP with its top level hard, where it offers one), hqp "
+                        "(strict task hierarchy), sns (saturation in the null space), pinv (pseudoinverse "
+                        "CLIK + null space), jt (Jacobian transpose; arm only), the peer libraries mink and "
+                        f"placo (placo solves with its own {PLACO_SOLVER})")
+    p.add_argument("--solver", default=None, metavar="NAME",
+                   help=f"QP solver of {' and '.join(QP_KINDS)}, one of the installed {', '.join(solvers)} "
+                        "(default: daqp); an error with the other controllers")
+    _outputs(p, "out/run-SCENARIO-CONTROLLER-MODE")
+    p.set_defaults(handler=cmd_run)
+
+
+def _compare_arguments(p: argparse.ArgumentParser) -> None:
+    solvers, listing = _catalogue()
+    _robot_and_scenario(p, listing)
+    p.add_argument("--solvers", type=_solver_list, metavar="S1,S2",
+                   help=f"comma-separated QP solvers for qp and mink (default: every installed one: "
+                        f"{','.join(solvers)})")
+    _outputs(p, "out/compare-SCENARIO-MODE")
+    p.set_defaults(handler=cmd_compare)
+
+
+def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
+    from .calibrate import add_arguments
+
+    add_arguments(p)
+
+
+def _bars(args):
+    from .progress import StepBars, wanted
+
+    return StepBars(wanted(args.quiet))
+
+
+def _plot(setup, logs, out_dir: Path, title: str) -> list[Path]:
+    from .plotting import plot_logs  # matplotlib only when asked for
+
+    return plot_logs(logs, setup.plot_joints, out_dir, title)
+
+
+def _video(setup, logs, out, args, caption: str) -> None:
+    from .progress import StepBars, wanted
+    from .video import render_comparison
+
+    with StepBars(wanted(args.quiet), unit="frame") as bars:
+        render_comparison(setup.robot.model, logs, out.file(args.video), caption=caption,
+                          progress=bars.callback(f"video {args.video.name}"))
+
+
+def _start_output(args, default: str):
+    """The output folder (and video file), checked before any work."""
+    from .output import OutputFolder
+
+    out = OutputFolder(args.out or default, args.interrupt_guard)
+    if getattr(args, "video", None) is not None:
+        from .video import check_video_path, probe_gl
+
+        try:
+            out.add_file(check_video_path(args.video))
+            probe_gl()
+        except BaseException:
+            out.discard()
+            raise
+    return out
 
 
 def cmd_scenarios(args) -> int:
@@ -57,17 +203,27 @@ def cmd_scenarios(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from .runs import format_table, run
+    from ..errors import InvalidInput
+    from .runs import QP_KINDS, format_table, run, run_label
 
-    setup, log = run(args.robot, args.scenario, args.controller, args.solver, args.mode)
-    out_dir = Path(args.out or f"out/run-{args.scenario}-{args.controller}-{args.mode}")
-    summary = log.summary()
-    print(format_table([summary]))
-    log.save(out_dir)
-    written = [out_dir / "summary.json", out_dir / "log.npz"]
-    if args.plot:
+    if args.solver is not None and args.controller not in QP_KINDS:
+        raise InvalidInput(f"--solver applies to {' and '.join(QP_KINDS)} only; controller "
+                           f"{args.controller!r} uses no QP solver of ours")
+    solver = args.solver or "daqp"
+    out = _start_output(args, f"out/run-{args.scenario}-{args.controller}-{args.mode}")
+    with out, _bars(args) as bars:
+        label = run_label(args.controller, solver if args.controller in QP_KINDS else "none")
+        setup, log = run(args.robot, args.scenario, args.controller, solver, args.mode,
+                         progress=bars.callback(label))
+        bars.close()
+        print(format_table([log.summary()]))
+        log.save(out.staging)
         title = f"{setup.robot_name} / {args.scenario} / {args.controller} ({args.mode})"
-        written += _plot(setup, [log], out_dir, title)
+        if args.plot:
+            _plot(setup, [log], out.staging, title)
+        if args.video is not None:
+            _video(setup, [log], out, args, title)
+        written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
 
@@ -75,74 +231,74 @@ def cmd_run(args) -> int:
 def cmd_compare(args) -> int:
     from .runs import compare, format_table, write_compare
 
-    setup, logs, notes = compare(args.robot, args.scenario, args.solvers, args.mode)
-    summaries = [log.summary() for log in logs]
-    print(f"{setup.robot_name} / {args.scenario} ({args.mode} mode)")
-    print(format_table(summaries))
-    for note in notes:
-        print(note)
-    out_dir = Path(args.out or f"out/compare-{args.scenario}-{args.mode}")
-    written = [write_compare(out_dir, setup.robot_name, args.scenario, summaries, args.mode)]
-    if args.plot:
-        written += _plot(setup, logs, out_dir, f"{setup.robot_name} / {args.scenario} ({args.mode})")
+    out = _start_output(args, f"out/compare-{args.scenario}-{args.mode}")
+    with out, _bars(args) as bars:
+        setup, logs, notes = compare(args.robot, args.scenario, args.solvers, args.mode,
+                                      progress=bars if bars.enabled else None)
+        bars.close()
+        summaries = [log.summary() for log in logs]
+        title = f"{setup.robot_name} / {args.scenario} ({args.mode})"
+        print(f"{setup.robot_name} / {args.scenario} ({args.mode} mode)")
+        print(format_table(summaries))
+        for note in notes:
+            print(note)
+        write_compare(out.staging, setup.robot_name, args.scenario, summaries, args.mode)
+        if args.plot:
+            _plot(setup, logs, out.staging, title)
+        if args.video is not None:
+            _video(setup, logs, out, args, title)
+        written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="qpik", description="QP-based differential inverse kinematics on MuJoCo models.")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    from .. import __version__
 
+    parser = _Parser(prog="qpik", description="QP-based differential inverse kinematics on MuJoCo models: "
+                     "run and compare controllers on named scenarios, calibrate the hexapod.")
+    parser.add_argument("--version", action="version", version=f"qpik {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
     p = sub.add_parser("scenarios", help="list the named scenarios")
     p.set_defaults(handler=cmd_scenarios)
-
-    def common(p):
-        p.add_argument("robot", help="arm, hexapod, or an MJCF file with the same names")
-        p.add_argument("--scenario", required=True, help="scenario name (see `qpik scenarios`)")
-        p.add_argument("--mode", choices=MODES, default="kinematic")
-        p.add_argument("--out", help="output folder (default: out/...)")
-        p.add_argument("--plot", action="store_true", help="write PNG figures")
-
-    p = sub.add_parser("run", help="roll one controller out on a scenario")
-    common(p)
-    p.add_argument("--controller", default="qp",
-                   help="qp, qp-hard (a scenario's QP with its top level hard), hqp (strict hierarchy), "
-                        "sns (saturation in the null space), pinv (classical law), jt (Jacobian transpose), "
-                        "or the peers mink, placo")
-    p.add_argument("--solver", default="daqp", help="QP solver (qpsolvers name)")
-    p.set_defaults(handler=cmd_run)
-
-    p = sub.add_parser("compare", help="every controller side by side on one scenario")
-    common(p)
-    p.add_argument("--solvers", type=_solver_list,
-                   help="comma-separated QP solvers for qp and mink (default: all installed)")
-    p.set_defaults(handler=cmd_compare)
+    sub.add_parser("run", help="roll one controller out on a scenario", populate=_run_arguments)
+    sub.add_parser("compare", help="every controller on one scenario, side by side",
+                   populate=_compare_arguments)
+    sub.add_parser("calibrate", help="identify the hexapod's geometric errors from strokes",
+                   populate=_calibrate_arguments)
     for register in EXTRA_COMMANDS:
         register(sub)
     return parser
 
 
-# Other modules add subcommands here: each a function taking the subparsers object.
+# Other modules may add subcommands here: each a function taking the subparsers object.
 EXTRA_COMMANDS: list[Callable] = []
-
-from .calibrate import register as _register_calibrate  # noqa: E402
-
-EXTRA_COMMANDS.append(_register_calibrate)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from ..errors import QpikError
+    from .interrupt import InterruptGuard
+
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args = build_parser().parse_args(argv)
-        return args.handler(args)
+        # The guard comes first: threads started later (NumPy's BLAS pool) inherit its mask.
+        with InterruptGuard() as guard:
+            if any(a == "--video" or a.startswith("--video=") for a in argv):
+                from .video import prefer_headless_gl
+
+                prefer_headless_gl()  # before MuJoCo is imported: it reads MUJOCO_GL once
+            args = build_parser().parse_args(argv)
+            args.interrupt_guard = guard  # output folders shield their final move with it
+            return args.handler(args)
     except _UsageError as exc:
         print(f"{exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except QpikError as exc:
-        print(f"qpik: error: {exc}", file=sys.stderr)
+        print(f"qpik: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print("qpik: interrupted", file=sys.stderr)
-        return 130
+        print("qpik: interrupted; nothing written", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # e.g. `qpik compare ... | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1

@@ -1,9 +1,18 @@
 """The source's figures, for one run or overlaid for a comparison.
 
-path.png (tracked point vs desired, x-y plane), joints.png (joint positions with the
-limits given to the controllers), velocities.png (joint velocities), error.png
-(error norm, log scale), manipulability.png; plus extras.png for extra series
-(orientation error, loop-closure residual) when the logs have them.
+- ``path.png``: the tracked point against the desired path in the x-y plane, with start
+  and end marked;
+- ``joints.png``: the *commanded* joint positions q ⊕ q̇Δt (what each controller asks
+  for, which the end stops may cut: where they did, the reached position is drawn thin),
+  with the limits the controllers were given;
+- ``velocities.png``: the commanded joint velocities; a run whose peak would flatten
+  every other curve is clipped at the axis, its peak written on the plot;
+- ``error.png``: the tracking error norm, log scale, starting at the smallest error
+  reached after t = 0 (the error is 0 by construction at t = 0);
+- ``manipulability.png``; ``extras.png`` for the extra series (orientation error, loop
+  residual) when the logs have them.
+
+Every axis has its unit; the legend sits outside the axes, under the plots.
 """
 
 from __future__ import annotations
@@ -20,135 +29,231 @@ import numpy as np  # noqa: E402
 from ..io import save_figure  # noqa: E402
 from ..rollout import RolloutLog  # noqa: E402
 from ..scenario import JointPlotSpec  # noqa: E402
+from .runs import run_label  # noqa: E402
+
+# Extra series: label and unit.
+EXTRA_LABELS = {
+    "orientation_error": ("orientation error", "rad"),
+    "constraint_violation": ("loop-closure residual", "m"),
+}
+# A run whose peak exceeds the others' by this factor gets the axis clipped.
+OFF_SCALE_FACTOR = 4.0
 
 
 def _label(log: RolloutLog) -> str:
-    return log.controller if log.solver in ("none", "") else f"{log.controller} ({log.solver})"
+    return run_label(log.controller, log.solver)
 
 
 def _style(i: int) -> dict:
-    return {"linestyle": ["-", "--", "-.", ":"][i % 4], "linewidth": 1.6 if i == 0 else 1.2}
+    return {"color": f"C{i % 10}", "linestyle": ["-", "--", "-.", ":"][i % 4], "linewidth": 1.8 if i == 0 else 1.3}
 
 
-def _grid(n: int):
+def _legend(fig, logs: Sequence[RolloutLog], extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
+    """One legend for the whole figure, below the axes (never over the data)."""
+    handles = [plt.Line2D([], [], **_style(i)) for i in range(len(logs))]
+    labels = [_label(log) + ("" if log.completed else f" (stopped at t = {log.t[-1]:.2f} s)") for log in logs]
+    for style, text in extra:
+        handles.append(plt.Line2D([], [], **style))
+        labels.append(text)
+    if ncol is None:
+        ncol = len(labels) if len(labels) <= 5 else (len(labels) + 1) // 2
+    fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=8, frameon=False)
+
+
+def _grid(n: int, height: float = 2.4):
     cols = 2 if n > 1 else 1
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 2.6 * rows), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.4 * cols, height * rows + 1.0), squeeze=False, sharex=True,
+                             layout="constrained")
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
+    for ax in axes.ravel()[max(0, n - cols):n]:
+        ax.set_xlabel("t [s]")
+        ax.xaxis.set_tick_params(labelbottom=True)
     return fig, axes.ravel()
 
 
+def _clip_outliers(ax, series: Sequence[tuple[np.ndarray, np.ndarray, str, int]], unit: str) -> None:
+    """If one run's peak |value| dwarfs the others', clip the y axis to the others' range and
+    write the clipped run's peak (value and time) on the plot."""
+    peaks = np.array([np.nanmax(np.abs(y)) if len(y) else 0.0 for _, y, _, _ in series])
+    if len(peaks) < 2:
+        return
+    order = np.argsort(peaks)
+    typical = peaks[order[-2]] if len(peaks) > 1 else peaks[order[-1]]
+    outliers = [i for i in range(len(peaks)) if peaks[i] > OFF_SCALE_FACTOR * max(typical, 1e-12)]
+    kept = [p for i, p in enumerate(peaks) if i not in outliers]
+    if not outliers or not kept or max(kept) == 0:
+        return
+    bound = 1.25 * max(kept)
+    ax.set_ylim(-bound, bound)
+    notes = []
+    for i in outliers:
+        t, y, label, _ = series[i]
+        k = int(np.nanargmax(np.abs(y)))
+        notes.append(f"{label}: peak {y[k]:.3g} {unit} at t = {t[k]:.2f} s (off scale)")
+    ax.text(0.99, 0.97, "\n".join(notes), transform=ax.transAxes, ha="right", va="top", fontsize=7,
+            bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.7", "alpha": 0.9})
+
+
+def _log_limits(ax, values: Sequence[np.ndarray]) -> None:
+    """Log axis from a third of the smallest positive value after the first step to three
+    times the largest (exact zeros, e.g. the error at t = 0, are not drawn: they would pull
+    the axis down to the clamp, 1e-16, wasting decades)."""
+    positive = np.concatenate([v[1:][v[1:] > 0] for v in values if len(v) > 1] or [np.array([1.0])])
+    if positive.size:
+        ax.set_ylim(float(np.min(positive)) / 3, float(np.max(positive)) * 3)
+
+
+def _positive(values: np.ndarray) -> np.ndarray:
+    return np.where(values > 0, values, np.nan)
+
+
 def plot_logs(logs: Sequence[RolloutLog], joints: JointPlotSpec, out_dir: str | Path, title: str) -> list[Path]:
-    """Write the figures for one or several (overlaid) runs; returns the files."""
+    """Write the figures for one or several (overlaid) runs into ``out_dir``; returns the files."""
     out_dir = Path(out_dir)
     written = []
-
-    def finish(fig, name: str) -> None:
-        fig.suptitle(title, fontsize=10)
-        fig.tight_layout()
-        path = out_dir / name
-        save_figure(fig, path)
+    for name, fig in make_figures(logs, joints, title).items():
+        save_figure(fig, out_dir / name)
         plt.close(fig)
-        written.append(path)
+        written.append(out_dir / name)
+    return written
 
-    # End-effector / platform path in the x-y plane.
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+
+def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) -> dict[str, plt.Figure]:
+    """The figures of one or several (overlaid) runs, by file name (open: close them)."""
+    figures = {}
+
+    def finish(fig, name: str, legend_extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
+        _legend(fig, logs, legend_extra, ncol)
+        fig.suptitle(title, fontsize=10)
+        figures[name] = fig
+
     ref = logs[0]
-    ax.plot(ref.x_des[:, 0], ref.x_des[:, 1], color="k", linewidth=3, alpha=0.25, label="desired")
+    planar = ref.x.shape[1] == 2
+    fig, ax = plt.subplots(figsize=(5.6, 5.8), layout="constrained")
+    ax.plot(ref.x_des[:, 0], ref.x_des[:, 1], color="k", linewidth=4, alpha=0.2)
+    ax.plot(*ref.x_des[0, :2], "o", color="k", markersize=12, markerfacecolor="none")  # around a closed path's end
+    ax.plot(*ref.x_des[-1, :2], "s", color="k", markersize=7, markerfacecolor="none")
     for i, log in enumerate(logs):
-        ax.plot(log.x[:, 0], log.x[:, 1], label=_label(log), **_style(i))
+        style = _style(i)
+        ax.plot(log.x[:, 0], log.x[:, 1], **style)
+        ax.plot(*log.x[-1, :2], "x", color=style["color"], markersize=8, markeredgewidth=1.8)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
+    ax.set_title("end effector" if planar else "platform centre, projected on the x-y plane", fontsize=9)
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    finish(fig, "path.png")
+    grey = {"color": "k", "linewidth": 4, "alpha": 0.2}
+    finish(fig, "path.png", [(grey, "desired"),
+                             ({"color": "k", "marker": "o", "linestyle": "none", "markerfacecolor": "none"}, "start"),
+                             ({"color": "k", "marker": "s", "linestyle": "none", "markerfacecolor": "none"}, "end (desired)"),
+                             ({"color": "0.3", "marker": "x", "linestyle": "none"}, "end (reached)")], ncol=3)
 
-    for name, kind in (("joints.png", "q"), ("velocities.png", "qdot")):
-        fig, axes = _grid(len(joints.names))
-        for j, ax in enumerate(axes[: len(joints.names)]):
-            for i, log in enumerate(logs):
-                series = log.q[:, joints.qpos_index[j]] if kind == "q" else log.qdot[:, joints.dof_index[j]]
-                ax.plot(log.t, series, label=_label(log), **_style(i))
-            if kind == "q":
-                finite = [b for b in (joints.lower[j], joints.upper[j]) if np.isfinite(b)]
-                for k, bound in enumerate(finite):
-                    # grey, not a controller colour: the controllers' cycle includes red dotted
-                    ax.axhline(bound, color="0.4", linewidth=1.0, linestyle=(0, (1, 1)),
-                               label="limit" if k == 0 else None)
-            unit = joints.units[j] + ("/s" if kind == "qdot" else "")
-            ax.set_ylabel(f"{joints.names[j]} [{unit}]")
-            ax.grid(alpha=0.3)
-        axes[0].legend(fontsize=7)
-        for ax in axes[max(0, len(joints.names) - 2): len(joints.names)]:
-            ax.set_xlabel("t [s]")
-        finish(fig, name)
+    # Joint positions: commanded (what the controller asks for), thin where the stops cut it.
+    fig, axes = _grid(len(joints.names))
+    cut_any = False
+    for j, ax in enumerate(axes[: len(joints.names)]):
+        qi = joints.qpos_index[j]
+        for i, log in enumerate(logs):
+            style = _style(i)
+            reached = log.q[:, qi]
+            if log.q_commanded is None:
+                ax.plot(log.t, reached, **style)
+                continue
+            commanded = log.q_commanded[:-1, qi]  # reached, or not, at the next step
+            ax.plot(np.concatenate([log.t[:1], log.t[1:]]), np.concatenate([reached[:1], commanded]), **style)
+            if np.max(np.abs(commanded - reached[1:]), initial=0.0) > 1e-6:
+                cut_any = True
+                ax.plot(log.t, reached, color=style["color"], linewidth=0.8, alpha=0.8)
+        for bound in (b for b in (joints.lower[j], joints.upper[j]) if np.isfinite(b)):
+            # grey, not a controller colour: the controllers' cycle includes red dotted
+            ax.axhline(bound, color="0.4", linewidth=1.0, linestyle=(0, (1, 1)))
+        ax.set_ylabel(f"{joints.names[j]} [{joints.units[j]}]")
+        ax.grid(alpha=0.3)
+    extra = [({"color": "0.4", "linewidth": 1.0, "linestyle": (0, (1, 1))}, "limit")]
+    if cut_any:
+        extra.append(({"color": "0.3", "linewidth": 0.8}, "thin: reached (the end stop cut the command)"))
+    axes[0].set_title("commanded position q ⊕ q̇Δt", fontsize=9, loc="left")
+    finish(fig, "joints.png", extra)
 
-    fig, ax = plt.subplots(figsize=(6.5, 3.2))
+    fig, axes = _grid(len(joints.names))
+    for j, ax in enumerate(axes[: len(joints.names)]):
+        unit = joints.units[j] + "/s"
+        series = []
+        for i, log in enumerate(logs):
+            y = log.qdot[:, joints.dof_index[j]]
+            ax.plot(log.t, y, **_style(i))
+            series.append((log.t, y, _label(log), i))
+        _clip_outliers(ax, series, unit)
+        ax.set_ylabel(f"{joints.names[j]} [{unit}]")
+        ax.grid(alpha=0.3)
+    axes[0].set_title("commanded velocity q̇", fontsize=9, loc="left")
+    finish(fig, "velocities.png")
+
+    fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
     for i, log in enumerate(logs):
-        ax.semilogy(log.t, np.maximum(log.error, 1e-16), label=_label(log), **_style(i))
+        ax.semilogy(log.t, _positive(log.error), **_style(i))
+    _log_limits(ax, [log.error for log in logs])
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("position error norm [m]")
+    ax.set_ylabel("position error ‖x_d − x‖ [m]")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
     finish(fig, "error.png")
 
-    fig, ax = plt.subplots(figsize=(6.5, 3.2))
+    fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
     for i, log in enumerate(logs):
-        ax.plot(log.t, log.manipulability, label=_label(log), **_style(i))
+        ax.plot(log.t, log.manipulability, **_style(i))
     ax.set_xlabel("t [s]")
-    ax.set_ylabel(f"manipulability ({ref.manipulability_measure})")
+    ax.set_ylabel("manipulability [-]")
+    ax.set_title(ref.manipulability_measure, fontsize=9, loc="left")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
     finish(fig, "manipulability.png")
 
     extra_names = sorted({name for log in logs for name in log.extras})
     if extra_names:
-        fig, axes = _grid(len(extra_names))
+        fig, axes = _grid(len(extra_names), height=3.0)
         for ax, name in zip(axes, extra_names):
+            label, unit = EXTRA_LABELS.get(name, (name.replace("_", " "), "-"))
+            values = []
             for i, log in enumerate(logs):
                 if name in log.extras:
-                    ax.semilogy(log.t, np.maximum(log.extras[name], 1e-16), label=_label(log), **_style(i))
-            ax.set_ylabel(name.replace("_", " "))
-            ax.set_xlabel("t [s]")
+                    ax.semilogy(log.t, _positive(log.extras[name]), **_style(i))
+                    values.append(log.extras[name])
+            _log_limits(ax, values)
+            ax.set_ylabel(f"{label} [{unit}]")
             ax.grid(alpha=0.3, which="both")
-        axes[0].legend(fontsize=7)
         finish(fig, "extras.png")
-    return written
+    levels = _level_figure(logs)
+    if levels is not None:
+        finish(levels, "levels.png")
+    return figures
 
 
-def plot_level_errors(logs: Sequence[RolloutLog], out_dir: str | Path, title: str) -> list[Path]:
+def _level_figure(logs: Sequence[RolloutLog]):
     """levels.png: each level's error over time (one panel per level, log scale, the
-    controllers overlaid), and SNS's task scale per level when a run reports it.
-    Writes nothing when no log has per-level errors."""
-    levelled = [log for log in logs if log.level_error is not None]
+    controllers overlaid), and the task scale per level of the runs that report one
+    (SNS); None when no log has per-level errors."""
+    levelled = [(i, log) for i, log in enumerate(logs) if log.level_error is not None]
     if not levelled:
-        return []
-    names, units = levelled[0].level_names, levelled[0].level_units
-    scaled = [log for log in logs if "task_scale" in log.report]
+        return None
+    names, units = levelled[0][1].level_names, levelled[0][1].level_units
+    scaled = [(i, log) for i, log in enumerate(logs) if "task_scale" in log.report]
     fig, axes = _grid(len(names) + (1 if scaled else 0))
     for k, (ax, name, unit) in enumerate(zip(axes, names, units)):
-        for i, log in enumerate(levelled):
-            ax.semilogy(log.t, np.maximum(log.level_error[:, k], 1e-16), label=_label(log), **_style(i))
-        ax.set_ylabel(f"L{k} {name} [{unit}]")
+        series = [log.level_error[:, k] for _, log in levelled]
+        for (i, log), values in zip(levelled, series):
+            ax.semilogy(log.t, _positive(values), **_style(i))
+        _log_limits(ax, series)
+        ax.set_ylabel(f"level {k}: {name} [{unit}]")
         ax.grid(alpha=0.3, which="both")
     if scaled:
         ax = axes[len(names)]
-        for log in scaled:
-            scale = log.report["task_scale"]
+        for i, log in scaled:
+            scale = np.atleast_2d(log.report["task_scale"].T).T
             for k in range(scale.shape[1]):
-                ax.plot(log.t, scale[:, k], label=f"{_label(log)} L{k}", **_style(k))
-        ax.set_ylabel("task scale s")
+                style = dict(_style(i), linestyle=["-", "--", "-.", ":"][k % 4])
+                ax.plot(log.t, scale[:, k], **style)
+        ax.set_ylabel("task scale s [-] (level 0 solid)")
         ax.set_ylim(-0.05, 1.05)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    axes[0].legend(fontsize=7)
-    for ax in axes[max(0, len(axes) - 2):]:
-        ax.set_xlabel("t [s]")
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path = Path(out_dir) / "levels.png"
-    save_figure(fig, path)
-    plt.close(fig)
-    return [path]
+    return fig

@@ -5,7 +5,7 @@ placo) run as controllers too, when installed (:mod:`qpik.app.peers`)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from ..errors import InvalidInput
 from ..io import write_json
@@ -18,43 +18,82 @@ CLASSICAL_KINDS = ("pinv", "jt")
 # Controllers a scenario may offer besides qp: a variant with hard tasks, the strict
 # hierarchy and SNS (each run once, hqp and qp-hard with the first solver asked for).
 HIERARCHY_KINDS = ("qp-hard", "hqp", "sns")
-SOLVER_KINDS = ("qp", "mink", "qp-hard", "hqp")
+QP_KINDS = ("qp", "mink", "qp-hard", "hqp")  # the controllers that take a QP solver name
+
+StepProgress = Callable[[int, int], None]
 
 
-def start_run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
-              on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, Rollout]:
-    """Build the scenario and one controller on it: the rollout, not yet advanced."""
+def start_run(robot: str | None = None, scenario: str | None = None, controller: str = "qp", solver: str = "daqp",
+              mode: str = "kinematic", on_failure: str = "raise", setup: Setup | None = None,
+              progress: StepProgress | None = None) -> tuple[Setup, Rollout]:
+    """Build the scenario and one controller on it: the rollout, not yet advanced
+    (arguments as :func:`run`)."""
     if mode not in MODES:
         raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-    if controller in SOLVER_KINDS:
+    if controller in QP_KINDS:
         check_solver(solver)
-    setup = setup or build_scenario(scenario, robot)
+    if setup is None:
+        if scenario is None:
+            raise InvalidInput("run() needs a scenario name or a setup")
+        setup = build_scenario(scenario, robot)
+    elif setup.rolled_out:
+        raise InvalidInput(f"this setup of {setup.scenario!r} was already run: its robot and "
+                           "references are at that run's final state. Build a fresh setup per run "
+                           "(call the scenario's or arm_setup()'s constructor again)")
+    setup.rolled_out = True
     ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
     rollout = Rollout(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
                       manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
-                      joint_limits=setup.joint_limits, scenario=scenario, robot_name=setup.robot_name,
-                      on_failure=on_failure, closure=setup.closure, speed_dofs=setup.plot_joints.dof_index,
-                      levels=setup.level_errors)
+                      joint_limits=setup.joint_limits, scenario=scenario or setup.scenario,
+                      robot_name=setup.robot_name, on_failure=on_failure, closure=setup.closure,
+                      speed_dofs=setup.plot_joints.dof_index, progress=progress, levels=setup.level_errors)
     return setup, rollout
 
 
-def run(robot: str, scenario: str, controller: str = "qp", solver: str = "daqp", mode: str = "kinematic",
-        on_failure: str = "raise", setup: Setup | None = None) -> tuple[Setup, RolloutLog]:
-    """Build the scenario and roll one controller out on it."""
-    setup, rollout = start_run(robot, scenario, controller, solver, mode, on_failure, setup)
+def run(robot: str | None = None, scenario: str | None = None, controller: str = "qp", solver: str = "daqp",
+        mode: str = "kinematic", on_failure: str = "raise", setup: Setup | None = None,
+        progress: StepProgress | None = None) -> tuple[Setup, RolloutLog]:
+    """Roll one controller out on a scenario; returns the setup and the log.
+
+    Args:
+        robot: ``"arm"``, ``"hexapod"`` or an MJCF path (see :func:`qpik.build_scenario`);
+            with ``setup``, only a label (default: the setup's robot).
+        scenario: a registered scenario name; with ``setup``, only the log's label.
+        controller: ``qp``, a controller the scenario offers (``qp-hard``, ``hqp``,
+            ``sns``, ``pinv``, ``jt``) or a peer (``mink``, ``placo``).
+        solver: the QP solver of ``qp``, ``qp-hard``, ``hqp`` and ``mink``.
+        mode: ``kinematic`` or ``physics`` (see :func:`qpik.simulate`).
+        on_failure: ``raise`` a controller failure, or ``stop`` the rollout and keep the log.
+        setup: a fresh :class:`~qpik.scenario.Setup` to run instead of building the named
+            scenario, e.g. ``arm_setup("mine", Circle(...), redundant=True)``. A setup
+            holds the robot's state, so it runs once: a second run would start from the
+            first one's final state, and is refused.
+        progress: called as ``progress(k, steps)`` after each step.
+
+    Raises:
+        InvalidInput: a used setup, an unknown mode, neither scenario nor setup.
+        UnknownName: unknown robot, scenario, controller or solver.
+    """
+    setup, rollout = start_run(robot, scenario, controller, solver, mode, on_failure, setup, progress)
     rollout.advance()
     return setup, rollout.log()
 
 
+def run_label(controller: str, solver: str) -> str:
+    """``qp (daqp)``, ``pinv``: how tables, legends and progress bars name a run."""
+    return controller if solver in ("none", "", None) else f"{controller} ({solver})"
+
+
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
-            classical: Sequence[str] = HIERARCHY_KINDS + CLASSICAL_KINDS,
-            peers: Sequence[str] = PEERS) -> tuple[Setup, list[RolloutLog], list[str]]:
+            classical: Sequence[str] = HIERARCHY_KINDS + CLASSICAL_KINDS, peers: Sequence[str] = PEERS,
+            progress: Callable[[str, int, int], None] | None = None) -> tuple[Setup, list[RolloutLog], list[str]]:
     """qp with each solver, the other controllers the scenario offers among ``classical``
     (qp-hard, hqp, sns, pinv, jt), then the peers (mink with each solver, placo with its
-    own), on identical fresh setups.
+    own), each on its own fresh setup of the scenario.
 
     A controller that fails mid-run (an infeasible QP, a singular pseudoinverse) is
     kept with ``completed = False`` and the reason, so the table can say why.
+    ``progress(label, k, steps)`` is called after each step of each run.
     Returns the last setup, the logs and notes (e.g. skipped peers).
     """
     solvers = list(solvers) if solvers else available_solvers()
@@ -62,15 +101,24 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
         check_solver(solver)
     logs, notes = [], []
     setup = None
+
+    def step_progress(controller: str, solver: str) -> StepProgress | None:
+        if progress is None:
+            return None
+        label = run_label(controller, solver)
+        return lambda k, steps: progress(label, k, steps)
+
     for solver in solvers:
-        setup, log = run(robot, scenario, "qp", solver, mode, on_failure="stop")
+        setup, log = run(robot, scenario, "qp", solver, mode, on_failure="stop",
+                         progress=step_progress("qp", solver))
         logs.append(log)
     for kind in classical:
         probe = build_scenario(scenario, robot)
         if kind not in probe.controller_kinds():
             continue
-        solver = solvers[0] if kind in SOLVER_KINDS else "none"
-        setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop", setup=probe)
+        solver = solvers[0] if kind in QP_KINDS else "none"
+        setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop", setup=probe,
+                         progress=step_progress(kind, solver))
         logs.append(log)
     for kind in peers:
         if not peer_installed(kind):
@@ -78,7 +126,8 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
             continue
         for solver in peer_solvers(kind, solvers):
             try:
-                setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop")
+                setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop",
+                                 progress=step_progress(kind, solver))
             except PeerUnsupported as exc:
                 notes.append(f"{kind} skipped: {exc}")
                 break
@@ -139,6 +188,7 @@ def _flatten_levels(summary: dict) -> dict:
 
 
 def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Sequence[dict], mode: str) -> Path:
+    """Write ``compare.json`` (robot, scenario, mode and every run's summary) into ``out_dir``."""
     path = Path(out_dir) / "compare.json"
     write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": list(summaries)})
     return path

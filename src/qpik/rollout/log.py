@@ -16,7 +16,12 @@ _LOWER_IS_WORSE = ("task_scale",)
 
 @dataclass
 class RolloutLog:
-    """Time series of one rollout; ``summary()`` gives DESIGN.md's metrics."""
+    """Time series of one rollout; ``summary()`` gives the metrics of ``summary.json``.
+
+    ``q`` is the configuration at time ``t`` (measured on the plant in physics mode);
+    ``q_commanded[k]`` is the configuration the controller asked for at step k,
+    q ⊕ q̇Δt, reached (or not: end stops, servos) at t + Δt; NaN at the last step.
+    """
 
     robot: str
     controller: str
@@ -50,6 +55,7 @@ class RolloutLog:
     # end stops; 0 where no command was made): what a controller asked for, without
     # what a physics plant added. Not part of the summary or the saved log.
     commanded_violation: np.ndarray | None = None
+    q_commanded: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The summary.json record (plain Python types)."""
@@ -102,6 +108,8 @@ class RolloutLog:
         data = dict(t=self.t, q=self.q, qdot=self.qdot, x=self.x, x_des=self.x_des, error=self.error,
                     manipulability=self.manipulability, step_time=self.step_time,
                     limit_violation=self.limit_violation)
+        if self.q_commanded is not None:
+            data["q_commanded"] = self.q_commanded
         data.update(self.extras)
         if self.level_error is not None:
             data["level_error"] = self.level_error

@@ -280,6 +280,7 @@ class Rollout:
             completed=not self.failure,
             failure=self.failure,
             commanded_violation=commanded,
+            q_commanded=self._q_commanded[:n],
             level_error=None if self._level_error is None else self._level_error[:n],
             level_names=() if self.levels is None else tuple(self.levels.names),
             level_units=() if self.levels is None else tuple(self.levels.units),

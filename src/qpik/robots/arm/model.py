@@ -1,4 +1,4 @@
-"""The planar RRR+P arm's Denavit–Hartenberg model (SPEC §1), independent of MuJoCo.
+"""The planar RRR+P arm's Denavit–Hartenberg model (docs/arm.md), independent of MuJoCo.
 
 DH rows (a, alpha, d, theta): (a1, 0, 0, θ1), (a2, 0, 0, θ2), (0, π/2, 0, θ3), (0, 0, d4, 0).
 Used to cross-check the MJCF scene: MuJoCo's site position and Jacobian must equal
@@ -51,7 +51,7 @@ def end_effector_position(q, a1: float = A1, a2: float = A2) -> np.ndarray:
 
 
 def position_jacobian(q, a1: float = A1, a2: float = A2) -> np.ndarray:
-    """The 2x4 position Jacobian of SPEC §1 (with the corrected signs)."""
+    """The 2x4 position Jacobian, with the signs the source misprints corrected (docs/arm.md)."""
     t1, t2, t3, d4 = _q(q)
     s1, c1 = np.sin(t1), np.cos(t1)
     s12, c12 = np.sin(t1 + t2), np.cos(t1 + t2)

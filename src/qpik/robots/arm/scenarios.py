@@ -1,6 +1,6 @@
 """The arm's named scenarios (a contract: the CLI, tests and benchmarks use these names).
 
-Arm scenarios (SPEC §1; K = diag(500, 500), Δt = 2 ms, start q0 = [π/2, 0, 0, 0.5]):
+Arm scenarios (docs/arm.md; K = diag(500, 500), Δt = 2 ms, start q0 = [π/2, 0, 0, 0.5]):
 
 - ``seed-primary``: the source's segment (0.5, 2) → (1.5, 1), cubic law, 5 s;
   primary task only (the QP adds a tiny damping task, giving the minimum-norm J†v).

@@ -1,4 +1,4 @@
-r"""The 6-PUS Gough–Stewart hexapod of SPEC §3: geometry, analytic IK, FK and Jacobians.
+r"""The 6-PUS Gough–Stewart hexapod: geometry, analytic IK, FK and Jacobians (docs/hexapod.md).
 
 Leg i joins an actuated slider on the base to the moving platform:
 
@@ -19,7 +19,8 @@ points (``with_*`` helpers).
 Assembly modes: the sliders lie in the plane z = 0, so a pose (p, R) and its mirror
 image through that plane, (M p, M R M) with M = diag(1, 1, −1), have identical strokes.
 Forward kinematics follows the branch of its starting pose (by default the home pose,
-above the plane). SPEC's calibration pose 4 (z = −0.02 m) lies below the plane.
+above the plane), or returns the assembly nearest to a given pose, or the one on a given
+side of the plane. The source's calibration pose 4 (z = −0.02 m) lies below the plane.
 """
 
 from __future__ import annotations
@@ -33,12 +34,35 @@ from scipy.spatial.transform import Rotation
 from ...errors import ConvergenceError, InvalidInput, UnreachablePose
 
 N_LEGS = 6
+SIDES = ("above", "below")  # assembly sides of the slider plane
+CHARACTERISTIC_LENGTH_M = 0.1  # platform radius: makes a rotation commensurate with a shift
+NEAR_START_SHIFT_M = 0.002  # FK ``near``: extra starts this far from the given pose,
+NEAR_START_TILT_DEG = 1.0  # and tilted this much about each axis
 
-# Slider i (1-based) is tied to the platform point at this polar angle (degrees). SPEC
-# lists two legs on one point; of the 6! assignments of its six distinct points, 12 reach
-# all four calibration poses, and this one (SPEC's suggestion) has the widest stroke
-# margin over them (23.6 mm).
+# Slider i (1-based) is tied to the platform point at this polar angle (degrees). The
+# source lists two legs on one point; of the 6! assignments of its six distinct points, 12
+# reach all four calibration poses, and this one has the widest stroke margin over them
+# (23.6 mm). docs/hexapod.md, "The platform-point inconsistency".
 PLATFORM_POINT_ANGLES_DEG = (10.0, 230.0, 130.0, -10.0, 110.0, 250.0)
+
+
+class Assembly(tuple):
+    """A forward-kinematics solution: unpacks as ``position, R`` and tells its branch.
+
+    Attributes:
+        position: platform position (3,), m.
+        rotation: platform rotation (3, 3).
+        side: ``"above"`` or ``"below"`` the slider plane.
+        method: how it was found (continuation, nearest to a pose, mirrored).
+    """
+
+    def __new__(cls, position: np.ndarray, rotation: np.ndarray, side: str, method: str):
+        self = super().__new__(cls, (position, rotation))
+        self.position, self.rotation, self.side, self.method = position, rotation, side, method
+        return self
+
+    def __repr__(self) -> str:
+        return f"Assembly(position={self.position.tolist()}, side={self.side!r}, method={self.method!r})"
 
 
 def rotation_from_rpy(rpy_deg) -> np.ndarray:
@@ -119,7 +143,7 @@ class HexapodGeometry:
 
     @classmethod
     def default(cls) -> HexapodGeometry:
-        """SPEC §3 values; home = identity rotation at (0.08, 0.02, 0.11) m.
+        """The source's values (docs/hexapod.md); home = identity rotation at (0.08, 0.02, 0.11) m.
 
         The home position maximises the manipulability of :meth:`Hexapod.manipulability`
         over y and z (it does not depend on x: all sliders run along x), with x chosen
@@ -142,7 +166,7 @@ class HexapodGeometry:
         return dataclasses.replace(self, **changes)
 
     def with_leg_length_errors(self, dl) -> HexapodGeometry:
-        """Leg lengths l_i + dl_i (the error model of SPEC §3.3)."""
+        """Leg lengths l_i + dl_i (the source's error model, docs/calibration.md)."""
         return self.replace(leg_lengths=self.leg_lengths + _finite(dl, (N_LEGS,), "dl"))
 
     def with_slider_home_offsets(self, dq0) -> HexapodGeometry:
@@ -173,7 +197,7 @@ class Hexapod:
         return self.inverse_kinematics_matrix(position, rotation_from_rpy(rpy_deg))
 
     def inverse_kinematics_matrix(self, position, R) -> np.ndarray:
-        r"""Strokes (6,) of the pose (position, R), with SPEC §3.1's root selection.
+        r"""Strokes (6,) of the pose (position, R), with the source's root rules (docs/hexapod.md).
 
         The slider line :math:`S_{0,i} + q s_i` meets the sphere of radius :math:`l_i`
         about :math:`P_i` where, with :math:`d = P_i - S_{0,i}`,
@@ -228,33 +252,87 @@ class Hexapod:
         return np.linalg.norm(self.legs(q, position, R)[0], axis=1) - self.geometry.leg_lengths
 
     def forward_kinematics(self, q, *, initial: tuple[np.ndarray, np.ndarray] | None = None,
-                           steps: int = 10, tol: float = 1e-12,
-                           max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
-        r"""Platform pose (position (3,), R (3, 3)) of the strokes q, by Newton with continuation.
+                           near: tuple[np.ndarray, np.ndarray] | None = None, side: str | None = None,
+                           steps: int = 10, tol: float = 1e-12, max_iter: int = 30) -> Assembly:
+        r"""Platform pose (position (3,), R (3, 3)) of the strokes q: which of the assemblies.
 
-        Unknowns: p and a rotation increment δθ about the current estimate,
+        Six strokes admit several platform poses (assembly modes; see
+        ``docs/hexapod.md``). Which one is returned is chosen by:
+
+        - default, or ``initial``: Newton with continuation from a known pose (home by
+          default): the strokes go from IK(initial) to q in ``steps`` equal steps, each
+          solved from the previous pose, so the result stays on the starting pose's
+          branch as long as the path meets no singularity;
+        - ``near``: the assembly nearest to a pose you know approximately (a measurement,
+          the previous control step): damped Newton (Levenberg–Marquardt) from ``near``
+          and from 12 starts 2 mm / 1° around it; of the assemblies found, the one with
+          the smallest :math:`\|Δp\| + c\,|Δθ|` (c = 0.1 m, the platform radius);
+        - ``side``: ``"above"`` or ``"below"`` the plane of the sliders; if the pose found
+          lies on the other side, the nearest assembly to its mirror image through that
+          plane (the mirror has the same strokes when sliders and platform points are
+          coplanar, as in the default geometry).
+
+        Newton: unknowns p and a rotation increment δθ about the current estimate,
         :math:`R \leftarrow \exp([δθ]_\times) R` (no singularity of the parametrisation).
         Residuals :math:`g_i = \|L_i\| - l_i` have Jacobian rows
         :math:`\partial g_i / \partial(p, δθ) = [u_i^\top, (r_i \times u_i)^\top]`,
-        :math:`u_i = L_i/\|L_i\|`, :math:`r_i = R b_i`; each Newton step solves that 6×6
-        system. Continuation: the strokes go from IK(initial) (home by default) to q in
-        ``steps`` equal steps, each solved from the previous pose, so the result stays on
-        the starting pose's assembly branch.
+        :math:`u_i = L_i/\|L_i\|`, :math:`r_i = R b_i`.
 
         Args:
             q: six strokes (m); their range is not checked (FK is pure geometry).
-            initial: a reachable pose (position, R) to start from (default: home).
+            initial: a reachable pose (position, R) to continue from (default: home).
+            near: an approximate pose (position, R); exclusive with ``initial``.
+            side: ``"above"`` or ``"below"`` the slider plane.
             steps: number of continuation steps (1: plain Newton from ``initial``).
             tol: convergence threshold on max |g_i| (m).
 
+        Returns:
+            :class:`Assembly`: unpacks as ``position, R``; ``.side`` says which side of
+            the slider plane it lies on, ``.method`` how it was found.
+
         Raises:
-            InvalidInput: bad shape or non-finite q, steps < 1.
-            ConvergenceError: Newton fails at some step (no assembly, or a singularity
-                on the way), or the pose it reaches violates the leg-side rule.
+            InvalidInput: bad shape or non-finite q, steps < 1, bad ``side``, both
+                ``initial`` and ``near``.
+            ConvergenceError: no assembly found (none exists, a singularity on the
+                way), or none on the requested side, or the pose reached violates the
+                leg-side rule.
         """
         q = _finite(q, (N_LEGS,), "strokes q")
         if steps < 1:
             raise InvalidInput(f"steps must be at least 1, got {steps}")
+        if side not in (None, *SIDES):
+            raise InvalidInput(f"side must be one of {SIDES}, got {side!r}")
+        if near is not None and initial is not None:
+            raise InvalidInput("give initial (continue from a pose) or near (nearest to a pose), not both")
+        if near is not None:
+            p0, R0 = _finite(near[0], (3,), "near position"), _rotation(near[1])
+            p, R = self._nearest_assembly(q, p0, R0, tol)
+            method = "nearest to the given pose"
+        else:
+            p, R = self._continuation(q, initial, steps, tol, max_iter)
+            method = "continuation from home" if initial is None else "continuation from the initial pose"
+        if side is not None and self.side_of(p) != side:
+            p, R = self._nearest_assembly(q, *self.mirror_pose(p, R), tol)
+            method += ", then nearest to its mirror image"
+            if self.side_of(p) != side:
+                raise ConvergenceError(f"forward kinematics: no assembly {side} the slider plane found "
+                                       f"for strokes {q.tolist()}")
+        return Assembly(p, R, self.side_of(p), method)
+
+    def side_of(self, position) -> str:
+        """``"above"`` or ``"below"`` the plane of the sliders (their home points' mean z)."""
+        return "above" if position[2] >= float(np.mean(self.geometry.slider_origins[:, 2])) else "below"
+
+    def mirror_pose(self, position, R) -> tuple[np.ndarray, np.ndarray]:
+        """The pose mirrored through the slider plane: (M p, M R M), M = diag(1, 1, −1) about
+        the plane's height; it has the same strokes when sliders and platform points are coplanar."""
+        M = np.diag([1.0, 1.0, -1.0])
+        height = float(np.mean(self.geometry.slider_origins[:, 2]))
+        p = np.asarray(position, dtype=float).copy()
+        p[2] = 2 * height - p[2]
+        return p, M @ np.asarray(R, dtype=float) @ M
+
+    def _continuation(self, q: np.ndarray, initial, steps: int, tol: float, max_iter: int):
         if initial is None:
             p, R, q0 = self.geometry.home_position.copy(), np.eye(3), self.home_strokes
         else:
@@ -269,6 +347,70 @@ class Hexapod:
             raise ConvergenceError(f"forward kinematics reached a pose where leg {wrong[0] + 1} "
                                    f"violates the leg-side rule (p = {p.tolist()})")
         return p, R
+
+    def _nearest_assembly(self, q: np.ndarray, p0: np.ndarray, R0: np.ndarray, tol: float):
+        """Of the assemblies damped Newton reaches from p0, R0 and 12 starts around it, the
+        nearest to (p0, R0) that obeys the leg-side rule."""
+        starts = [(p0, R0)]
+        for k in range(6):
+            for sign in (-1.0, 1.0):
+                step = np.zeros(6)
+                step[k] = sign * (NEAR_START_SHIFT_M if k < 3 else np.radians(NEAR_START_TILT_DEG))
+                starts.append((p0 + step[:3], Rotation.from_rotvec(step[3:]).as_matrix() @ R0))
+        best, best_distance = None, np.inf
+        for p_start, R_start in starts:
+            found = self._damped_newton(q, p_start, R_start, tol)
+            if found is None:
+                continue
+            p, R = found
+            L, S, P = self.legs(q, p, R)
+            if np.any(self.geometry.leg_side * (S[:, 0] - P[:, 0]) <= 0):
+                continue
+            angle = np.linalg.norm(Rotation.from_matrix(R0.T @ R).as_rotvec())
+            distance = np.linalg.norm(p - p0) + CHARACTERISTIC_LENGTH_M * angle
+            if distance < best_distance:
+                best, best_distance = (p, R), distance
+        if best is None:
+            raise ConvergenceError(f"forward kinematics: no assembly found near {np.round(p0, 6).tolist()} m "
+                                   f"for strokes {q.tolist()}")
+        return best
+
+    def _damped_newton(self, q: np.ndarray, p: np.ndarray, R: np.ndarray, tol: float,
+                       max_iter: int = 200) -> tuple[np.ndarray, np.ndarray] | None:
+        """Levenberg–Marquardt on the leg residuals (Marquardt's diagonal scaling); None if it stalls."""
+        g = self.geometry
+
+        def residual(p, R):
+            L = self.legs(q, p, R)[0]
+            n = np.linalg.norm(L, axis=1)
+            return L, n, n - g.leg_lengths
+
+        L, n, r = residual(p, R)
+        damping = 1e-6
+        for _ in range(max_iter):
+            if not np.all(np.isfinite(r)):
+                return None
+            if np.max(np.abs(r)) <= tol:
+                return p, R
+            u = L / n[:, None]
+            A = np.hstack([u, np.cross(R @ g.platform_points.T, u.T, axis=0).T])
+            H, gradient = A.T @ A, A.T @ r
+            while True:
+                try:
+                    dx = np.linalg.solve(H + damping * np.diag(np.diag(H)), -gradient)
+                except np.linalg.LinAlgError:
+                    return None
+                p_try = p + dx[:3]
+                R_try = Rotation.from_rotvec(dx[3:]).as_matrix() @ R
+                L_try, n_try, r_try = residual(p_try, R_try)
+                if r_try @ r_try < r @ r:
+                    p, R, L, n, r = p_try, R_try, L_try, n_try, r_try
+                    damping = max(damping / 10, 1e-12)
+                    break
+                damping *= 10
+                if damping > 1e12:
+                    return None
+        return None
 
     def _newton(self, q: np.ndarray, p: np.ndarray, R: np.ndarray, tol: float, max_iter: int,
                 where: str) -> tuple[np.ndarray, np.ndarray]:

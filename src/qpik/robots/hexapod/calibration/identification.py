@@ -1,4 +1,4 @@
-r"""Kinematic calibration of the hexapod (SPEC §3.3): identify geometric errors from strokes.
+r"""Kinematic calibration of the hexapod (docs/calibration.md): identify geometric errors from strokes.
 
 Setting (the source's): the platform is driven to known poses :math:`x_k` (measured by an
 external system) and the slider strokes are read. The "real" strokes are simulated:
@@ -51,7 +51,7 @@ Identifiability (the SVD of the Jacobian in :func:`identifiability`; see the tes
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -62,14 +62,15 @@ from ..kinematics import N_LEGS, Hexapod, HexapodGeometry, rotation_from_rpy
 
 UM = 1e-6  # metres per micrometre; the solvers work in µm so tolerances are meaningful
 
-# SPEC §3.3: poses [x, y, z (m), θx, θy, θz (deg)] and imposed leg-length errors (µm).
+# The source's poses [x, y, z (m), θx, θy, θz (deg)] and imposed leg-length errors (µm)
+# (docs/calibration.md).
 SEED_POSES = np.array([
     [0.15, 0.10, 0.05, -3.0, 2.0, 3.0],
     [0.07, 0.08, 0.04, 4.0, -3.0, -2.0],
     [-0.01, 0.02, 0.07, -2.0, 5.0, 8.0],
     [0.13, -0.06, -0.02, 5.0, -4.0, -1.0],
 ])
-# Imposed errors (µm) per group; legs from SPEC, the others arbitrary, of the same order.
+# Imposed errors (µm) per group; legs from the source, the others arbitrary, of the same order.
 IMPOSED_UM = {
     "legs": [50.0, -20.0, -50.0, 20.0, 10.0, -10.0],
     "offsets": [30.0, -40.0, 15.0, -25.0, 35.0, -10.0],
@@ -394,10 +395,10 @@ class Calibration:
 
 def resolve_poses(poses: str | int | np.ndarray | Sequence, rng: np.random.Generator,
                   geometries: Sequence[HexapodGeometry]) -> tuple[np.ndarray, str]:
-    """``"seed"`` (SPEC's four), an int N (random, :func:`sample_poses`) or explicit poses."""
+    """``"seed"`` (the source's four), an int N (random, :func:`sample_poses`) or explicit poses."""
     if isinstance(poses, str):
         if poses == "seed":
-            return SEED_POSES.copy(), "seed (SPEC §3.3)"
+            return SEED_POSES.copy(), "seed (the source's four poses)"
         raise InvalidInput(f"poses must be 'seed', a positive integer or a list of poses, got {poses!r}")
     if isinstance(poses, (int, np.integer)):
         sampled, attempts = sample_poses(int(poses), rng, geometries)
@@ -410,7 +411,8 @@ def resolve_poses(poses: str | int | np.ndarray | Sequence, rng: np.random.Gener
 def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence = "seed", *,
               params: str | ParameterSet = "legs", noise_um: float = 0.0, seed: int = 0,
               repeats: int = 1, nominal: HexapodGeometry | None = None,
-              imposed: np.ndarray | None = None) -> Calibration:
+              imposed: np.ndarray | None = None,
+              progress: Callable[[int, int], None] | None = None) -> Calibration:
     """Simulate measurements with imposed errors, identify them, analyse the result.
 
     Args:
@@ -422,6 +424,7 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
         repeats: noise realisations (same poses) for the Monte-Carlo spread; the first
             gives the reported estimate.
         imposed: true θ (metres); default :meth:`ParameterSet.imposed`.
+        progress: called as ``progress(r, repeats)`` after each noise realisation's fit.
 
     Raises:
         InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError.
@@ -442,8 +445,12 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
     ident = identifiability(model.jacobian(np.zeros(params.size)), params.names)
     reference = ident.in_gauge(imposed)
     sigma = noise_um * UM
-    fits = [fit(model, exact + sigma * np.random.default_rng(s).standard_normal(exact.shape),
-                method, ident.free) for s in noise_streams]
+    fits = []
+    for r, stream in enumerate(noise_streams, 1):
+        noise = sigma * np.random.default_rng(stream).standard_normal(exact.shape)
+        fits.append(fit(model, exact + noise, method, ident.free))
+        if progress is not None:
+            progress(r, repeats)
     cov_std = np.full(params.size, np.nan)
     J = fits[0].jacobian
     cov_std[ident.free] = sigma * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))

@@ -1,0 +1,249 @@
+"""Every results table of the README, written between markers and checked against the code.
+
+    python benchmarks/readme_tables.py            # rewrite every table in README.md
+    python benchmarks/readme_tables.py --check    # fail, naming the cell, where README drifts
+    python benchmarks/readme_tables.py --check scenarios calibration   # some tables only
+
+A table lives in README.md between ``<!-- table:NAME -->`` and ``<!-- /table:NAME -->``.
+Two kinds:
+
+- *recomputed* (``scenarios``, ``calibration``): the check runs the code on the installed
+  versions (about 30 s and 2 s) and compares every cell. CI runs these
+  (tests/test_readme_tables.py).
+- *recorded* (``step-time``, ``peers-arm``, ``peers-hexapod``, ``monte-carlo-arm``,
+  ``monte-carlo-hexapod``): timings and hour-long sweeps; the table is rendered from the
+  JSON the benchmark wrote under benchmarks/results/ (re-run the benchmark to refresh
+  it), and the check compares the README with that rendering.
+
+Cells the check skips, each with its reason, are listed in ``SKIPPED`` (and in the README).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+RESULTS = ROOT / "benchmarks" / "results"
+
+# (table, row key, reason): cells of these rows are not compared.
+SKIPPED = {
+    ("scenarios", ("hexapod-stroke-limits", "kinematic", "pinv")):
+        "chaotic: the inverse-Jacobian law jams the mechanism (slider 4 held at its stop, the "
+        "strokes then admit no assembly for most steps); what happens after the jam depends on "
+        "rounding, and the numbers change with the MuJoCo/NumPy build (1.24e-1 m max error with "
+        "one, 6.39e-2 m with another)",
+}
+
+
+class TableDrift(AssertionError):
+    pass
+
+
+def _marker(name: str) -> tuple[str, str]:
+    return f"<!-- table:{name} -->", f"<!-- /table:{name} -->"
+
+
+def read_block(text: str, name: str) -> str:
+    begin, end = _marker(name)
+    match = re.search(re.escape(begin) + r"\n(.*?)" + re.escape(end), text, re.S)
+    if match is None:
+        raise TableDrift(f"README.md has no {begin} ... {end} block")
+    return match.group(1)
+
+
+def write_block(text: str, name: str, table: str) -> str:
+    begin, end = _marker(name)
+    read_block(text, name)  # must exist
+    return re.sub(re.escape(begin) + r"\n.*?" + re.escape(end), lambda _: f"{begin}\n{table}{end}", text,
+                  count=1, flags=re.S)
+
+
+def _cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def parse_table(markdown: str) -> tuple[list[str], list[list[str]]]:
+    lines = [line for line in markdown.splitlines() if line.strip().startswith("|")]
+    if len(lines) < 2:
+        raise TableDrift(f"not a markdown table:\n{markdown}")
+    return _cells(lines[0]), [_cells(line) for line in lines[2:]]
+
+
+def compare(name: str, expected: str, actual: str, key_columns: int) -> list[str]:
+    """Every cell where ``actual`` (the README) differs from ``expected`` (the code), named."""
+    header, rows = parse_table(expected)
+    header_r, rows_r = parse_table(actual)
+    if header != header_r:
+        return [f"{name}: header {header_r} in the README, the code writes {header}"]
+    problems = []
+    keyed = {tuple(r[:key_columns]): r for r in rows_r}
+    for row in rows:
+        key = tuple(row[:key_columns])
+        if (name, key) in SKIPPED:
+            continue
+        other = keyed.pop(key, None)
+        if other is None:
+            problems.append(f"{name}: row {' / '.join(key)} is missing from the README")
+            continue
+        for column, (want, have) in enumerate(zip(row, other)):
+            if want != have:
+                problems.append(f"{name}: row {' / '.join(key)}, column '{header[column]}': README has {have}, "
+                                f"the code gives {want}")
+    problems += [f"{name}: row {' / '.join(k)} is in the README but not produced" for k in keyed
+                 if (name, k) not in SKIPPED]
+    return problems
+
+
+# Renderers --------------------------------------------------------------------------
+def _label(controller: str, solver: str, robot: str = "") -> str:
+    if controller == "pinv" and robot == "hexapod":
+        return "pinv (inverse Jacobian)"
+    return controller if solver in ("none", "") else f"{controller} ({solver})"
+
+
+def _recorded(name: str) -> dict:
+    path = RESULTS / name
+    if not path.exists():
+        raise TableDrift(f"{path} is missing: run its benchmark first")
+    return json.loads(path.read_text())
+
+
+def step_time_table() -> str:
+    lines = ["| robot / scenario | controller | median [µs] | p99 [µs] | ratio to pinv |",
+             "|---|---|---:|---:|---:|"]
+    for scenario in ("seed-redundant", "hexapod-circle"):
+        data = _recorded(f"step_time_{scenario}.json")
+        reference = next(r["median_us"] for r in data["rows"] if r["controller"] == "pinv")
+        for r in data["rows"]:
+            lines.append(f"| {data['robot']} / {scenario} | {_label(r['controller'], r['solver'], data['robot'])} | "
+                         f"{r['median_us']:.1f} | {r['p99_us']:.1f} | {r['median_us'] / reference:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _peers_table(scenario: str) -> str:
+    data = _recorded(f"peers_{scenario}.json")
+    loops = all("constraint_violation_max" in r["summary"] for r in data["rows"])
+    lines = [f"| {data['robot']} / {scenario} | median [µs] | p99 [µs] | max error [m] | "
+             + ("loop residual [m] | " if loops else "") + "max \\|Δq_final\\| vs qp (daqp) |",
+             "|---|---:|---:|---:|" + ("---:|" if loops else "") + "---:|"]
+    for r in data["rows"]:
+        s = r["summary"]
+        dq = r["q_final_vs_qp_daqp"]
+        loop = f"{s['constraint_violation_max']:.1e} | " if loops else ""
+        lines.append(f"| {_label(r['controller'], r['solver'], data['robot'])} | {r['median_us']:.1f} | "
+                     f"{r['p99_us']:.1f} | {s['max_error']:.2e} | {loop}{'0' if dq == 0 else f'{dq:.1e}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def _violation(value: float, unit: str) -> str:
+    return "0" if value == 0 else f"{value:.1e} {unit}"
+
+
+def _monte_carlo_table(robot: str) -> str:
+    data = _recorded(f"monte_carlo_{robot}.json")
+    hard = {(r["controller"], r["solver"]): r for r in data["results"]["hard"]}
+    soft = {(r["controller"], r["solver"]): r for r in data["results"]["soft"]}
+    speed_unit = "rad/s" if robot == "arm" else "m/s"
+    range_unit = "rad" if robot == "arm" else "m"
+    lines = ["| controller | success, hard task | success, soft task | range violation max (hard / soft) | "
+             "speed violation max (hard / soft) | max error p99 [m] (hard / soft) | step median [µs] (hard / soft) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for key, h in hard.items():
+        s = soft[key]
+        lines.append(
+            f"| {_label(*key, robot)} | {100 * h['success_rate']:.1f} % | {100 * s['success_rate']:.1f} % | "
+            f"{_violation(h['limit_violation_max'], range_unit)} / {_violation(s['limit_violation_max'], range_unit)} | "
+            f"{_violation(h['speed_violation_max'], speed_unit)} / {_violation(s['speed_violation_max'], speed_unit)} | "
+            f"{h['max_error_p99']:.1e} / {s['max_error_p99']:.1e} | {h['step_median_us']:.1f} / {s['step_median_us']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def calibration_table() -> str:
+    from qpik.robots.hexapod.calibration import calibrate
+
+    lines = ["| command | parameters | max relative error | iterations | condition number |",
+             "|---|---|---:|---:|---:|"]
+    for method, command in (("linear", "`qpik calibrate`"), ("gauss-newton", "`qpik calibrate --method gauss-newton`"),
+                            ("lm", "`qpik calibrate --method lm` (SciPy, MINPACK)")):
+        result = calibrate(method)
+        worst = max(v for v in result.relative_error_pct if v == v)
+        lines.append(f"| {command} | {result.params.size} leg lengths | {worst:.2g} % | {result.fit.iterations} | "
+                     f"{result.ident.condition_number:.2g} |")
+    return "\n".join(lines) + "\n"
+
+
+def scenarios_table() -> str:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from scenarios_table import compute_rows, to_markdown
+
+    from qpik.app.progress import wanted
+
+    return to_markdown(compute_rows(progress=wanted()))
+
+
+@dataclass(frozen=True)
+class Table:
+    render: Callable[[], str]
+    key_columns: int
+    recomputed: bool
+
+
+TABLES = {
+    "scenarios": Table(scenarios_table, 3, True),
+    "calibration": Table(calibration_table, 1, True),
+    "step-time": Table(step_time_table, 2, False),
+    "peers-arm": Table(lambda: _peers_table("seed-redundant"), 1, False),
+    "peers-hexapod": Table(lambda: _peers_table("hexapod-circle"), 1, False),
+    "monte-carlo-arm": Table(lambda: _monte_carlo_table("arm"), 1, False),
+    "monte-carlo-hexapod": Table(lambda: _monte_carlo_table("hexapod"), 1, False),
+}
+
+
+def check(names, readme: Path = README, rendered: dict[str, str] | None = None) -> list[str]:
+    """Differences between the README and the code, one line per cell (empty: in step)."""
+    text = readme.read_text()
+    problems = []
+    for name in names:
+        expected = rendered[name] if rendered and name in rendered else TABLES[name].render()
+        problems += compare(name, expected, read_block(text, name), TABLES[name].key_columns)
+    return problems
+
+
+def update(names, readme: Path = README, rendered: dict[str, str] | None = None) -> None:
+    text = readme.read_text()
+    for name in names:
+        text = write_block(text, name, rendered[name] if rendered and name in rendered else TABLES[name].render())
+    readme.write_text(text)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", metavar="TABLE", help=f"tables (default: all): {', '.join(TABLES)}")
+    parser.add_argument("--check", action="store_true", help="compare instead of writing; exit 1 on a difference")
+    parser.add_argument("--readme", type=Path, default=README)
+    args = parser.parse_args(argv)
+    unknown = [n for n in args.names if n not in TABLES]
+    if unknown:
+        parser.error(f"unknown table(s) {', '.join(unknown)}; known: {', '.join(TABLES)}")
+    names = args.names or list(TABLES)
+    if args.check:
+        problems = check(names, args.readme)
+        for line in problems:
+            print(line, file=sys.stderr)
+        print(f"{len(names)} table(s) checked: {'in step with the code' if not problems else f'{len(problems)} cell(s) differ'}"
+              + "".join(f"; skipped {' / '.join(k)}: {why}" for (t, k), why in SKIPPED.items() if t in names))
+        return 1 if problems else 0
+    update(names, args.readme)
+    print(f"wrote {len(names)} table(s) into {args.readme}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
