@@ -68,6 +68,8 @@ class PseudoinverseController(_StackedTasks):
 
     def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Task | None = None, damping: float = 0.0):
         super().__init__(robot, primary)
+        for task in (*self.primary, *([secondary] if secondary is not None else [])):
+            task.attach(None)  # no control period here: fixes the tasks' Jacobian kind, checks no gain
         if secondary is not None and not secondary.joint_space:
             raise InvalidInput(f"the secondary task must be a joint-space task (J = I[dofs]), not a {secondary.name}")
         if not (np.isfinite(damping) and damping >= 0):
