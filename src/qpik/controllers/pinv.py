@@ -32,6 +32,7 @@ class _StackedTasks:
             raise InvalidInput("the controller needs at least one primary task")
         self.robot = robot
         self.primary = list(primary)
+        self.updated_tasks = tuple(self.primary)  # fresh after every step (rollouts read them)
         for task in self.primary:
             if getattr(task, "needs_period", False):
                 raise InvalidInput(f"{task.name}: its default gain is 1/dt of a QP controller's period; this "
@@ -75,6 +76,8 @@ class PseudoinverseController(_StackedTasks):
         if not (np.isfinite(damping) and damping >= 0):
             raise InvalidInput(f"damping must be finite and >= 0, got {damping}")
         self.secondary = secondary
+        if secondary is not None:
+            self.updated_tasks += (secondary,)
         self.damping = float(damping)
         self._gram = np.zeros((len(self.v), len(self.v)))
         self.qdot = np.zeros(robot.nv)

@@ -123,6 +123,7 @@ class QPController:
         # The step's work as flat lists, read once here (a Python loop over them is the
         # hot path's overhead).
         self._task_updates = [task.update for task in self.tasks]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self._diagonal_plan = list(zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs))
         self._hard_plan = [(self.A[rows], self.b[rows], task) for task, rows in zip(self._hard, self._rows)]
         self._box_updates = [limit.apply for limit in self._dynamic_limits]
