@@ -44,3 +44,20 @@ def test_non_finite_position_is_an_error():
     robot.q[1] = np.nan
     with pytest.raises(InvalidInput, match="theta2"):
         limit.apply(0.002, np.full(4, -1.0), np.full(4, 1.0))
+
+
+@pytest.mark.parametrize("scene", ["arm", "hexapod"])
+def test_apply_from_a_box_equals_copying_the_box_then_applying(scene):
+    robot = Robot.load(scene)
+    limit = JointPositionLimit(robot, influence=0.05, damper_rate=2.0, gain=0.9)
+    rng = np.random.default_rng(2)
+    limits = robot.joint_limits
+    for _ in range(100):
+        robot.q[limits.qpos_index] = rng.uniform(limits.lower - 0.2, limits.upper + 0.2)
+        speed = rng.uniform(0.5, 5.0, robot.nv)
+        lb, ub = -speed.copy(), speed.copy()
+        limit.apply(0.002, lb, ub)
+        fused_lb, fused_ub = np.zeros(robot.nv), np.zeros(robot.nv)
+        limit.apply_from(0.002, (-speed).tolist(), speed.tolist(), fused_lb, fused_ub)
+        np.testing.assert_array_equal(fused_lb, lb)
+        np.testing.assert_array_equal(fused_ub, ub)

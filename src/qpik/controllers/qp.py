@@ -127,6 +127,11 @@ class QPController:
         self._diagonal_plan = list(zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs))
         self._hard_plan = [(self.A[rows], self.b[rows], task) for task, rows in zip(self._hard, self._rows)]
         self._box_updates = [limit.apply for limit in self._dynamic_limits]
+        self._box_from = None
+        if self._dynamic_limits and hasattr(self._dynamic_limits[0], "apply_from"):
+            self._box_from = self._dynamic_limits[0].apply_from
+            self._box_updates.pop(0)
+        self._lb0_list, self._ub0_list = self._lb0.tolist(), self._ub0.tolist()
         self._row_plan = list(zip(self._row_limits, self._inequality_slices))
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
         self.fallbacks = 0  # steps the solver failed on and quadprog solved
@@ -157,8 +162,11 @@ class QPController:
             jacobian_rows[...] = task.jacobian
             velocity_rows[...] = task.target_velocity
         lb, ub = self.lb, self.ub
-        lb[:] = self._lb0
-        ub[:] = self._ub0
+        if self._box_from is not None:  # the first box limit writes the whole box
+            self._box_from(self.dt, self._lb0_list, self._ub0_list, lb, ub)
+        else:
+            lb[:] = self._lb0
+            ub[:] = self._ub0
         for apply in self._box_updates:
             apply(self.dt, lb, ub)
         for limit, rows in self._row_plan:

@@ -91,10 +91,23 @@ class JointPositionLimit(Limit):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
 
+    def apply_from(self, dt: float, lower: list[float], upper: list[float], lb: np.ndarray, ub: np.ndarray) -> None:
+        """:meth:`apply` to the box [lower, upper] (lists of nv floats: a controller's
+        constant bounds), writing all of ``lb`` and ``ub``: the same result as copying the
+        box into them and applying, one NumPy copy per side fewer."""
+        if self._scalar_joints is not None:
+            self._tighten(dt, list(lower), list(upper), lb, ub)
+            return
+        lb[:] = lower
+        ub[:] = upper
+        self.apply(dt, lb, ub)
+
     def _apply_scalars(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """:meth:`apply` joint by joint in floats: the same operations in the same order."""
+        self._tighten(dt, lb.tolist(), ub.tolist(), lb, ub)
+
+    def _tighten(self, dt: float, lbs: list[float], ubs: list[float], lb: np.ndarray, ub: np.ndarray) -> None:
         q = self.robot.q.tolist()
-        lbs, ubs = lb.tolist(), ub.tolist()
         step_rate = self.gain / dt
         influence = self.influence
         damped = min(self._rate, step_rate)
