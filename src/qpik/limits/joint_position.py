@@ -49,6 +49,7 @@ class JointPositionLimit(Limit):
         self.gain = gain
         self.influence = influence
         self.damper_rate = damper_rate
+        self.margin = float(margin)
         # Rows: lower then upper bound, pulled in by the margin.
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
         self._qpos = as_slice(self.limits.qpos_index)
