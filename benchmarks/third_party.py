@@ -242,6 +242,49 @@ def kinematics_cost_us(demo: Demo, number: int = 2000) -> float:
     return min(timeit.repeat(update, number=number, repeat=3)) / number * 1e6
 
 
+def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
+    """Where qpik's step goes, at the state ``at`` seconds into the run (µs, best of 3 x
+    ``number`` calls of each part on that state): the kinematics update, each task's and
+    each per-step limit's update, the closed-form attempt, the solver (if this state needs
+    it), and the rest of ``compute_velocity`` (assembly, checks) as the difference."""
+    demo = case.build(None)
+    controller, robot = demo.controller(SOLVER), demo.robot
+    run = demo.reference.start(robot, np.arange(round(at / demo.dt) + 1) * demo.dt)
+    for k in range(len(run.times) - 1):
+        run.apply(k)
+        robot.integrate(controller.compute_velocity(), demo.dt)
+    run.apply(len(run.times) - 1)
+    robot.update_kinematics()
+
+    def cost(call) -> float:
+        call()
+        return min(timeit.repeat(call, number=number, repeat=3)) / number * 1e6
+
+    calls = controller.solver_calls
+    controller.compute_velocity()
+    needs_solver = controller.solver_calls > calls
+    parts = {"kinematics update": cost(robot.update_kinematics)}
+    for i, task in enumerate(demo.tasks):
+        parts[f"task {i}: {type(task).__name__}"] = cost(task.update)
+    for limit in controller.limits:
+        if limit.box and not limit.constant:
+            parts[type(limit).__name__] = cost(lambda: limit.apply(demo.dt, controller.lb, controller.ub))
+        if limit.inequality_rows:
+            rows = slice(0, limit.inequality_rows)
+            parts[type(limit).__name__ + " rows"] = cost(
+                lambda: limit.fill_inequalities(demo.dt, controller.G[rows], controller.h[rows]))
+    closed_form = controller._closed_form
+    if closed_form is not None:
+        parts["closed-form attempt"] = cost(lambda: closed_form.solve(controller.H, controller._Ac, controller.b))
+    if needs_solver:
+        backend = controller._backend
+        backend.A[:], backend.b[:] = controller.A, controller.b
+        parts["solver (daqp)"] = cost(lambda: backend.solve(controller.H, controller.c, hessian_changed=True))
+    total = cost(lambda: (robot.update_kinematics(), controller.compute_velocity()))
+    parts["rest of compute_velocity"] = total - sum(parts.values())
+    return {"at_s": at, "needs_solver": needs_solver, "total_us": total, "parts_us": parts}
+
+
 def compare(case: Case, logs: dict, demos: dict) -> dict:
     """The contenders' runs side by side: trajectory differences to the first (qpik)."""
     labels = list(logs)
@@ -276,8 +319,8 @@ def checks(case: Case, result: dict) -> list[dict]:
         check("qpik feet drift [m]", runs["qpik"]["feet_drift_max"], 1e-6)
         check("qpik feet rotation [rad]", runs["qpik"]["feet_turn_max"], 1e-6)
     if case.name == "collision":
-        check("qpik: d_min − closest distance [m]", collision_avoidance.MINIMUM_DISTANCE - runs["qpik"]["distance_min"],
-              1e-6)
+        check("qpik: d_min − closest distance [m]",
+              collision_avoidance.MINIMUM_DISTANCE - runs["qpik"]["distance_min"], 1e-6)
         check("qpik (no damper): d_min − closest distance [m]",
               collision_avoidance.MINIMUM_DISTANCE - runs["qpik (no damper)"]["distance_min"], 1e-6)
     if case.ratio_bound is not None and "timing" in result:
@@ -314,7 +357,10 @@ def measure(case: Case, repeats: int) -> dict:
     if "mink" in labels:
         result["timing"]["ratio"] = timing.ratio(labels[0], "mink")
         result["timing"]["ratios"] = {label: timing.ratio(label, "mink") for label in labels if label != "mink"}
+    if any("distance_min" in run for run in result["runs"].values()):
+        result["minimum_distance"] = collision_avoidance.MINIMUM_DISTANCE
     result["checks"] = checks(case, result)
+    result["breakdown"] = breakdown(case)
     return result
 
 
@@ -370,6 +416,12 @@ def to_markdown(results: list[dict], meta: dict) -> str:
             for c in r["checks"]:
                 lines.append(f"| {c['check']} | {_value(c['value'], 3)} | {c['bound']:g} | "
                              f"{'yes' if c['holds'] else '**no**'} |")
+        split = r["breakdown"]
+        lines += ["", f"Where qpik's step goes ({split['at_s']:g} s into the run, "
+                      f"{'the solver needed' if split['needs_solver'] else 'no limit binding: closed form'}; "
+                      f"each part timed alone on that state, total {split['total_us']:.1f} µs):", "",
+                  "| part | µs |", "|---|---:|"]
+        lines += [f"| {part} | {value:.1f} |" for part, value in split["parts_us"].items()]
         ratios = r["timing"].get("ratios", {})
         if ratios:
             lines += ["", "Ratios to mink per repeat: " + "; ".join(

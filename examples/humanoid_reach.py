@@ -80,7 +80,8 @@ def start_configuration(robot: Robot) -> np.ndarray:
     robot.set_q(q)
     robot.update_kinematics()
     floor = robot.geom_id("floor")
-    feet = [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name in ("lfoot", "rfoot", "ltoes", "rtoes")]
+    soles = ("lfoot", "rfoot", "ltoes", "rtoes")
+    feet = [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name in soles]
     clearance = min(mujoco.mj_geomDistance(model, data, floor, g, 1.0, None) for g in feet)
     q[2] -= clearance
     return q
@@ -95,11 +96,13 @@ def build(duration: float = DURATION, viewer: bool = False) -> Demo:
     robot = Robot(spec.compile(), name="humanoid")
     robot.set_q(start_configuration(robot))
     robot.update_kinematics()
-    feet = [FrameTask(robot, foot, "body", position_gain=FEET_GAIN, orientation_gain=FEET_GAIN, hard=True) for foot in FEET]
+    feet = [FrameTask(robot, foot, "body", position_gain=FEET_GAIN, orientation_gain=FEET_GAIN, hard=True)
+            for foot in FEET]
     com = ComTask(robot, gain=GAIN, weight=WEIGHTS["com"])
     hand = PositionTask(robot, HAND, "body", gain=GAIN, weight=WEIGHTS["hand"])
     posture = PostureTask(robot, gain=GAIN, weight=WEIGHTS["posture"])
-    speeds = {name: MAX_SPEED for name in robot.joint_names if robot.model.joint(name).type[0] != mujoco.mjtJoint.mjJNT_FREE}
+    free = mujoco.mjtJoint.mjJNT_FREE
+    speeds = {name: MAX_SPEED for name in robot.joint_names if robot.model.joint(name).type[0] != free}
     limits = [JointPositionLimit(robot), JointVelocityLimit(robot, speeds)]
     reference = SquatAndReach(com, hand, feet, DURATION)
     return Demo(NAME, robot, [*feet, com, hand, posture], limits, reference, DT, duration, follow=hand,

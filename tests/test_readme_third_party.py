@@ -77,3 +77,23 @@ def test_unchanged_the_example_says_what_the_jaco_lacks(jaco_path, tmp_path):
     code = code.replace('"end_effector"', '"wristsite"')
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
     assert "ModelError" in done.stderr and "declares no joint speed limit" in done.stderr
+
+
+def test_the_third_party_table_renders_the_recorded_benchmark():
+    """benchmarks/readme_tables.third_party_table: one row per case of third_party.json, its
+    medians and ratio as recorded (the README block it is meant for comes with the merge)."""
+    import json
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import readme_tables
+
+    data = json.loads((ROOT / "benchmarks" / "results" / "third_party.json").read_text())
+    lines = readme_tables.third_party_table().splitlines()
+    assert len(lines) == 2 + len(data["cases"])
+    for line, case in zip(lines[2:], data["cases"]):
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        rows = {row["label"]: row for row in case["timing"]["rows"]}
+        assert cells[0] == case["title"]
+        assert float(cells[1]) == round(rows["qpik"]["median_us"], 1)
+        assert float(cells[2]) == round(rows["mink"]["median_us"], 1)
+        assert cells[3].startswith(f"{case['timing']['ratio']['median']:.2f} (")
