@@ -9,8 +9,8 @@ round runs one rollout of every (version, scenario) pair, in an order rotated fr
 to round, with the garbage collector off. Reported per pair: the median rollout time over
 the rounds and rollouts per second; per scenario, the ratio of the two versions' rates,
 median and range over the rounds (each round's ratio comes from rollouts run seconds
-apart, so a burst of load moves both). The two versions' summaries must agree (the
-step-time fields aside) or the comparison is refused.
+apart, so a burst of load moves both). The two versions' summaries must agree to 1e-12
+on the keys both have (the step-time fields aside) or the comparison is refused.
 
 writes benchmarks/results/rollout_speed.json and .md.
 """
@@ -102,12 +102,31 @@ def measure(versions: dict[str, object], rounds: int) -> dict:
     if len(names) == 2:
         new, old = names
         for run in RUNS:
-            if summaries[(new, run)] != summaries[(old, run)]:
-                raise SystemExit(f"{run}: the two versions' summaries differ; not a like-for-like comparison")
+            mismatch = _summary_mismatch(summaries[(new, run)], summaries[(old, run)])
+            if mismatch:
+                raise SystemExit(f"{run}: the two versions' summaries differ ({mismatch}); not a like-for-like "
+                                 "comparison")
             per_round = np.array(times[(old, run)]) / np.array(times[(new, run)])
             ratios.append({"robot": run[0], "scenario": run[1], "speedup_median": float(np.median(per_round)),
                            "speedup_min": float(per_round.min()), "speedup_max": float(per_round.max())})
     return {"rows": rows, "speedups": ratios}
+
+
+def _summary_mismatch(new: dict, old: dict) -> str:
+    """The first key both summaries have whose values differ by more than 1e-12 (numbers,
+    lists of numbers; a newer version may add keys: only the shared ones are compared)."""
+    for key in sorted(set(new) & set(old)):
+        a, b = new[key], old[key]
+        if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+            if abs(a - b) > 1e-12 * max(1.0, abs(b)):
+                return f"{key}: {a} vs {b}"
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b) and \
+                all(isinstance(x, (int, float)) for x in a + b):
+            if max((abs(x - y) for x, y in zip(a, b)), default=0.0) > 1e-12:
+                return f"{key} differs"
+        elif a != b:
+            return f"{key}: {a!r} vs {b!r}"
+    return ""
 
 
 def to_markdown(result: dict, names: list[str]) -> str:

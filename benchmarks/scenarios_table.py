@@ -25,8 +25,17 @@ RESULTS = Path(__file__).resolve().parent / "results"
 PHYSICS = ("seed-redundant", "hexapod-circle")
 
 
+# Below this an error, residual or violation is rounding (machine epsilon on metres and
+# radians): its digits change with the build and the CPU, so the table does not print them.
+ROUNDING = 1e-12
+
+
 def _fmt(value, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
+    if value is None:
+        return "-"
+    if value == 0.0:
+        return format(0.0, spec)
+    return f"< {ROUNDING:.0e}" if abs(value) < ROUNDING else format(value, spec)
 
 
 def compute_rows(progress: bool = False) -> list[dict]:
@@ -50,9 +59,10 @@ def to_markdown(rows: list[dict]) -> str:
              "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for s in rows:
         ctrl = s["controller"] if s["solver"] == "none" else f"{s['controller']} ({s['solver']})"
-        lines.append(f"| {s['scenario']} | {s['mode']} | {ctrl} | {s['max_error']:.2e} | {s['final_error']:.2e} | "
+        lines.append(f"| {s['scenario']} | {s['mode']} | {ctrl} | {_fmt(s['max_error'], '.2e')} | "
+                     f"{_fmt(s['final_error'], '.2e')} | "
                      f"{_fmt(s.get('orientation_error_max'), '.1e')} | {_fmt(s.get('constraint_violation_max'), '.1e')} | "
-                     f"{s['limit_violation_max']:.2e} | {s['peak_joint_speed']:.3g} | "
+                     f"{_fmt(s['limit_violation_max'], '.2e')} | {s['peak_joint_speed']:.3g} | "
                      f"{s['manipulability_mean']:.4f} / {s['manipulability_final']:.4f} |")
     return "\n".join(lines) + "\n"
 

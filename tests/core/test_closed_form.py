@@ -32,13 +32,15 @@ def test_fast_path_equals_the_solver_step_by_step(scenario):
         assert 0 < fast.solver_calls < steps  # limits bind on some steps only
 
 
-@pytest.mark.parametrize("hessian", ["diagonal", "dense", "per-call"])
-@pytest.mark.parametrize("meq", [0, 1, 2, 4])
+@pytest.mark.parametrize("hessian", ["uniform", "diagonal", "dense", "per-call"])
+@pytest.mark.parametrize("meq", [0, 1, 2, 4, 7])
 def test_kkt_solution_on_random_problems(hessian, meq):
     rng = np.random.default_rng(meq)
     nv = 7
     for _ in range(20):
-        if hessian == "diagonal":
+        if hessian == "uniform":
+            H = np.eye(nv) * rng.uniform(0.1, 3.0)
+        elif hessian == "diagonal":
             H = np.diag(rng.uniform(0.1, 3.0, nv))
         else:
             M = rng.normal(size=(nv, nv))

@@ -12,9 +12,16 @@ from qpik import InvalidInput, JointPositionLimit, Robot
 @pytest.mark.parametrize("influence", [0.0, 0.05, 0.8])
 def test_float_and_vector_paths_are_identical(scene, influence):
     robot = Robot.load(scene)
-    floats = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
+    from qpik.limits import joint_position
+
     vector = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
     vector._scalar_joints = None
+    limit = joint_position.SCALAR_JOINTS_MAX
+    joint_position.SCALAR_JOINTS_MAX = 100  # the float path for the hexapod's 18 joints too
+    try:
+        floats = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
+    finally:
+        joint_position.SCALAR_JOINTS_MAX = limit
     assert floats._scalar_joints is not None
     rng = np.random.default_rng(1)
     limits = robot.joint_limits

@@ -15,17 +15,23 @@ whose KKT system :math:`Hx + c + A^T\lambda = 0,\ Ax = b` gives, with
 For a strictly convex QP the minimiser is unique, so if this x also satisfies every
 inequality (the box and the general rows), it *is* the QP's solution: the controller
 returns it and calls the solver only on steps where a limit would bind. With a constant
-Hessian (no soft task with its own Jacobian: the usual hard tasks + posture/damping),
-:math:`H^{-1}` is computed once — a vector when H is diagonal.
+diagonal Hessian (hard tasks plus joint-space soft tasks: posture, damping, gradients)
+one product gives both S and :math:`A H^{-1} c`; otherwise one Cholesky solve with H
+gives :math:`H^{-1}[A^T\ c]`. S (symmetric positive definite when the hard rows are
+independent) is solved by LAPACK's Cholesky (``dposv``): a step whose S is not positive
+definite, or is so ill-conditioned that its solution would be meaningless, is left to
+the solver. When the hard rows are as many as the dofs (the hexapod's pose task and loop
+closures) the feasible set is the single point :math:`A^{-1}b`: one LU solve.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg.lapack import dgesv, dpotrf, dpotrs  # scipy is loaded with the solvers anyway
+from scipy.linalg import lapack
 
-# S is treated as singular (the hard rows are dependent) below this relative pivot.
-SINGULAR = 1e-12
+# S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
+# more than this ratio (the condition number of S is the square of it: 1e12).
+SINGULAR_RATIO = 1e6
 
 
 class ClosedFormStep:
@@ -38,119 +44,73 @@ class ClosedFormStep:
 
     def __init__(self, H0: np.ndarray | None, meq: int):
         self.meq = meq
-        self._coefficients = np.full(meq + 1, -1.0)  # [y; −1], y written per step
-        self._dinv = self._Hinv = None
+        self._dinv = None
+        self._uniform = None  # H = I/d: the scalar d, one product less
         if H0 is not None:
             diagonal = np.diag(H0)
             if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
                 self._dinv = 1.0 / diagonal
-            else:
-                try:
-                    np.linalg.cholesky(H0)
-                except np.linalg.LinAlgError:
-                    self._Hinv = None
-                else:
-                    self._Hinv = np.linalg.inv(H0)
-        self.constant = H0 is not None and (self._dinv is not None or self._Hinv is not None)
+                if np.all(self._dinv == self._dinv[0]):
+                    self._uniform = float(self._dinv[0])
+        self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
+        self._tail[meq] = -1.0
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x of the KKT system, or None (H not positive definite, S singular).
 
-        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row:
-        with a constant diagonal H one product (A H⁻¹ or c H⁻¹ rows) @ [Aᵀ c] gives both
-        S = A H⁻¹ Aᵀ and A H⁻¹ c.
+        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
         """
         meq = self.meq
-        if self._dinv is not None:
+        if meq == len(b) and meq == Ac.shape[1]:  # as many independent rows as dofs: x = A⁻¹b
+            lu, _, x, info = lapack.dgesv(Ac[:meq], b)
+            if info != 0:
+                return None
+            pivots = np.abs(lu.diagonal()).tolist()
+            return x if max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots) else None
+        if self._uniform is not None:
+            scaled = Ac  # H⁻¹ = d I: the scalar d is applied to S, A H⁻¹c and x below
+        elif self._dinv is not None:
             scaled = Ac * self._dinv  # rows: A H⁻¹, cᵀ H⁻¹
-            if not meq:
-                return -scaled[0]
-            M = scaled @ Ac.T
-            if meq <= 2:  # S y = r in floats
-                rows, rhs = M.tolist(), b.tolist()
-                if meq == 1:
-                    s = rows[0][0]
-                    if not s > SINGULAR:
-                        return None
-                    coefficients = ((rows[0][1] + rhs[0]) / s, -1.0)
-                else:
-                    (a, b_, r0), (_, d, r1) = rows[0], rows[1]
-                    r0 += rhs[0]
-                    r1 += rhs[1]
-                    det = a * d - b_ * b_
-                    if not det > SINGULAR * max(a * d, 1e-300):
-                        return None
-                    coefficients = ((d * r0 - b_ * r1) / det, (a * r1 - b_ * r0) / det, -1.0)
-                # x = H⁻¹Aᵀ y − H⁻¹c = [A H⁻¹; cᵀH⁻¹]ᵀ [y; −1]
-                return scaled.T @ np.array(coefficients)
-            y = _solve_small(M[:meq, :meq], M[:meq, meq] + b)
-            if y is None:
-                return None
-            coefficients = self._coefficients
-            coefficients[:meq] = y
-            return scaled.T @ coefficients
-        A, c = Ac[:meq], Ac[meq]
-        if self._Hinv is not None:
-            Hinv = self._Hinv
-            Hinv_c = Hinv @ c
-            HinvAT = Hinv @ A.T if meq else None
         else:
-            Y = _cholesky_solve(H, Ac.T)
-            if Y is None:
+            factor, scaled_t, info = lapack.dposv(H, Ac.T)  # H⁻¹ [Aᵀ c] in one LAPACK call
+            if info != 0:
                 return None
-            HinvAT, Hinv_c = Y[:, :meq], Y[:, meq]
+            scaled = scaled_t.T
+        # With H = I/d, scaled is A, c unscaled: S = d A Aᵀ, A H⁻¹c = d A c, and x = d Acᵀ[y; −1].
+        d = 1.0 if self._uniform is None else self._uniform
+        tail = self._tail
         if not meq:
-            return -Hinv_c
-        y = _solve_small(A @ HinvAT, A @ Hinv_c + b)
-        if y is None:
+            return -d * scaled[0]
+        M = scaled @ Ac.T  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        if meq <= 2:  # in floats: cheaper than any call
+            rows, rhs = M.tolist(), b.tolist()
+            if meq == 1:
+                s = d * rows[0][0]
+                if not s > 0.0:
+                    return None
+                tail[0] = d * (d * rows[0][1] + rhs[0]) / s
+                tail[1] = -d
+            else:
+                (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
+                a, b_, d_ = d * a, d * b_, d * d_
+                det = a * d_ - b_ * b_
+                if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
+                    return None
+                r0 = d * r0 + rhs[0]
+                r1 = d * r1 + rhs[1]
+                tail[0] = d * (d_ * r0 - b_ * r1) / det
+                tail[1] = d * (a * r1 - b_ * r0) / det
+                tail[2] = -d
+            return scaled.T @ tail
+        if d != 1.0:
+            M *= d
+        factor, y, info = lapack.dposv(M[:meq, :meq], M[:meq, meq] + b)
+        if info != 0:
             return None
-        x = HinvAT @ y
-        x -= Hinv_c
-        return x
-
-
-def _cholesky_solve(H: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
-    """H⁻¹ rhs by Cholesky (LAPACK ``potrf`` + ``potrs``), or None if H is not positive definite.
-
-    The algorithm of ``numpy.linalg.cholesky`` followed by two
-    ``scipy.linalg.solve_triangular``, called directly: those layers cost ~20 µs a step
-    (6 x 6: 2 µs here instead of 24), and ``solve_triangular``'s transposed solve is a path
-    OpenBLAS runs multithreaded, which took milliseconds instead of ~15 µs on a loaded
-    two-core machine (the humanoid's 62 x 62). Results agree to rounding (another LAPACK
-    build: 9e-16 rad on the Jaco circle's joints).
-    """
-    factor, info = dpotrf(H, lower=True, clean=False)  # H symmetric: only its lower triangle is read
-    if info != 0:
-        return None
-    solution, info = dpotrs(factor, rhs, lower=True)
-    return solution if info == 0 else None
-
-
-def _solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray | None:
-    """S⁻¹ r for the symmetric positive (semi)definite S = A H⁻¹ Aᵀ; None if singular.
-
-    One and two rows in Python floats (a LAPACK call costs more than the arithmetic)."""
-    m = len(r)
-    if m == 1:
-        s = float(S[0, 0])
-        return None if not s > SINGULAR else r / s
-    if m == 2:
-        (a, b_), (_, d) = S.tolist()
-        det = a * d - b_ * b_
-        if not det > SINGULAR * max(a * d, 1e-300):
+        pivots = factor.diagonal().tolist()
+        if max(pivots) > SINGULAR_RATIO * min(pivots):
             return None
-        r0, r1 = r.tolist()
-        return np.array(((d * r0 - b_ * r1) / det, (a * r1 - b_ * r0) / det))
-    # LU with partial pivoting, numpy.linalg.solve's LAPACK routine without its ~4 µs of
-    # Python; info > 0: an exactly zero pivot (singular S).
-    _, _, y, info = dgesv(S, r)
-    if info != 0:
-        return None
-    # A nearly singular S (dependent hard rows) gives a y that misses S y = r: refuse it.
-    # (In floats: for a dozen rows cheaper than three NumPy reductions; NaN fails too.)
-    targets = r.tolist()
-    tolerance = 1e-9 * (1.0 + max(abs(target) for target in targets))
-    for value, target in zip((S @ y).tolist(), targets):
-        if not abs(value - target) <= tolerance:
-            return None
-    return y
+        np.multiply(d, y, out=tail[:meq])
+        tail[meq] = -d
+        return scaled.T @ tail
+

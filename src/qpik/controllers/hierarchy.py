@@ -156,6 +156,7 @@ class HierarchicalController:
                                          **solver_settings)
             self.levels.append(level)
         self.tasks = [t for level in grouped for t in level]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         for task in self.tasks:
             task.attach(self.dt)
         self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)

@@ -32,6 +32,7 @@ class _StackedTasks:
             raise InvalidInput("the controller needs at least one primary task")
         self.robot = robot
         self.primary = list(primary)
+        self.updated_tasks = tuple(self.primary)  # fresh after every step (rollouts read them)
         for task in self.primary:
             if getattr(task, "needs_period", False):
                 raise InvalidInput(f"{task.name}: its default gain is 1/dt of a QP controller's period; this "
@@ -68,11 +69,15 @@ class PseudoinverseController(_StackedTasks):
 
     def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Task | None = None, damping: float = 0.0):
         super().__init__(robot, primary)
+        for task in (*self.primary, *([secondary] if secondary is not None else [])):
+            task.attach(None)  # no control period here: fixes the tasks' Jacobian kind, checks no gain
         if secondary is not None and not secondary.joint_space:
             raise InvalidInput(f"the secondary task must be a joint-space task (J = I[dofs]), not a {secondary.name}")
         if not (np.isfinite(damping) and damping >= 0):
             raise InvalidInput(f"damping must be finite and >= 0, got {damping}")
         self.secondary = secondary
+        if secondary is not None:
+            self.updated_tasks += (secondary,)
         self.damping = float(damping)
         self._gram = np.zeros((len(self.v), len(self.v)))
         self.qdot = np.zeros(robot.nv)

@@ -120,6 +120,14 @@ class QPController:
         self._c_written_by_first = bool(self._soft_diagonal) and isinstance(self._diagonal_dofs[0], slice) \
             and self._diagonal_dofs[0] == slice(0, nv)
         self._closed_form = ClosedFormStep(None if self._soft_general else self._H0, meq) if fast_path else None
+        # The step's work as flat lists, read once here (a Python loop over them is the
+        # hot path's overhead).
+        self._task_updates = [task.update for task in self.tasks]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
+        self._diagonal_plan = list(zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs))
+        self._hard_plan = [(self.A[rows], self.b[rows], task) for task, rows in zip(self._hard, self._rows)]
+        self._box_updates = [limit.apply for limit in self._dynamic_limits]
+        self._row_plan = list(zip(self._row_limits, self._inequality_slices))
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
         self.fallbacks = 0  # steps the solver failed on and quadprog solved
         self._fallback = None
@@ -127,17 +135,15 @@ class QPController:
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
         self.robot.ensure_kinematics()
+        for update in self._task_updates:
+            update()
         H, c = self.H, self.c
-        for task in self.tasks:
-            task.update()
-        if self._soft_general:  # else H is H0 every step
-            H[:] = self._H0
+        # The cost: joint-space tasks on c's entries (H's diagonal is constant), then the
+        # soft tasks with their own Jacobian (H changes).
         first = self._c_written_by_first
         if not first:
             c.fill(0.0)
-        for task, neg_weight, dofs in zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs):
-            if not task.joint_space:
-                raise InvalidInput(f"{task.name}: its Jacobian changed after the controller was built")
+        for task, neg_weight, dofs in self._diagonal_plan:
             if first:  # a first task on every dof writes c directly
                 np.multiply(neg_weight, task.target_velocity, out=c)
                 first = False
@@ -145,31 +151,17 @@ class QPController:
             scratch = self._scratch[: task.dim]
             np.multiply(neg_weight, task.target_velocity, out=scratch)
             c[dofs] += scratch
-        lm_total = 0.0
-        for task in self._soft_general:
-            weighted = task.weight[:, None] * task.jacobian
-            H += task.jacobian.T @ weighted
-            c -= weighted.T @ task.target_velocity
-            if task.lm_damping:
-                error = task.error
-                lm = task.lm_damping * float(error @ (task.weight * error))
-                self._diag += lm
-                lm_total += lm
-        if lm_total > LM_RESCALE:
-            if not np.isfinite(lm_total):
-                raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
-                                   "check its target")
-            scale = 1.0 / (1.0 + lm_total)
-            H *= scale
-            c *= scale
-        for task, rows in zip(self._hard, self._rows):
-            self.A[rows] = task.jacobian
-            self.b[rows] = task.target_velocity
-        self.lb[:] = self._lb0
-        self.ub[:] = self._ub0
-        for limit in self._dynamic_limits:
-            limit.apply(self.dt, self.lb, self.ub)
-        for limit, rows in zip(self._row_limits, self._inequality_slices):
+        if self._soft_general:
+            self._add_general_tasks(H, c)
+        for jacobian_rows, velocity_rows, task in self._hard_plan:
+            jacobian_rows[...] = task.jacobian
+            velocity_rows[...] = task.target_velocity
+        lb, ub = self.lb, self.ub
+        lb[:] = self._lb0
+        ub[:] = self._ub0
+        for apply in self._box_updates:
+            apply(self.dt, lb, ub)
+        for limit, rows in self._row_plan:
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
         if self._closed_form is not None:
             x = self._closed_form.solve(H, self._Ac, self.b)
@@ -187,6 +179,27 @@ class QPController:
         except SolverError as exc:
             self.qdot = self._retry_regularized(exc)
         return self.qdot
+
+    def _add_general_tasks(self, H: np.ndarray, c: np.ndarray) -> None:
+        """H = H0 + Σ JᵀWJ (+ the Levenberg–Marquardt terms), c −= Σ JᵀWv."""
+        H[:] = self._H0
+        lm_total = 0.0
+        for task in self._soft_general:
+            weighted = task.weight[:, None] * task.jacobian
+            H += task.jacobian.T @ weighted
+            c -= weighted.T @ task.target_velocity
+            if task.lm_damping:
+                error = task.error
+                lm = task.lm_damping * float(error @ (task.weight * error))
+                self._diag += lm
+                lm_total += lm
+        if lm_total > LM_RESCALE:
+            if not np.isfinite(lm_total):
+                raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
+                                   "check its target")
+            scale = 1.0 / (1.0 + lm_total)
+            H *= scale
+            c *= scale
 
     def _inside_limits(self, x: np.ndarray) -> bool:
         """x finite, in the box and under every general row (exact comparisons: a point

@@ -177,6 +177,7 @@ class SNSController:
         self.dt = float(dt)
         self.levels = [StackedLevel(robot, level, weighted=True) for level in grouped]
         self.tasks = [t for level in grouped for t in level]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         for task in self.tasks:
             task.attach(self.dt)
         self.limits = order_limits(limits)

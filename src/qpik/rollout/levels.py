@@ -56,10 +56,17 @@ class LevelErrors:
         self.names = tuple(level.name for level in self.levels)
         self.units = tuple(level.unit for level in self.levels)
         self._tasks = list({id(t): t for level in self.levels for t in level.tasks}.values())
+        self._stale = list(self._tasks)
         self._out = np.zeros(len(self.levels))
 
+    def skip_updates_of(self, tasks: Sequence[Task]) -> None:
+        """Tasks the controller updates itself every step (before :meth:`measure`): they
+        are fresh, so measuring does not update them a second time."""
+        fresh = {id(task) for task in tasks}
+        self._stale = [task for task in self._tasks if id(task) not in fresh]
+
     def measure(self, qdot: np.ndarray) -> np.ndarray:
-        for task in self._tasks:  # a controller that ignores a task leaves it stale
+        for task in self._stale:  # a controller that ignores a task leaves it stale
             task.update()
         for k, level in enumerate(self.levels):
             total = 0.0

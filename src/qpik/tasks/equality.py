@@ -136,8 +136,8 @@ class EqualityTask(Task):
     def feedback_gains(self) -> np.ndarray:
         return np.full(self.dim, self.gain)
 
-    def attach(self, dt: float) -> None:
-        if self.dead_beat:
+    def attach(self, dt: float | None) -> None:
+        if self.dead_beat and dt is not None:
             self.gain = 1.0 / dt
         super().attach(dt)
 

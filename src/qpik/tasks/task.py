@@ -28,6 +28,7 @@ All arrays are preallocated: ``update`` writes in place and allocates nothing bi
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Sequence
 
@@ -39,7 +40,6 @@ from ..robot import Robot
 
 _AXES = "xyz"
 AXES_FRAMES = ("world", "local")
-_IDENTITY = np.eye(3)
 
 
 def axis_rows(axes: str, what: str = "axes") -> np.ndarray:
@@ -70,17 +70,22 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     Raises:
         InvalidInput: not a finite 3x3 matrix, not orthonormal to 1e-6, or a reflection.
     """
-    rot = np.asarray(rotation, dtype=float)
+    try:
+        rot = np.asarray(rotation, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be a 3x3 matrix of numbers, got {rotation!r}") from None
     if rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix, got shape {rot.shape}")
-    gram = rot.T @ rot
-    gram -= _IDENTITY
-    deviation = float(np.max(np.abs(gram)))
-    if not np.isfinite(deviation):
+    # In floats (about 1 µs; RᵀR with NumPy reductions costs 4): columns of unit length,
+    # pairwise orthogonal, determinant +1.
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    deviation = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
+                    abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
+                    abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
+    if not math.isfinite(deviation):
         raise InvalidInput(f"{what} contains NaN or inf")
     if deviation > 1e-6:
         raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {deviation:.2g})")
-    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
     if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
         raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
     return rot
@@ -125,11 +130,16 @@ def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
 
 def finite_vector(value, size: int, what: str) -> np.ndarray:
     """``value`` as a float array of shape (size,), or InvalidInput naming ``what``."""
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be {size} numbers, got {value!r}") from None
     if arr.shape != (size,):
         raise InvalidInput(f"{what} must have shape ({size},), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InvalidInput(f"{what} contains NaN or inf: {arr}")
+    # Per target, every step: a sum of floats is NaN or inf when an entry is (0.2 µs
+    # where np.isfinite and np.all cost 2 µs); an overflowing sum is refused as well.
+    if not math.isfinite(sum(arr.tolist())):
+        raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
     return arr
 
 
@@ -197,8 +207,9 @@ class Task:
         None for a task without one (a gradient, a damping)."""
         return None
 
-    def attach(self, dt: float) -> None:
-        """Called by a controller with its control period Δt before the first step.
+    def attach(self, dt: float | None) -> None:
+        """Called by a controller with its control period Δt (None for a law without one)
+        before the first step.
 
         The error of a met task follows e_{k+1} = (1 − KΔt) e_k: it overshoots (changes
         sign every step) for KΔt > 1 and grows for KΔt > 2. The first is warned about
@@ -208,7 +219,7 @@ class Task:
             InvalidInput: a gain with KΔt > 2.
         """
         gains = self.feedback_gains()
-        if gains is None or not len(gains):
+        if dt is None or gains is None or not len(gains):  # None: a law without a period
             return
         worst = float(np.max(gains)) * dt
         if worst > 2.0:
@@ -267,8 +278,13 @@ class JointSpaceTask(Task):
         if len(self.dofs) == 0:
             raise InvalidInput(f"{self.name}: the model has no joint to act on (give joints=...)")
         self._custom_jacobian = None
+        self._attached = False
         super().__init__(robot, len(self.dofs), weight, hard=False)
         self.hard = False
+
+    def attach(self, dt: float | None) -> None:
+        self._attached = True
+        super().attach(dt)
 
     def _allocate_jacobian(self) -> None:
         selection = np.zeros((self.dim, self.robot.nv))
@@ -282,6 +298,9 @@ class JointSpaceTask(Task):
 
     @jacobian.setter
     def jacobian(self, value) -> None:
+        if self._attached:  # a controller put this task on its Hessian's diagonal
+            raise InvalidInput(f"{self.name}: its Jacobian cannot change after the task was given to a "
+                               "controller (which reads a joint-space task's J = I once); set it before")
         value = np.asarray(value, dtype=float)
         if value.shape != (self.dim, self.robot.nv):
             raise InvalidInput(f"{self.name} jacobian must have shape ({self.dim}, {self.robot.nv}), got {value.shape}")
