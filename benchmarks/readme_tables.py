@@ -165,6 +165,36 @@ def _monte_carlo_table(robot: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def third_party_table() -> str:
+    """qpik beside mink on the third-party and generated models (benchmarks/third_party.py).
+
+    Not yet in ``TABLES``: README.md has no ``<!-- table:third-party -->`` block yet; once it
+    does, register it there as ``"third-party": Table(third_party_table, 1, False)``.
+    """
+    data = _recorded("third_party.json")
+    lines = ["| problem | qpik [µs] | mink [µs] | qpik / mink (range) | max \\|q_qpik − q_mink\\| | qpik max error |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for case in data["cases"]:
+        rows = {row["label"]: row for row in case["timing"]["rows"]}
+        ratio = case["timing"]["ratio"]
+        run = case["runs"]["qpik"]
+        if "distance_min" in run:  # different collision bounds: the trajectories differ by design
+            difference = "(other bound)"
+            error = f"{collision_gap(case):.1e} m inside d_min (mink: {collision_gap(case, 'mink'):.1e} m)"
+        else:
+            difference = f"{case['differences']['mink']['q_max_difference']:.0e}"
+            error = f"{run['max_error']:.1e} m"
+        lines.append(f"| {case['title']} | {rows['qpik']['median_us']:.1f} | {rows['mink']['median_us']:.1f} | "
+                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) | {difference} | {error} |")
+    return "\n".join(lines) + "\n"
+
+
+def collision_gap(case: dict, label: str = "qpik") -> float:
+    """How far inside the minimum distance a contender's hand came (0 when never)."""
+    run = case["runs"][label]
+    return max(0.0, case["minimum_distance"] - run["distance_min"])
+
+
 def calibration_table() -> str:
     from qpik.robots.hexapod.calibration import calibrate
 

@@ -3,29 +3,21 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
-# name -> (package, path of the MJCF inside the installed package)
-THIRD_PARTY = {
-    "jaco": ("dm_control", "third_party/kinova/jaco_arm.xml"),  # Kinova Jaco arm, 6 hinges
-    "humanoid": ("dm_control", "suite/humanoid_CMU.xml"),  # CMU humanoid: free joint + 56 hinges
-    "pusher": ("gymnasium", "envs/mujoco/assets/pusher.xml"),  # 7-DoF arm, no site
-}
+from qpik.errors import ModelError
+from qpik.models import third_party
 
 
 def third_party_path(name: str) -> Path:
-    """The installed MJCF of a third-party model, or a skip saying what is missing."""
-    package, relative = THIRD_PARTY[name]
-    spec = importlib.util.find_spec(package)
-    if spec is None or spec.origin is None:
-        pytest.skip(f"the {name} model comes with {package}, which is not installed (pip install -e '.[test]')")
-    path = Path(spec.origin).parent / relative
-    if not path.is_file():
-        pytest.skip(f"the installed {package} has no {relative}")
-    return path
+    """The installed MJCF of a third-party model (:func:`qpik.models.third_party`), or a
+    skip saying what is missing."""
+    try:
+        return third_party(name)
+    except ModelError as exc:
+        pytest.skip(str(exc))
 
 
 @pytest.fixture(scope="session")

@@ -264,6 +264,7 @@ class Robot:
     def __init__(self, model: mujoco.MjModel, name: str | None = None, keyframe: str | None = None):
         self.model = model
         self.data = mujoco.MjData(model)
+        self._qpos = self.data.qpos  # one view for the data's life: MuJoCo's getter makes a new one (~0.5 µs)
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
         check_model(model, f"model {self.name!r}")
         self.nq = model.nq
@@ -301,7 +302,7 @@ class Robot:
     @property
     def q(self) -> np.ndarray:
         """The configuration ``data.qpos`` (a view: writing it changes the robot)."""
-        return self.data.qpos
+        return self._qpos
 
     def set_q(self, q: np.ndarray) -> None:
         """Set the configuration after checking its shape and finiteness."""
@@ -325,10 +326,10 @@ class Robot:
             self.update_kinematics()
 
     def _state_bytes(self) -> bytes:
-        data = self.data
         if self.model.nmocap:
-            return data.qpos.tobytes() + data.mocap_pos.tobytes() + data.mocap_quat.tobytes()
-        return data.qpos.tobytes()
+            data = self.data
+            return self._qpos.tobytes() + data.mocap_pos.tobytes() + data.mocap_quat.tobytes()
+        return self._qpos.tobytes()
 
     def integrate(self, qdot: np.ndarray, dt: float) -> None:
         """q <- q (+) qdot dt on the configuration manifold (``mj_integratePos``).
@@ -349,7 +350,7 @@ class Robot:
             ok = False
         if not ok:
             qdot = self._checked_velocity(qdot, dt)
-        mujoco.mj_integratePos(self.model, self.data.qpos, qdot, dt)
+        mujoco.mj_integratePos(self.model, self._qpos, qdot, dt)
 
     def _checked_velocity(self, qdot, dt) -> np.ndarray:
         """The slow path of :meth:`integrate`: raise the precise error, or return a clean copy."""

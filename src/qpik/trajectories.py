@@ -136,7 +136,9 @@ def sample_many(trajectory: Trajectory, times) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _point(value, what: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
+    # A copy: a path built from a task's live target array (task.target) must not move
+    # when the task's target is set.
+    arr = np.array(value, dtype=float)
     if arr.ndim != 1 or arr.size == 0:
         raise InvalidInput(f"{what} must be a vector, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):

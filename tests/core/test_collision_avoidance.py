@@ -118,3 +118,28 @@ def test_bad_input(robot):
         CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], minimum_distance=0.1, detection_distance=0.05)
     with pytest.raises(InvalidInput, match="no geom pair"):
         CollisionAvoidanceLimit(robot, [(["hand"], ["hand"])])
+
+
+def test_mesh_distances_are_exact_where_the_model_turns_native_collision_off(jaco_path):
+    """dm_control's Jaco disables MuJoCo's native convex collision; its fallback (libccd
+    MPR) is centimetres off near contact (here a wrist cylinder 3.0 cm from the box reads
+    1.2 cm, a wrist mesh 1.1 cm inside it reads 4.8 cm inside). The limit's distances are
+    the native (GJK/EPA) ones whatever the flag, and the flag is left as it was."""
+    spec = mujoco.MjSpec.from_file(str(jaco_path))
+    spec.worldbody.add_geom(name="box", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.12, 0.12, 0.02],
+                            pos=[-0.49, 0.07, 0.38])
+    robot = Robot(spec.compile(), keyframe=None)
+    native_off = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+    assert robot.model.opt.disableflags & native_off
+    robot.set_q([0.0, 3.9, 2.0, -1.0, -1.5, 1.0])
+    robot.update_kinematics()
+    limit = CollisionAvoidanceLimit(robot, [(["b_5"], ["box"])], minimum_distance=0.0, detection_distance=0.1)
+    rows = len(limit.pairs)
+    limit.fill_inequalities(DT, np.zeros((rows, robot.nv)), np.zeros(rows))
+    assert robot.model.opt.disableflags & native_off  # restored
+    fallback = [mujoco.mj_geomDistance(robot.model, robot.data, *pair, 0.1, None) for pair in limit.pairs]
+    robot.model.opt.disableflags &= ~native_off
+    native = [mujoco.mj_geomDistance(robot.model, robot.data, *pair, 0.1, None) for pair in limit.pairs]
+    assert rows == 2 and min(abs(np.subtract(fallback, native))) > 0.01  # why the limit switches
+    assert min(native) < 0.0 < max(native)
+    np.testing.assert_array_equal(limit.distances, native)

@@ -130,3 +130,17 @@ def test_sample_many_of_a_user_trajectory_and_its_errors():
     with pytest.raises(InvalidInput, match="NaN or inf"):
         with np.errstate(divide="ignore"):
             sample_many(Wobble(), np.array([0.5, 1.0]))
+
+
+def test_paths_keep_their_own_copy_of_the_points_they_are_given():
+    """A path built from a live array (a task's target) does not move when that array does."""
+    start, centre, point = np.array([0.0, 0.0, 1.0]), np.zeros(3), np.ones(3)
+    segment = Segment(start, start + 1.0, 1.0)
+    circle = Circle(centre, 0.5, 1.0)
+    hold = Hold(point, 1.0)
+    before = [path.sample(0.3)[0].copy() for path in (segment, circle, hold)]
+    start += 5.0
+    centre += 5.0
+    point += 5.0
+    for path, position in zip((segment, circle, hold), before):
+        np.testing.assert_array_equal(path.sample(0.3)[0], position)

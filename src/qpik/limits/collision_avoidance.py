@@ -22,6 +22,13 @@ second) overshoots by the distance's second-order term, ½ Δqᵀ∇²d Δq — 
 for a hand sliding into a box edge at 7 m/s in the tests. With the damper the speed
 toward the obstacle vanishes in proportion to the margin, so the second-order term
 (∝ margin²) never catches up with it and :math:`d \ge d_s` holds to rounding.
+
+Distances come from MuJoCo's native convex collision (GJK/EPA) even where the model
+disables it for its own contacts (``<flag nativeccd="disable"/>``, as dm_control's Jaco
+does): the fallback, libccd's MPR, returns for meshes a distance that depends on the
+cutoff it is given (one Jaco pose: −0.011 m with a 5 cm cutoff, −0.103 m with 1 m), so
+the limit would bound a distance that is not there. The flag is switched on around the
+queries and restored after them.
 """
 
 from __future__ import annotations
@@ -35,6 +42,8 @@ import numpy as np
 from ..errors import InvalidInput, UnknownName
 from ..robot import Robot, name_hint
 from .limit import Limit
+
+NATIVE_CCD_OFF = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
 
 GeomGroup = Sequence[str | int]
 
@@ -95,6 +104,17 @@ class CollisionAvoidanceLimit(Limit):
         self._jac2 = np.zeros((3, robot.nv))
 
     def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
+        flags = self.robot.model.opt.disableflags
+        if not flags & NATIVE_CCD_OFF:
+            self._fill(dt, G, h)
+            return
+        self.robot.model.opt.disableflags = flags & ~NATIVE_CCD_OFF  # exact distances (module docstring)
+        try:
+            self._fill(dt, G, h)
+        finally:
+            self.robot.model.opt.disableflags = flags
+
+    def _fill(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
         model, data = self.robot.model, self.robot.data
         d_s, d_i = self.minimum_distance, self.detection_distance
         step_rate = self.gain / dt

@@ -68,25 +68,28 @@ class FrameTask(Task):
         super().__init__(robot, n_position + len(self.orientation_rows), weight, hard)
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
         self.frame = robot.frame(frame, frame_type)
-        self.position_gain = positive(position_gain, n_position, "position gain", allow_zero=True)
-        self.orientation_gain = positive(orientation_gain, self.dim - n_position, "orientation gain", allow_zero=True)
+        # Gains and the feed-forward twist live in one array each, the per-block names being
+        # views: v = K e + ẋ_d is then two operations on all rows.
+        self._gain = np.concatenate([positive(position_gain, n_position, "position gain", allow_zero=True),
+                                     positive(orientation_gain, self.dim - n_position, "orientation gain",
+                                              allow_zero=True)])
+        self.position_gain, self.orientation_gain = self._gain[:n_position], self._gain[n_position:]
         self.target_position = self.frame.position.copy()
         self.target_rotation = self.frame.rotation.copy()
-        self.target_linear_velocity = np.zeros(3)
-        self.target_angular_velocity = np.zeros(3)
+        self._twist = np.zeros(6)
+        self.target_linear_velocity, self.target_angular_velocity = self._twist[:3], self._twist[3:]
         self.position_error = self.error[:n_position]
         self.orientation_error = self.error[n_position:]
-        self._position_velocity = self.target_velocity[:n_position]
-        self._orientation_velocity = self.target_velocity[n_position:]
         # Every world axis: MuJoCo fills the task's own Jacobian rows (views), no copies.
         self._whole = self.dim == 6 and not local
         if self._whole:
             self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
             self._rotation_error = RotationError()
+            # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them.
+            self._target_flat, self._current_flat = self.target_rotation.reshape(9), self.frame.rotation.reshape(9)
         else:
             self._rows = PoseRows(self.frame, robot.nv, self.position_rows, self.orientation_rows, local)
             self._feedforward = np.zeros(self.dim)
-            self._gain = np.concatenate([self.position_gain, self.orientation_gain])
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``.
@@ -100,7 +103,7 @@ class FrameTask(Task):
         self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
 
     def feedback_gains(self) -> np.ndarray:
-        return np.concatenate([self.position_gain, self.orientation_gain])
+        return self._gain.copy()
 
     def update(self) -> None:
         if self._whole:
@@ -118,8 +121,7 @@ class FrameTask(Task):
             self.target_velocity += self._feedforward
             return
         np.subtract(self.target_position, self.frame.position, out=self.position_error)
-        self._rotation_error.world(self.target_rotation, self.frame.rotation, out=self.orientation_error)
-        np.multiply(self.position_gain, self.position_error, out=self._position_velocity)
-        self._position_velocity += self.target_linear_velocity
-        np.multiply(self.orientation_gain, self.orientation_error, out=self._orientation_velocity)
-        self._orientation_velocity += self.target_angular_velocity
+        self._rotation_error.world_flat(self._target_flat, self._current_flat, self.frame.rotation,
+                                        out=self.orientation_error)
+        np.multiply(self._gain, self.error, out=self.target_velocity)
+        self.target_velocity += self._twist

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from ..robot import Robot
-from .task import JointSpaceTask, finite_vector
+from .task import JointSpaceTask, contiguous_rows, finite_vector
 
 
 class PostureTask(JointSpaceTask):
@@ -30,6 +30,13 @@ class PostureTask(JointSpaceTask):
         self.gain = float(gain)
         self.target = robot.q.copy() if target is None else finite_vector(target, robot.nq, "posture target")
         self._difference = np.zeros(robot.nv)
+        # Consecutive dofs (every hinge, with or without a floating base before them): the
+        # error is a view of the difference, no copy per step.
+        rows = contiguous_rows(self.dofs)
+        if rows is not None:
+            self.error = self._difference[rows]
+        self._copy_error = rows is None
+        self._model, self._qpos = robot.model, robot.data.qpos  # views, valid for the robot's life
 
     def set_target(self, target) -> None:
         self.target[:] = finite_vector(target, self.robot.nq, "posture target")
@@ -38,6 +45,7 @@ class PostureTask(JointSpaceTask):
         return np.full(self.dim, self.gain)
 
     def update(self) -> None:
-        mujoco.mj_differentiatePos(self.robot.model, self._difference, 1.0, self.robot.q, self.target)
-        np.take(self._difference, self.dofs, out=self.error)
+        mujoco.mj_differentiatePos(self._model, self._difference, 1.0, self._qpos, self.target)
+        if self._copy_error:
+            np.take(self._difference, self.dofs, out=self.error)
         np.multiply(self.gain, self.error, out=self.target_velocity)

@@ -113,6 +113,14 @@ class RotationError:
         """The error in world axes, written into ``out``."""
         return np.matmul(current, self.compute(desired, current), out=out)
 
+    def world_flat(self, desired_flat: np.ndarray, current_flat: np.ndarray, current: np.ndarray,
+                   out: np.ndarray) -> np.ndarray:
+        """:meth:`world` given the rotations also as 9-vectors (views kept by the caller)."""
+        mujoco.mju_mat2Quat(self._desired, desired_flat)
+        mujoco.mju_mat2Quat(self._current, current_flat)
+        mujoco.mju_subQuat(self.local, self._desired, self._current)
+        return np.matmul(current, self.local, out=out)
+
 
 def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
     """World-frame rotation vector e with exp([e]) R_current = R_desired."""

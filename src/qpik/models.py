@@ -1,0 +1,85 @@
+"""Third-party MuJoCo models, located in the PyPI packages that ship them.
+
+qpik never copies a foreign model into its repository: the files are read where their
+package installed them. The ones used by the tests, the examples and the benchmarks:
+
+======== ============== ==================================== =======================================
+name     package        file in the package                  model
+======== ============== ==================================== =======================================
+jaco     dm_control     third_party/kinova/jaco_arm.xml      Kinova Jaco arm, 6 hinges, no gripper
+humanoid dm_control     suite/humanoid_CMU.xml               CMU humanoid, free joint + 56 hinges
+pusher   gymnasium      envs/mujoco/assets/pusher.xml        7-DoF arm, a puck and a goal (4 slides)
+======== ============== ==================================== =======================================
+
+Both packages come with the ``models`` extra (``pip install "qpik[models]"``; the
+``test`` extra includes them too).
+
+    from qpik import Robot
+    from qpik.models import third_party
+
+    robot = Robot.load(third_party("jaco"))
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from typing import NamedTuple
+
+from .errors import ModelError, UnknownName
+from .robot import name_hint
+
+EXTRA = "models"
+
+
+class ThirdPartyModel(NamedTuple):
+    """Where a third-party model lives: the import name of its package, the pip name of
+    that package, and the MJCF's path inside it."""
+
+    package: str
+    distribution: str
+    path: str
+    description: str
+
+
+THIRD_PARTY: dict[str, ThirdPartyModel] = {
+    "jaco": ThirdPartyModel("dm_control", "dm-control", "third_party/kinova/jaco_arm.xml",
+                            "Kinova Jaco arm (dm_control): 6 hinges, joints 2 and 3 limited, one site"),
+    "humanoid": ThirdPartyModel("dm_control", "dm-control", "suite/humanoid_CMU.xml",
+                                "CMU humanoid (dm_control): a free joint and 56 limited hinges"),
+    "pusher": ThirdPartyModel("gymnasium", "gymnasium", "envs/mujoco/assets/pusher.xml",
+                              "7-DoF pusher arm (gymnasium), with a puck and a goal on slide joints"),
+}
+
+
+def third_party_names() -> list[str]:
+    """The names :func:`third_party` knows."""
+    return list(THIRD_PARTY)
+
+
+def third_party(name: str) -> Path:
+    """The MJCF file of a third-party model in its installed package.
+
+    Args:
+        name: ``"jaco"``, ``"humanoid"`` or ``"pusher"`` (see :func:`third_party_names`).
+
+    Returns:
+        The path of the model's MJCF file (load it with :meth:`qpik.Robot.load`).
+
+    Raises:
+        UnknownName: no such model (the closest names are listed).
+        ModelError: the package that ships the model is not installed (the message names
+            the pip extra), or it lacks the file (another version's layout).
+    """
+    entry = THIRD_PARTY.get(name) if isinstance(name, str) else None
+    if entry is None:
+        raise UnknownName(f"no third-party model named {name!r}; {name_hint(str(name), list(THIRD_PARTY), 'model')}")
+    spec = importlib.util.find_spec(entry.package)
+    if spec is None or spec.origin is None:
+        raise ModelError(f"the {name} model comes with the {entry.distribution} package, which is not installed: "
+                         f"pip install \"qpik[{EXTRA}]\" (or pip install {entry.distribution})")
+    path = Path(spec.origin).parent / entry.path
+    if not path.is_file():
+        raise ModelError(f"the installed {entry.distribution} has no {entry.path} (looked in {path.parent}); "
+                         f"pip install \"qpik[{EXTRA}]\" installs a version that has it")
+    return path
