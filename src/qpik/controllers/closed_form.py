@@ -102,15 +102,16 @@ class ClosedFormStep:
                 tail[1] = d * (a * r1 - b_ * r0) / det
                 tail[2] = -d
             return scaled.T @ tail
-        if d != 1.0:
-            M *= d
-        factor, y, info = lapack.dposv(M[:meq, :meq], M[:meq, meq] + b)
+        # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
+        rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
+        rhs += b
+        factor, z, info = lapack.dposv(M[:meq, :meq], rhs, overwrite_b=1)
         if info != 0:
             return None
         pivots = factor.diagonal().tolist()
         if max(pivots) > SINGULAR_RATIO * min(pivots):
             return None
-        np.multiply(d, y, out=tail[:meq])
+        tail[:meq] = z
         tail[meq] = -d
         return scaled.T @ tail
 

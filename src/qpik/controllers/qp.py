@@ -30,6 +30,8 @@ from .diagnostics import explain_infeasibility
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
 # together (same minimiser) so no solver sees huge numbers from a far-away target.
 LM_RESCALE = 1e6
+# Steps the solver is called directly after one where the closed form crossed a limit.
+CLOSED_FORM_PAUSE = 8
 
 def check_dt(dt) -> float:
     """The control period as a positive finite float, or InvalidInput."""
@@ -133,6 +135,7 @@ class QPController:
             self._box_updates.pop(0)
         self._lb0_list, self._ub0_list = self._lb0.tolist(), self._ub0.tolist()
         self._row_plan = list(zip(self._row_limits, self._inequality_slices))
+        self._skip_closed_form = 0  # steps left before the closed form is tried again
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
         self.fallbacks = 0  # steps the solver failed on and quadprog solved
         self._fallback = None
@@ -171,11 +174,16 @@ class QPController:
             apply(self.dt, lb, ub)
         for limit, rows in self._row_plan:
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
-        if self._closed_form is not None:
+        if self._closed_form is not None and self._skip_closed_form == 0:
             x = self._closed_form.solve(H, self._Ac, self.b)
             if x is not None and self._inside_limits(x):
                 self.qdot = x
                 return x
+            # A limit binds: it usually still does next step, where the closed form would be
+            # wasted work. Go straight to the solver for a few steps (the same answer).
+            self._skip_closed_form = CLOSED_FORM_PAUSE
+        elif self._skip_closed_form:
+            self._skip_closed_form -= 1
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
