@@ -268,7 +268,8 @@ def _hexapod(rng: np.random.Generator, mode: str, params: dict) -> Case:
     duration, hold = float(rng.uniform(0.2, 1.0)), float(rng.uniform(0.05, 0.4))
     law = str(rng.choice(["cubic", "quintic"]))
     solver = str(rng.choice(_solvers()))
-    params.update(robot="hexapod", mode=mode, gain_dt_max=max(gains.values()) * DT,
+    used = [g for name, g in gains.items() if frame or name != "orientation"]  # a position task has no orientation gain
+    params.update(robot="hexapod", mode=mode, gain_dt_max=max(used) * DT,
                   start_pose=p0.tolist() + rpy0.tolist(), ranges=ranges,
                   start_inside=start_inside, frame_task=frame, hard=hard, gains=gains, lm_damping=lm, k0=k0,
                   damping=damping, target_pose=p1.tolist() + np.asarray(rpy1).tolist(), target_kind=target_kind,

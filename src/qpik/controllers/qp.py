@@ -30,6 +30,10 @@ from .diagnostics import explain_infeasibility
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
 # together (same minimiser) so no solver sees huge numbers from a far-away target.
 LM_RESCALE = 1e6
+# On solver steps, c is scaled down to at most this times H's diagonal (see _tame).
+COST_SCALE_CAP = 1e9
+# Exact solvers a failing step falls back to, in this order.
+FALLBACK_SOLVERS = ("daqp", "quadprog")
 # Steps the solver is called directly after one where the closed form crossed a limit.
 CLOSED_FORM_PAUSE = 8
 
@@ -137,8 +141,8 @@ class QPController:
         self._row_plan = list(zip(self._row_limits, self._inequality_slices))
         self._skip_closed_form = 0  # steps left before the closed form is tried again
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
-        self.fallbacks = 0  # steps the solver failed on and quadprog solved
-        self._fallback = None
+        self.fallbacks = 0  # steps the solver failed on and a fallback solver solved
+        self._fallbacks = {}
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
@@ -187,6 +191,7 @@ class QPController:
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
+        c = self._tame(H, c)
         try:
             self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
         except InfeasibleProblem as exc:
@@ -217,6 +222,22 @@ class QPController:
             H *= scale
             c *= scale
 
+    def _tame(self, H: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """c capped at COST_SCALE_CAP times H's scale, on the steps that call the solver.
+
+        A soft task with a target absurdly far away (1e28 m) puts ~1e29 in c against ~1 in
+        H: the minimiser is a vertex of the limits, but 1e29 next to a bound of 8 rad/s
+        leaves no digit for any solver to find it with (DAQP then reports infeasibility,
+        quadprog and ProxQP fail). Scaling c down to 1e9 times H's diagonal keeps its
+        direction, and the minimiser stays the same vertex up to 1e-9 relative: the soft
+        task degrades instead of failing.
+        """
+        scale = float(np.abs(c).max())
+        bound = COST_SCALE_CAP * max(1.0, float(self._diag.max()))
+        if scale <= bound:
+            return c
+        return c * (bound / scale)
+
     def _inside_limits(self, x: np.ndarray) -> bool:
         """x finite, in the box and under every general row (exact comparisons: a point
         on a bound goes to the solver, which decides whether that bound is active)."""
@@ -228,42 +249,52 @@ class QPController:
         return True
 
     def _retry_regularized(self, failure: SolverError) -> np.ndarray:
-        """A solver that cycles or stalls on a (nearly) singular or badly scaled problem gets
-        one more try with a little damping on every dof, then (when the failing solver is
-        not it) one with quadprog, an exact dual active-set solver that needs no tolerance
-        tuning; if those fail too, the error says what to do."""
+        """A solver that fails on a (nearly) singular or badly scaled problem is not the
+        end of the step. An exact active-set solver (DAQP, quadprog: cycling) gets one more
+        try with a little damping on every dof; an iterative one that ran out of
+        iterations (OSQP, ProxQP) would only run out again, so it goes straight to the
+        exact solvers: DAQP, then quadprog. If those fail too, the error says what to do."""
         nv = self.robot.nv
         damping = 1e-9 * max(1.0, float(np.trace(self.H)) / nv)
         H = self.H.copy()  # the constant Hessian must not keep the damping
         H.reshape(-1)[:: nv + 1] += damping
-        try:
-            return self._backend.solve(H, self.c, hessian_changed=True)
-        except InfeasibleProblem as exc:
-            raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
-                                    exc.variable) from None
-        except SolverError:
-            pass
-        fallback = self._fallback_backend()
-        if fallback is not None:
+        c = self._tame(H, self.c)
+        tried = []
+        if self._backend.exact:
+            tried.append(f"{damping:.1g} of damping on every dof")
             try:
-                x = fallback.solve(H, self.c)
+                return self._backend.solve(H, c, hessian_changed=True)
+            except InfeasibleProblem as exc:
+                raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
+                                        exc.variable) from None
             except SolverError:
                 pass
-            else:
-                self.fallbacks += 1
-                return x
-        raise SolverError(f"{failure} (also with {damping:.1g} of damping on every dof"
-                          f"{', and with quadprog' if fallback is not None else ''}): the cost is nearly "
-                          "singular or badly scaled; add a DampingTask (weight 1e-6 or more), lower the task "
-                          "gains or try another solver") from None
+        for name in FALLBACK_SOLVERS:
+            fallback = self._fallback_backend(name)
+            if fallback is None:
+                continue
+            tried.append(name)
+            try:
+                x = fallback.solve(H, c)
+            except InfeasibleProblem as exc:
+                raise InfeasibleProblem(f"QP infeasible ({self.solver}, then {name}): "
+                                        f"{explain_infeasibility(self, exc.variable)}", exc.variable) from None
+            except SolverError:
+                continue
+            self.fallbacks += 1
+            return x
+        raise SolverError(f"{failure} (also with {', and with '.join(tried)}): the cost is nearly singular or badly "
+                          "scaled; add a DampingTask (weight 1e-6 or more), lower the task gains or try another "
+                          "solver") from None
 
-    def _fallback_backend(self):
-        """quadprog through qpsolvers, sized like the problem, with this step's data."""
-        if self.solver == "quadprog" or "quadprog" not in available_solvers():
+    def _fallback_backend(self, name: str):
+        """Solver ``name`` sized like the problem, with this step's data (None if it is the
+        failing one or not installed)."""
+        if self.solver == name or name not in available_solvers():
             return None
-        if self._fallback is None:
-            self._fallback = make_backend("quadprog", self.robot.nv, self._backend.meq, self._backend.mineq)
-        fallback = self._fallback
+        if name not in self._fallbacks:
+            self._fallbacks[name] = make_backend(name, self.robot.nv, self._backend.meq, self._backend.mineq)
+        fallback = self._fallbacks[name]
         fallback.A[:], fallback.b[:] = self.A, self.b
         fallback.G[:], fallback.h[:] = self.G, self.h
         fallback.lb[:], fallback.ub[:] = self.lb, self.ub

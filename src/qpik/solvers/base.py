@@ -37,7 +37,12 @@ BIG = 1e30  # the stand-in for an absent bound in solvers that take no inf (OSQP
 # solvers that take one, is only a guard against a hang: a solve that normally takes
 # microseconds never nears it, so a busy machine cannot change a result.
 TIME_LIMIT = 1.0
-ITERATION_LIMIT = 10000
+ITERATION_LIMIT = 10000  # DAQP's active-set iterations
+# Iterative solvers: enough to converge on a well-posed step (OSQP needs up to ~1000 on
+# the bundled scenarios' binding steps), few enough that a step that will not converge
+# fails within milliseconds and falls back to an exact solver.
+OSQP_ITERATIONS = 4000
+PROXQP_ITERATIONS = 200
 
 
 class QPBackend:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BIG, ITERATION_LIMIT, TIME_LIMIT, QPBackend
+from .base import BIG, OSQP_ITERATIONS, TIME_LIMIT, QPBackend
 
 
 class OsqpBackend(QPBackend):
@@ -18,7 +18,7 @@ class OsqpBackend(QPBackend):
     """
 
     name = "osqp"
-    SETTINGS = dict(eps_abs=1e-8, eps_rel=1e-8, polishing=False, max_iter=ITERATION_LIMIT * 2, verbose=False,
+    SETTINGS = dict(eps_abs=1e-8, eps_rel=1e-8, polishing=False, max_iter=OSQP_ITERATIONS, verbose=False,
                     warm_starting=True, adaptive_rho=True, time_limit=TIME_LIMIT)
 
     def __init__(self, nv: int, meq: int, mineq: int = 0, **settings):

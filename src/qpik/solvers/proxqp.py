@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BIG, ITERATION_LIMIT, QPBackend
+from .base import BIG, PROXQP_ITERATIONS, QPBackend
 
 
 class ProxqpBackend(QPBackend):
@@ -26,8 +26,8 @@ class ProxqpBackend(QPBackend):
         self._qp = proxsuite.proxqp.dense.QP(nv, meq, mineq, True)
         self._qp.settings.eps_abs = eps_abs
         self._qp.settings.eps_rel = eps_rel
-        self._qp.settings.max_iter = ITERATION_LIMIT
-        self._qp.settings.max_iter_in = ITERATION_LIMIT // 10
+        self._qp.settings.max_iter = PROXQP_ITERATIONS
+        self._qp.settings.max_iter_in = PROXQP_ITERATIONS // 10
         self._qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
         for key, value in settings.items():
             setattr(self._qp.settings, key, value)

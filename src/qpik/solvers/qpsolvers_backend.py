@@ -8,12 +8,17 @@ import qpsolvers
 from .base import BIG, QPBackend
 
 
+# Active-set solvers among qpsolvers' (their active constraints hold to machine precision).
+EXACT_SOLVERS = ("quadprog", "daqp", "qpoases")
+
+
 class QpsolversBackend(QPBackend):
     """Any solver qpsolvers supports (quadprog, proxqp, clarabel, ...), called per step."""
 
     def __init__(self, nv: int, meq: int, mineq: int = 0, *, solver: str, **settings):
         super().__init__(nv, meq, mineq)
         self.name = solver
+        self.exact = solver in EXACT_SOLVERS
         self._settings = settings
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
