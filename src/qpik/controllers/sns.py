@@ -239,27 +239,27 @@ class SNSController:
             level.stack()
         self._bounds()
         lb, ub = self.lb, self.ub
-        self._lower, self._upper = lb.tolist(), ub.tolist()
+        self._lower, self._upper = lower, upper = lb.tolist(), ub.tolist()
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
-        zero = all(lo <= 0.0 <= hi for lo, hi in zip(self._lower, self._upper))
+        zero = max(lower) <= 0.0 <= min(upper)
         qdot = self._zero if zero else np.minimum(np.maximum(0.0, lb), ub)
         basis = None  # orthonormal basis of the null space of the levels done (None: all)
+        last = len(self.levels) - 1
         for k, level in enumerate(self.levels):
-            qdot, self.task_scale[k], self.saturated[k], basis = self._level(level, qdot, zero, basis)
+            qdot, self.task_scale[k], self.saturated[k], basis = self._level(level, qdot, zero, basis, k < last)
             zero = False
-        if qdot is self._zero:
-            qdot = qdot.copy()
-        np.minimum(qdot, ub, out=qdot)  # rounding only: every pass ends inside the box
-        np.maximum(qdot, lb, out=qdot)
-        if not math.isfinite(qdot.sum()):
+        # Clipped to the box (rounding only: every pass ends inside it), on floats.
+        clipped = [hi if x > hi else lo if x < lo else x for x, lo, hi in zip(qdot.tolist(), lower, upper)]
+        if not math.isfinite(sum(clipped)):
             raise DivergenceError("SNS produced a non-finite joint velocity (singular Jacobian)")
-        self.qdot = qdot
-        return qdot
+        self.qdot[:] = clipped
+        return self.qdot
 
-    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, basis: np.ndarray | None):
+    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, basis: np.ndarray | None,
+               more: bool):
         """SNS for one level in the null space ``basis`` (None: all of joint space) of the
         levels above, whose velocity is ``above``. Returns (q̇, scale, saturated joints,
-        the basis left for the levels below)."""
+        the basis left for the levels below: computed only when ``more`` levels follow)."""
         nv = self.robot.nv
         free_count = nv if basis is None else basis.shape[1]
         J, v = level.J, level.v
@@ -277,7 +277,7 @@ class SNSController:
         else:
             qdot = above + task.pinv @ (v - (above if identity else J @ above))
         if self._inside(qdot):
-            return qdot, 1.0, 0, task.null
+            return qdot, 1.0, 0, task.null if more else basis
         solve, shifted = task, above
         saturated: list[int] = []
         targets: list[float] = []
@@ -296,51 +296,60 @@ class SNSController:
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
             targets.append(self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical])
-            if basis is None:  # in joint space: the saturated joints are simply set
-                shifted = above.copy()
-                shifted[saturated] = targets
-                free = np.delete(self._identity, saturated, axis=1)
+            if scale is None and not identity:
+                scale = math.sqrt(float(np.vdot(J, J)))
+            if basis is None:  # in joint space: the saturated joints are simply set, and the
+                # task keeps the other columns (zeroed columns: the same singular values as
+                # J without them, and a pseudoinverse with zero rows there)
+                if shifted is above:
+                    shifted, J_free = above.copy(), J.copy()
+                shifted[critical] = targets[-1]
+                J_free[:, critical] = 0.0
+                solve = _Solve(J_free, None, nv, scale)
             else:  # within the null space of the levels above, as close as it allows
                 hold = _Solve(basis[saturated], basis, nv)
                 if hold.rank < len(saturated):  # that null space cannot hold these joints
                     break
                 shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
                 free = hold.null
-            if scale is None and not identity:
-                scale = math.sqrt(float(np.vdot(J, J)))
-            solve = _Solve(None if identity else J @ free, free, nv, scale)
+                solve = _Solve(J @ free, free, nv, scale)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
             qdot = shifted + solve.pinv @ (v - J @ shifted)
             if self._inside(qdot):
-                return qdot, 1.0, len(saturated), task.null
+                return qdot, 1.0, len(saturated), task.null if more else basis
         if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
             return above, 0.0, len(saturated), basis
         a, b = best
-        return best_scale * a + b, best_scale, len(saturated), task.null
+        return best_scale * a + b, best_scale, len(saturated), task.null if more else basis
 
     def _inside(self, qdot: np.ndarray) -> bool:
-        return all(lo - _BOUND_TOLERANCE <= x <= hi + _BOUND_TOLERANCE
-                   for x, lo, hi in zip(qdot.tolist(), self._lower, self._upper))
+        for x, lo, hi in zip(qdot.tolist(), self._lower, self._upper):
+            if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+                return False
+        return True
 
     def _scaling(self, a: np.ndarray, b: np.ndarray, saturated: list[int]) -> tuple[float, int]:
         """For a + b outside the box: the largest s in [0, 1] with s·a + b inside on the
         free joints (−1: none) and the most critical joint (the next to saturate; −1: none
         left). A plain loop: nv is small, and NumPy's per-call cost would dominate."""
         lower, upper = self._lower, self._upper
-        a_list, b_list = a.tolist(), b.tolist()
-        tiny = 1e-14 * (1.0 + max(abs(x) for x in a_list))
+        b_list = b.tolist()
+        a_list = a.tolist()
+        tiny = 1e-14 * (1.0 + max(map(abs, a_list)))
         s_max, s_min, first_out, last_in = math.inf, -math.inf, -1, -1
-        for i, (ai, bi) in enumerate(zip(a_list, b_list)):
+        for i, ai in enumerate(a_list):
             if i in saturated:
                 continue
+            bi = b_list[i]
             if -tiny <= ai <= tiny:  # the task does not move this joint
                 if bi < lower[i] - _BOUND_TOLERANCE or bi > upper[i] + _BOUND_TOLERANCE:
                     return -1.0, i  # out of bounds whatever the scale
                 continue
-            low, high = (lower[i] - bi) / ai, (upper[i] - bi) / ai
-            if ai < 0.0:
-                low, high = high, low
+            if ai > 0.0:
+                low, high = (lower[i] - bi) / ai, (upper[i] - bi) / ai
+            else:
+                low, high = (upper[i] - bi) / ai, (lower[i] - bi) / ai
             if high < s_max:
                 s_max, first_out = high, i
             if low > s_min:
