@@ -268,7 +268,9 @@ class SNSController:
         identity = level.identity  # J = I: no decomposition needed
         # ‖J‖ for the rank decisions (None: J itself is decomposed, its largest singular value)
         scale = None if identity or basis is None else math.sqrt(float(np.vdot(J, J)))
-        task = _Solve(None if identity else (J if basis is None else J @ basis), basis, nv, scale)
+        # The task's rows in the coordinates of the basis (y, with q̇ = Z y)
+        rows = None if identity else (J if basis is None else J @ basis)
+        task = _Solve(rows, basis, nv, scale)
         if task.rank == 0:  # the levels above took every direction this task moves
             return above, 0.0, 0, basis
         # The unsaturated pass: the prioritised pseudoinverse law.
@@ -280,39 +282,44 @@ class SNSController:
             return qdot, 1.0, 0, task.null if more else basis
         solve, shifted = task, above
         saturated: list[int] = []
-        targets: list[float] = []
+        held: list[np.ndarray] = []  # unit directions (coordinates y) of the joints held
         best_scale, best = -1.0, None
         while True:
             # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
             a = solve.pinv @ v
             b = qdot - a
-            scale, critical = self._scaling(a, b, saturated)
-            if scale > best_scale:
-                best_scale, best = scale, (a, b)
+            s, critical = self._scaling(a, b, saturated)
+            if s > best_scale:
+                best_scale, best = s, (a, b)
             # One more saturated joint leaves free_count − len(saturated) − 1 directions: if
             # that is fewer than the task needs, it would cost the task one: scale it now.
             if critical < 0 or free_count - len(saturated) - 1 < task.rank:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
-            targets.append(self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical])
-            if scale is None and not identity:
-                scale = math.sqrt(float(np.vdot(J, J)))
+            target = self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical]
             if basis is None:  # in joint space: the saturated joints are simply set, and the
                 # task keeps the other columns (zeroed columns: the same singular values as
                 # J without them, and a pseudoinverse with zero rows there)
                 if shifted is above:
-                    shifted, J_free = above.copy(), J.copy()
-                shifted[critical] = targets[-1]
-                J_free[:, critical] = 0.0
-                solve = _Solve(J_free, None, nv, scale)
-            else:  # within the null space of the levels above, as close as it allows
-                hold = _Solve(basis[saturated], basis, nv)
-                if hold.rank < len(saturated):  # that null space cannot hold these joints
+                    shifted, rows = above.copy(), J.copy()
+                shifted[critical] = target
+                rows[:, critical] = 0.0
+            else:  # within the null space of the levels above, as close as it allows: along
+                # h, the joint's row of Z less its part along the joints already held
+                h = basis[critical]
+                for u in held:
+                    h = h - (u @ h) * u
+                norm_sq = float(h @ h)
+                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
-                free = hold.null
-                solve = _Solve(J @ free, free, nv, scale)
+                shifted = shifted + basis @ (h * ((target - shifted[critical]) / norm_sq))
+                u = h / math.sqrt(norm_sq)
+                held.append(u)
+                rows = rows - np.outer(rows @ u, u)  # J Z (I − u uᵀ): the task without u
+            # The rank tolerance of these passes scales with s, the last pass's task scale,
+            # as in the code this replaced (its results kept; ‖J‖ looks intended).
+            solve = _Solve(rows, basis, nv, s)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
             qdot = shifted + solve.pinv @ (v - J @ shifted)
