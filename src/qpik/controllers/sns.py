@@ -191,10 +191,11 @@ class SNSController:
                 limit.apply(self.dt, self._lb0, self._ub0)
         self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
         self._braking = self._braking_terms(max_acceleration)
-        self.lb, self.ub = np.zeros(nv), np.zeros(nv)
-        self._identity = np.eye(nv)
         self._zero = np.zeros(nv)
-        self._lower, self._upper = [], []  # the box as lists, for the scaling loop
+        # The box as lists of floats (the loop reads it joint by joint): the constant part,
+        # and the last step's
+        self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
+        self._lower, self._upper = list(self._lower0), list(self._upper0)
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
         self.qdot = np.zeros(nv)
@@ -217,18 +218,30 @@ class SNSController:
     def level_count(self) -> int:
         return len(self.levels)
 
+    @property
+    def lb(self) -> np.ndarray:
+        """Lower bounds of the last step's velocity box (a copy)."""
+        return np.array(self._lower)
+
+    @property
+    def ub(self) -> np.ndarray:
+        """Upper bounds of the last step's velocity box (a copy)."""
+        return np.array(self._upper)
+
     def _bounds(self) -> None:
-        lb, ub = self.lb, self.ub
-        lb[:] = self._lb0
-        ub[:] = self._ub0
+        lower, upper = self._lower0.copy(), self._upper0.copy()
         for limit in self._dynamic_limits:
-            limit.apply(self.dt, lb, ub)
-        q = self.robot.q
-        for qpos, dofs, lower, upper, amax in self._braking:
-            up = np.sqrt(2.0 * amax * np.maximum(upper - q[qpos], 0.0))
-            down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - lower, 0.0))
-            ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
-            lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+            limit.apply_to_lists(self.dt, lower, upper)
+        if self._braking:
+            lb, ub = np.array(lower), np.array(upper)
+            q = self.robot.q
+            for qpos, dofs, low, high, amax in self._braking:
+                up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
+                down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
+                ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
+                lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+            lower, upper = lb.tolist(), ub.tolist()
+        self._lower, self._upper = lower, upper
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and bound, then run SNS level by level."""
@@ -238,11 +251,10 @@ class SNSController:
         for level in self.levels:
             level.stack()
         self._bounds()
-        lb, ub = self.lb, self.ub
-        self._lower, self._upper = lower, upper = lb.tolist(), ub.tolist()
+        lower, upper = self._lower, self._upper
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
         zero = max(lower) <= 0.0 <= min(upper)
-        qdot = self._zero if zero else np.minimum(np.maximum(0.0, lb), ub)
+        qdot = self._zero if zero else np.array([min(max(0.0, lo), hi) for lo, hi in zip(lower, upper)])
         basis = None  # orthonormal basis of the null space of the levels done (None: all)
         last = len(self.levels) - 1
         for k, level in enumerate(self.levels):

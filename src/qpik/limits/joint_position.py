@@ -93,8 +93,16 @@ class JointPositionLimit(Limit):
 
     def _apply_scalars(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """:meth:`apply` joint by joint in floats: the same operations in the same order."""
-        q = self.robot.q.tolist()
         lbs, ubs = lb.tolist(), ub.tolist()
+        self.apply_to_lists(dt, lbs, ubs)
+        lb[:] = lbs
+        ub[:] = ubs
+
+    def apply_to_lists(self, dt: float, lbs: list, ubs: list) -> None:
+        if self._scalar_joints is None:
+            super().apply_to_lists(dt, lbs, ubs)
+            return
+        q = self.robot.q.tolist()
         step_rate = self.gain / dt
         influence = self.influence
         damped = min(self._rate, step_rate)
@@ -119,5 +127,3 @@ class JointPositionLimit(Limit):
                 lbs[di] = low
             if high < v_hi:
                 ubs[di] = high
-        lb[:] = lbs
-        ub[:] = ubs
