@@ -119,8 +119,9 @@ def to_markdown(results: dict, meta: dict) -> str:
         for kind, times in result["median_us"].items():
             wall = [p99 / t for p99, t in zip(result["p99_us"][kind], times)]
             cpu = [p99 / t for p99, t in zip(result["cpu_p99_us"][kind], result["cpu_median_us"][kind])]
-            lines.append(f"| {scenario} | {kind} | {result['levels'][kind]} | " + ", ".join(f"{t:.1f}" for t in times)
-                         + " | " + ", ".join(f"{x:.2f}" for x in wall) + " | " + ", ".join(f"{x:.2f}" for x in cpu) + " |")
+            cells = [", ".join(f"{t:.1f}" for t in times), ", ".join(f"{x:.2f}" for x in wall),
+                     ", ".join(f"{x:.2f}" for x in cpu)]
+            lines.append(f"| {scenario} | {kind} | {result['levels'][kind]} | " + " | ".join(cells) + " |")
     lines += ["", "| scenario | ratio | median | spread |", "|---|---|---:|---|"]
     for scenario, result in results.items():
         for name, values in result["ratios"].items():

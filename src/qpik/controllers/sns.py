@@ -49,13 +49,17 @@ A task that no scale in [0, 1] can fit into the box is not executed (:math:`s_k 
 After task k, :math:`P_k = P_{k-1} - (J_k P_{k-1})^\# J_k P_{k-1}`.
 
 Here the projectors are carried as orthonormal bases Z (:math:`P = Z Z^T`), so every
-pseudoinverse is of a small matrix: :math:`(J Z Z^T)^\# = Z (J Z)^\#`; holding the
+pseudoinverse is of a small matrix: :math:`(J Z Z^T)^\# = Z (J Z)^\#`. Holding the
 saturated joints S at their bounds within the null space is the minimum-norm
-:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, and the joints' remaining
-freedom is :math:`Z N` with N a basis of the null space of the rows S of Z (one SVD
-gives both). With no saturation this is exactly the prioritised pseudoinverse law; with
-one task and a joint-space secondary (:math:`J = I`) it is the null-space law
-:math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
+:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, built one joint at a
+time: joint i moves along :math:`Z h_\perp`, with :math:`h_\perp` its row of Z less its
+components along the joints held before (which :math:`h_\perp` leaves where they are),
+by its distance to the bound over :math:`\|h_\perp\|^2`; and the task's rows :math:`J Z`
+lose the direction :math:`u = h_\perp/\|h_\perp\|`, :math:`J Z \leftarrow J Z (I - u u^T)`
+(the freedom the joints have left). Without levels above (Z = I) that is setting the
+joint and zeroing its column of J. With no saturation this is exactly the prioritised
+pseudoinverse law; with one task and a joint-space secondary (:math:`J = I`) it is the
+null-space law :math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
 
 Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
 squares, as the QP weighs them). ``hard`` plays no role: priority decides.
