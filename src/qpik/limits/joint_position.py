@@ -99,6 +99,7 @@ class JointPositionLimit(Limit):
         ub[:] = ubs
 
     def apply_to_lists(self, dt: float, lbs: list, ubs: list) -> None:
+        """:meth:`apply` on the box as lists of floats: the joint-by-joint loop itself."""
         if self._scalar_joints is None:
             super().apply_to_lists(dt, lbs, ubs)
             return
