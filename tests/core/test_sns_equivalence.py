@@ -7,7 +7,7 @@ Same means equal to rounding. Where a level has saturated joints, SNS writes eac
 q̇(s) = s a + b and both implementations compute b = q̇ − a: when the joints left free are
 nearly singular for the task, a (the task's share) is large and b cancels it, so each
 carries a rounding error of about 1e-16 |a| (too-fast reaches |a| ~ 3e4 rad/s with two
-joints saturated, unreachable ~ 3e6 at its stretched end). The tolerance is 1e-12 plus
+joints saturated, unreachable ~ 1e7 at its stretched end). The tolerance is 1e-12 plus
 1e-14 |a|, |a| the largest task share of that step's passes (zero without saturation).
 
 On random states only q̇ is compared: there, a level below one that saturated often scales
@@ -95,28 +95,34 @@ def test_every_step_of_every_sns_scenario_is_unchanged(robot, scenario):
         assert saturating[0] > 100  # the saturation loop itself was exercised
 
 
-def _arm_levels(robot, rng):
-    position = PositionTask(robot, "end_effector", axes="xy", gain=500.0)
-    position.set_target(arm.end_effector_position(robot.q) + rng.normal(0.0, 1e-3, 2), rng.normal(0.0, 0.5, 2))
+def _arm_levels(robot, rng, top: str):
+    """Level 0 the path (x, y), or its x alone (which leaves the levels below three
+    directions, so that φ can hold two joints in them); then φ; then σ."""
+    axes = "xy" if top == "path" else "x"
+    position = PositionTask(robot, "end_effector", axes=axes, gain=500.0)
+    here = arm.end_effector_position(robot.q)[:len(axes)]
+    position.set_target(here + rng.normal(0.0, 1e-3, len(axes)), rng.normal(0.0, 0.5, len(axes)))
     phi = PlanarOrientationTask(robot, "end_effector", gain=50.0)
-    phi.set_target(phi.angle() + rng.normal(0.0, 0.02))
+    phi.set_target(phi.angle() + rng.normal(0.0, 0.05))
     sigma = ManipulabilityTask(robot, SigmaProxy(robot, ["theta2", "theta3"]), gain=5.0)
     return [[position], [phi], [sigma]]
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_random_states_under_tight_boxes_are_unchanged(seed):
-    """Three levels (path, φ, σ) at random configurations, with random speed limits tight
-    enough to saturate one to three joints, and position limits near the configuration:
-    every branch of the loop (saturations at each level, scaling, levels left out)."""
+@pytest.mark.parametrize("top", ["path", "x"])
+@pytest.mark.parametrize("seed", range(3))
+def test_random_states_under_tight_boxes_are_unchanged(seed, top):
+    """Three levels at random configurations, with random speed limits tight enough to
+    saturate one to three joints, and position limits near the configuration: every
+    branch of the loop (saturations at each level, in joint space and within the levels
+    above's null space, scaling, levels left out)."""
     rng = np.random.default_rng(seed)
     robot = Robot.load("arm")
     patterns = set()
-    for _ in range(60):
+    for _ in range(40):
         q = np.concatenate([rng.uniform(-2.5, 2.5, 3), rng.uniform(0.1, 0.9, 1)])
         robot.set_q(q)
         robot.update_kinematics()
-        levels = _arm_levels(robot, rng)
+        levels = _arm_levels(robot, rng, top)
         # θ2 just above its lower bound, θ3 just below its upper one (in the joints' ±2.6 rad)
         ranges = robot.joint_limits.tightened({"theta2": (q[1] - rng.uniform(0.0, 0.02), min(q[1] + 1.0, 2.6)),
                                                "theta3": (max(q[2] - 1.0, -2.6), q[2] + rng.uniform(0.0, 0.02))})
@@ -127,4 +133,6 @@ def test_random_states_under_tight_boxes_are_unchanged(seed):
             qdot = sns.compute_velocity()
             side.compare(sns, qdot, f"seed {seed}, q = {q.tolist()}", reports=False)
             patterns.add(tuple(sns.saturated))
-    assert len(patterns) >= 4  # several saturation patterns met, not one path checked 120 times
+    assert len(patterns) >= 3  # several saturation patterns met, not one path checked 80 times
+    if top == "x":  # φ held two joints within the null space of x
+        assert any(held[1] == 2 for held in patterns)
