@@ -4,7 +4,9 @@ law, block-interleaved so that the machine's slow phases hit every controller al
 Each controller runs its own copy of the scenario. The rollouts advance together in
 blocks of ``--block`` steps: one block of each controller in turn, the order rotated
 every block, the garbage collector off. A step's time is the kinematics update plus
-``compute_velocity``, as in the rollouts. Each repeat starts fresh copies; the ratios are
+``compute_velocity``, as in the rollouts (and, apart, the thread's CPU time for the same
+steps). Each repeat starts fresh copies. Each row gives its median step time and its
+tail, the 99th percentile over the median, on both clocks; the ratios are
 per repeat (medians of the step times), reported as the median over the repeats with
 their spread (min to max):
 
@@ -49,7 +51,8 @@ class Rollout:
         self.steps = int(round(self.setup.duration / self.dt)) + 1
         self.stops = self.robot.joint_limits
         self.levels = getattr(self.controller, "level_count", 1)
-        self.times: list[float] = []
+        self.times: list[float] = []  # wall clock per step
+        self.cpu_times: list[float] = []  # this thread's CPU time per step (preemption left out)
         self.k = 0
         self.failure = ""
 
@@ -57,6 +60,7 @@ class Rollout:
         robot, controller, stops = self.robot, self.controller, self.stops
         for _ in range(min(count, self.steps - self.k) if not self.failure else 0):
             self.reference.apply(self.k * self.dt)
+            cpu_start = time.thread_time()
             start = time.perf_counter()
             robot.update_kinematics()
             try:
@@ -64,7 +68,9 @@ class Rollout:
             except QpikError as exc:  # e.g. qp-hard on too-fast: infeasible by design
                 self.failure = f"{type(exc).__name__} at t = {self.k * self.dt:.3f} s"
                 return
-            self.times.append(time.perf_counter() - start)
+            end = time.perf_counter()
+            self.cpu_times.append(time.thread_time() - cpu_start)
+            self.times.append(end - start)
             robot.integrate(qdot, self.dt)
             robot.q[stops.qpos_index] = np.clip(robot.q[stops.qpos_index], stops.lower, stops.upper)
             self.k += 1
@@ -85,7 +91,10 @@ def measure(scenario: str, solver: str, block: int) -> dict[str, dict]:
         gc.enable()
     # The first step of each sets up its solvers: left out. A controller that failed
     # (an infeasible hard task) is left out of the table.
-    return {r.kind: {"median_us": float(np.median(r.times[1:]) * 1e6), "levels": r.levels}
+    return {r.kind: {"median_us": float(np.median(r.times[1:]) * 1e6),
+                     "p99_us": float(np.percentile(r.times[1:], 99) * 1e6),
+                     "cpu_median_us": float(np.median(r.cpu_times[1:]) * 1e6),
+                     "cpu_p99_us": float(np.percentile(r.cpu_times[1:], 99) * 1e6), "levels": r.levels}
             for r in rollouts if not r.failure}
 
 
@@ -101,12 +110,18 @@ def ratios(rows: dict[str, dict]) -> dict[str, float]:
 def to_markdown(results: dict, meta: dict) -> str:
     lines = [f"Step time (kinematics update + controller), block-interleaved in blocks of {meta['block']} "
              f"steps, order rotated each block, gc off; {meta['repeats']} repeats, solver {meta['solver']}. "
-             "Medians per repeat; ratios: median over the repeats [min, max].", "",
-             "| scenario | controller | levels | median step [µs] per repeat |", "|---|---|---:|---|"]
+             "Medians per repeat; the tail, 99th percentile over median, on the wall clock (which counts the "
+             "steps in which the scheduler ran another process, ~4 ms each on a shared machine) and on the "
+             "thread's CPU time (which does not); ratios: median over the repeats [min, max].", "",
+             "| scenario | controller | levels | median step [µs] per repeat | p99 / median, wall | "
+             "p99 / median, CPU |", "|---|---|---:|---|---|---|"]
     for scenario, result in results.items():
         for kind, times in result["median_us"].items():
-            lines.append(f"| {scenario} | {kind} | {result['levels'][kind]} | "
-                         + ", ".join(f"{t:.1f}" for t in times) + " |")
+            wall = [p99 / t for p99, t in zip(result["p99_us"][kind], times)]
+            cpu = [p99 / t for p99, t in zip(result["cpu_p99_us"][kind], result["cpu_median_us"][kind])]
+            cells = [", ".join(f"{t:.1f}" for t in times), ", ".join(f"{x:.2f}" for x in wall),
+                     ", ".join(f"{x:.2f}" for x in cpu)]
+            lines.append(f"| {scenario} | {kind} | {result['levels'][kind]} | " + " | ".join(cells) + " |")
     lines += ["", "| scenario | ratio | median | spread |", "|---|---|---:|---|"]
     for scenario, result in results.items():
         for name, values in result["ratios"].items():
@@ -130,6 +145,8 @@ def main(argv=None) -> int:
         kinds = list(repeats[0])
         results[scenario] = {
             "median_us": {k: [r[k]["median_us"] for r in repeats] for k in kinds},
+            **{field: {k: [r[k][field] for r in repeats] for k in kinds}
+               for field in ("p99_us", "cpu_median_us", "cpu_p99_us")},
             "levels": {k: repeats[0][k]["levels"] for k in kinds},
             "ratios": {name: [ratios(r)[name] for r in repeats] for name in ratios(repeats[0])},
         }

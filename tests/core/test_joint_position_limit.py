@@ -1,4 +1,5 @@
-"""JointPositionLimit: its float path for a few joints equals its vectorised path exactly."""
+"""JointPositionLimit: its float path for a few joints equals its vectorised path exactly, on
+arrays and on lists (``apply_to_lists``)."""
 
 from __future__ import annotations
 
@@ -29,10 +30,15 @@ def test_float_and_vector_paths_are_identical(scene, influence):
         robot.q[limits.qpos_index] = rng.uniform(limits.lower - 0.3, limits.upper + 0.3)
         speed = rng.uniform(0.5, 5.0, robot.nv)
         box_a, box_b = (-speed, speed.copy()), (-speed, speed.copy())
+        lists_a, lists_b = ((-speed).tolist(), speed.tolist()), ((-speed).tolist(), speed.tolist())
         floats.apply(0.002, *box_a)
         vector.apply(0.002, *box_b)
         np.testing.assert_array_equal(box_a[0], box_b[0])
         np.testing.assert_array_equal(box_a[1], box_b[1])
+        # The box as lists: the float loop itself, and (vectorised) the base class's way through apply
+        floats.apply_to_lists(0.002, *lists_a)
+        vector.apply_to_lists(0.002, *lists_b)
+        assert lists_a == lists_b == (box_a[0].tolist(), box_a[1].tolist())
         q_next = robot.q[limits.qpos_index] + 0.002 * box_a[1][limits.dof_index]
         inside = (robot.q[limits.qpos_index] <= limits.upper)
         assert np.all(q_next[inside] <= limits.upper[inside])  # the upper bound is never stepped past

@@ -49,13 +49,17 @@ A task that no scale in [0, 1] can fit into the box is not executed (:math:`s_k 
 After task k, :math:`P_k = P_{k-1} - (J_k P_{k-1})^\# J_k P_{k-1}`.
 
 Here the projectors are carried as orthonormal bases Z (:math:`P = Z Z^T`), so every
-pseudoinverse is of a small matrix: :math:`(J Z Z^T)^\# = Z (J Z)^\#`; holding the
+pseudoinverse is of a small matrix: :math:`(J Z Z^T)^\# = Z (J Z)^\#`. Holding the
 saturated joints S at their bounds within the null space is the minimum-norm
-:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, and the joints' remaining
-freedom is :math:`Z N` with N a basis of the null space of the rows S of Z (one SVD
-gives both). With no saturation this is exactly the prioritised pseudoinverse law; with
-one task and a joint-space secondary (:math:`J = I`) it is the null-space law
-:math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
+:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, built one joint at a
+time: joint i moves along :math:`Z h_\perp`, with :math:`h_\perp` its row of Z less its
+components along the joints held before (which :math:`h_\perp` leaves where they are),
+by its distance to the bound over :math:`\|h_\perp\|^2`; and the task's rows :math:`J Z`
+lose the direction :math:`u = h_\perp/\|h_\perp\|`, :math:`J Z \leftarrow J Z (I - u u^T)`
+(the freedom the joints have left). Without levels above (Z = I) that is setting the
+joint and zeroing its column of J. With no saturation this is exactly the prioritised
+pseudoinverse law; with one task and a joint-space secondary (:math:`J = I`) it is the
+null-space law :math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
 
 Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
 squares, as the QP weighs them). ``hard`` plays no role: priority decides.
@@ -192,10 +196,11 @@ class SNSController:
                 limit.apply(self.dt, self._lb0, self._ub0)
         self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
         self._braking = self._braking_terms(max_acceleration)
-        self.lb, self.ub = np.zeros(nv), np.zeros(nv)
-        self._identity = np.eye(nv)
         self._zero = np.zeros(nv)
-        self._lower, self._upper = [], []  # the box as lists, for the scaling loop
+        # The box as lists of floats (the loop reads it joint by joint): the constant part,
+        # and the last step's
+        self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
+        self._lower, self._upper = list(self._lower0), list(self._upper0)
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
         self.qdot = np.zeros(nv)
@@ -218,18 +223,30 @@ class SNSController:
     def level_count(self) -> int:
         return len(self.levels)
 
+    @property
+    def lb(self) -> np.ndarray:
+        """Lower bounds of the last step's velocity box (a copy)."""
+        return np.array(self._lower)
+
+    @property
+    def ub(self) -> np.ndarray:
+        """Upper bounds of the last step's velocity box (a copy)."""
+        return np.array(self._upper)
+
     def _bounds(self) -> None:
-        lb, ub = self.lb, self.ub
-        lb[:] = self._lb0
-        ub[:] = self._ub0
+        lower, upper = self._lower0.copy(), self._upper0.copy()
         for limit in self._dynamic_limits:
-            limit.apply(self.dt, lb, ub)
-        q = self.robot.q
-        for qpos, dofs, lower, upper, amax in self._braking:
-            up = np.sqrt(2.0 * amax * np.maximum(upper - q[qpos], 0.0))
-            down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - lower, 0.0))
-            ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
-            lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+            limit.apply_to_lists(self.dt, lower, upper)
+        if self._braking:
+            lb, ub = np.array(lower), np.array(upper)
+            q = self.robot.q
+            for qpos, dofs, low, high, amax in self._braking:
+                up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
+                down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
+                ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
+                lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+            lower, upper = lb.tolist(), ub.tolist()
+        self._lower, self._upper = lower, upper
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and bound, then run SNS level by level."""
@@ -239,28 +256,27 @@ class SNSController:
         for level in self.levels:
             level.stack()
         self._bounds()
-        lb, ub = self.lb, self.ub
-        self._lower, self._upper = lb.tolist(), ub.tolist()
+        lower, upper = self._lower, self._upper
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
-        zero = all(lo <= 0.0 <= hi for lo, hi in zip(self._lower, self._upper))
-        qdot = self._zero if zero else np.minimum(np.maximum(0.0, lb), ub)
+        zero = max(lower) <= 0.0 <= min(upper)
+        qdot = self._zero if zero else np.array([min(max(0.0, lo), hi) for lo, hi in zip(lower, upper)])
         basis = None  # orthonormal basis of the null space of the levels done (None: all)
+        last = len(self.levels) - 1
         for k, level in enumerate(self.levels):
-            qdot, self.task_scale[k], self.saturated[k], basis = self._level(level, qdot, zero, basis)
+            qdot, self.task_scale[k], self.saturated[k], basis = self._level(level, qdot, zero, basis, k < last)
             zero = False
-        if qdot is self._zero:
-            qdot = qdot.copy()
-        np.minimum(qdot, ub, out=qdot)  # rounding only: every pass ends inside the box
-        np.maximum(qdot, lb, out=qdot)
-        if not math.isfinite(qdot.sum()):
+        # Clipped to the box (rounding only: every pass ends inside it), on floats.
+        clipped = [hi if x > hi else lo if x < lo else x for x, lo, hi in zip(qdot.tolist(), lower, upper)]
+        if not math.isfinite(sum(clipped)):
             raise DivergenceError("SNS produced a non-finite joint velocity (singular Jacobian)")
-        self.qdot = qdot
-        return qdot
+        self.qdot[:] = clipped
+        return self.qdot
 
-    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, basis: np.ndarray | None):
+    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, basis: np.ndarray | None,
+               more: bool):
         """SNS for one level in the null space ``basis`` (None: all of joint space) of the
         levels above, whose velocity is ``above``. Returns (q̇, scale, saturated joints,
-        the basis left for the levels below)."""
+        the basis left for the levels below: computed only when ``more`` levels follow)."""
         nv = self.robot.nv
         free_count = nv if basis is None else basis.shape[1]
         J, v = level.J, level.v
@@ -269,7 +285,9 @@ class SNSController:
         identity = level.identity  # J = I: no decomposition needed
         # ‖J‖ for the rank decisions (None: J itself is decomposed, its largest singular value)
         scale = None if identity or basis is None else math.sqrt(float(np.vdot(J, J)))
-        task = _Solve(None if identity else (J if basis is None else J @ basis), basis, nv, scale)
+        # The task's rows in the coordinates of the basis (y, with q̇ = Z y)
+        rows = None if identity else (J if basis is None else J @ basis)
+        task = _Solve(rows, basis, nv, scale)
         if task.rank == 0:  # the levels above took every direction this task moves
             return above, 0.0, 0, basis
         # The unsaturated pass: the prioritised pseudoinverse law.
@@ -278,70 +296,84 @@ class SNSController:
         else:
             qdot = above + task.pinv @ (v - (above if identity else J @ above))
         if self._inside(qdot):
-            return qdot, 1.0, 0, task.null
+            return qdot, 1.0, 0, task.null if more else basis
         solve, shifted = task, above
         saturated: list[int] = []
-        targets: list[float] = []
+        held: list[np.ndarray] = []  # unit directions (coordinates y) of the joints held
         best_scale, best = -1.0, None
         while True:
             # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
             a = solve.pinv @ v
             b = qdot - a
-            scale, critical = self._scaling(a, b, saturated)
-            if scale > best_scale:
-                best_scale, best = scale, (a, b)
+            s, critical = self._scaling(a, b, saturated)
+            if s > best_scale:
+                best_scale, best = s, (a, b)
             # One more saturated joint leaves free_count − len(saturated) − 1 directions: if
             # that is fewer than the task needs, it would cost the task one: scale it now.
             if critical < 0 or free_count - len(saturated) - 1 < task.rank:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
-            targets.append(self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical])
-            if basis is None:  # in joint space: the saturated joints are simply set
-                shifted = above.copy()
-                shifted[saturated] = targets
-                free = np.delete(self._identity, saturated, axis=1)
-            else:  # within the null space of the levels above, as close as it allows
-                hold = _Solve(basis[saturated], basis, nv)
-                if hold.rank < len(saturated):  # that null space cannot hold these joints
+            target = self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical]
+            if basis is None:  # in joint space: the saturated joints are simply set, and the
+                # task keeps the other columns (zeroed columns: the same singular values as
+                # J without them, and a pseudoinverse with zero rows there)
+                if shifted is above:
+                    shifted, rows = above.copy(), J.copy()
+                shifted[critical] = target
+                rows[:, critical] = 0.0
+            else:  # within the null space of the levels above, as close as it allows: along
+                # h, the joint's row of Z less its part along the joints already held
+                h = basis[critical]
+                for u in held:
+                    h = h - (u @ h) * u
+                norm_sq = float(h @ h)
+                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
-                free = hold.null
-            if scale is None and not identity:
-                scale = math.sqrt(float(np.vdot(J, J)))
-            solve = _Solve(None if identity else J @ free, free, nv, scale)
+                shifted = shifted + basis @ (h * ((target - shifted[critical]) / norm_sq))
+                u = h / math.sqrt(norm_sq)
+                held.append(u)
+                rows = rows - np.outer(rows @ u, u)  # J Z (I − u uᵀ): the task without u
+            # The rank tolerance of these passes scales with s, the last pass's task scale,
+            # as in the code this replaced (its results kept; ‖J‖ looks intended).
+            solve = _Solve(rows, basis, nv, s)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
             qdot = shifted + solve.pinv @ (v - J @ shifted)
             if self._inside(qdot):
-                return qdot, 1.0, len(saturated), task.null
+                return qdot, 1.0, len(saturated), task.null if more else basis
         if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
             return above, 0.0, len(saturated), basis
         a, b = best
-        return best_scale * a + b, best_scale, len(saturated), task.null
+        return best_scale * a + b, best_scale, len(saturated), task.null if more else basis
 
     def _inside(self, qdot: np.ndarray) -> bool:
-        return all(lo - _BOUND_TOLERANCE <= x <= hi + _BOUND_TOLERANCE
-                   for x, lo, hi in zip(qdot.tolist(), self._lower, self._upper))
+        for x, lo, hi in zip(qdot.tolist(), self._lower, self._upper):
+            if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+                return False
+        return True
 
     def _scaling(self, a: np.ndarray, b: np.ndarray, saturated: list[int]) -> tuple[float, int]:
         """For a + b outside the box: the largest s in [0, 1] with s·a + b inside on the
         free joints (−1: none) and the most critical joint (the next to saturate; −1: none
         left). A plain loop: nv is small, and NumPy's per-call cost would dominate."""
         lower, upper = self._lower, self._upper
-        a_list, b_list = a.tolist(), b.tolist()
-        tiny = 1e-14 * (1.0 + max(abs(x) for x in a_list))
+        b_list = b.tolist()
+        a_list = a.tolist()
+        tiny = 1e-14 * (1.0 + max(map(abs, a_list)))
         s_max, s_min, first_out, last_in = math.inf, -math.inf, -1, -1
-        for i, (ai, bi) in enumerate(zip(a_list, b_list)):
+        for i, ai in enumerate(a_list):
             if i in saturated:
                 continue
+            bi = b_list[i]
             if -tiny <= ai <= tiny:  # the task does not move this joint
                 if bi < lower[i] - _BOUND_TOLERANCE or bi > upper[i] + _BOUND_TOLERANCE:
                     return -1.0, i  # out of bounds whatever the scale
                 continue
-            low, high = (lower[i] - bi) / ai, (upper[i] - bi) / ai
-            if ai < 0.0:
-                low, high = high, low
+            if ai > 0.0:
+                low, high = (lower[i] - bi) / ai, (upper[i] - bi) / ai
+            else:
+                low, high = (upper[i] - bi) / ai, (lower[i] - bi) / ai
             if high < s_max:
                 s_max, first_out = high, i
             if low > s_min:

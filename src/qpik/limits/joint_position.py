@@ -98,7 +98,10 @@ class JointPositionLimit(Limit):
         constant bounds), writing all of ``lb`` and ``ub``: the same result as copying the
         box into them and applying, one NumPy copy per side fewer."""
         if self._scalar_joints is not None:
-            self._tighten(dt, list(lower), list(upper), lb, ub)
+            lbs, ubs = list(lower), list(upper)
+            self.apply_to_lists(dt, lbs, ubs)
+            lb[:] = lbs
+            ub[:] = ubs
             return
         lb[:] = lower
         ub[:] = upper
@@ -106,9 +109,16 @@ class JointPositionLimit(Limit):
 
     def _apply_scalars(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """:meth:`apply` joint by joint in floats: the same operations in the same order."""
-        self._tighten(dt, lb.tolist(), ub.tolist(), lb, ub)
+        lbs, ubs = lb.tolist(), ub.tolist()
+        self.apply_to_lists(dt, lbs, ubs)
+        lb[:] = lbs
+        ub[:] = ubs
 
-    def _tighten(self, dt: float, lbs: list[float], ubs: list[float], lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply_to_lists(self, dt: float, lbs: list, ubs: list) -> None:
+        """:meth:`apply` on the box as lists of floats: the joint-by-joint loop itself."""
+        if self._scalar_joints is None:
+            super().apply_to_lists(dt, lbs, ubs)
+            return
         q = self._q.tolist()
         step_rate = self.gain / dt
         influence = self.influence
@@ -134,5 +144,3 @@ class JointPositionLimit(Limit):
                 lbs[di] = low
             if high < v_hi:
                 ubs[di] = high
-        lb[:] = lbs
-        ub[:] = ubs

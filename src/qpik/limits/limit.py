@@ -37,6 +37,13 @@ class Limit:
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
 
+    def apply_to_lists(self, dt: float, lower: list, upper: list) -> None:
+        """:meth:`apply` on the box held as lists of floats (for a controller that works on
+        floats), in place."""
+        lb, ub = np.array(lower), np.array(upper)
+        self.apply(dt, lb, ub)
+        lower[:], upper[:] = lb.tolist(), ub.tolist()
+
     def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
         """Write this limit's rows G (rows x nv) and h (rows,) in place."""
 
