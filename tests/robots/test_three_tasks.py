@@ -77,7 +77,10 @@ class _Checked:
         optimum = float(np.linalg.norm(J1 @ best - v1))
         self.optima.append(optimum)
         self.gaps.append(float(np.linalg.norm(J1 @ qdot - v1)) - optimum)
-        np.testing.assert_allclose(J0 @ qdot, J0 @ best_path, atol=1e-7)  # level 0 kept its optimum
+        # level 0 kept its optimum: no larger path residual than the reference's (whose 1e-9
+        # regulariser makes it, if anything, the less exact of the two)
+        path_gap = np.linalg.norm(J0 @ qdot - v0) - np.linalg.norm(J0 @ best_path - v0)
+        assert path_gap <= 1e-9, path_gap
         return qdot
 
 

@@ -32,6 +32,9 @@ from scipy.linalg import lapack
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
 SINGULAR_RATIO = 1e6
+# Equality residual (relative to the right-hand side) a closed-form step may leave; the
+# solvers' own check is 1e-6 (qpik.solvers.base).
+EQUALITY_TOLERANCE = 1e-10
 
 
 class ClosedFormStep:
@@ -114,4 +117,48 @@ class ClosedFormStep:
         tail[:meq] = z
         tail[meq] = -d
         return scaled.T @ tail
+
+
+
+def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, h: np.ndarray) -> bool:
+    """x finite, in the box and under every general row (exact comparisons: a point on a
+    bound goes to the solver, which decides whether that bound is active)."""
+    for value, low, high in zip(x.tolist(), lb.tolist(), ub.tolist()):
+        if not low <= value <= high:  # NaN fails too
+            return False
+    if G.shape[0] and not (G @ x <= h).all():
+        return False
+    return True
+
+
+def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
+                              c: np.ndarray) -> np.ndarray | None:
+    r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂, D diagonal positive (``dinv`` = D⁻¹),
+    R₁ the first ``soft_rows`` rows of R (soft rows, scaled by √w), or None where the
+    system is singular.
+
+    With e = r₁ − R₁x, stationarity gives x = D⁻¹(Rᵀz − c) and z solves the symmetric
+    system (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c, of the size of R's rows. Unlike
+    H⁻¹ = (R₁ᵀR₁ + D)⁻¹, which is of order 1/ε when D = εI only breaks ties, this
+    system keeps its digits: it is the damped least-squares form ``Jᵀ(JJᵀ + εI)⁻¹``. It
+    loses them when the equalities leave x almost no freedom (the soft rows' Schur
+    complement is then a difference of terms of order 1/ε): an x that misses R₂x = r₂ by
+    more than ``EQUALITY_TOLERANCE`` relative is returned as None, for the solver.
+    """
+    scaled = R * dinv
+    K = scaled @ R.T
+    K.reshape(-1)[:: K.shape[0] + 1][:soft_rows] += 1.0
+    rhs0, rhs = rhs, rhs + scaled @ c
+    factor, z, info = lapack.dposv(K, rhs, overwrite_a=1, overwrite_b=1)
+    if info != 0:
+        return None
+    pivots = factor.diagonal().tolist()
+    if max(pivots) > SINGULAR_RATIO * min(pivots):
+        return None
+    x = dinv * (R.T @ z - c)
+    rhs_hard = rhs0[soft_rows:]
+    residual = R[soft_rows:] @ x - rhs_hard
+    if not float(residual @ residual) <= EQUALITY_TOLERANCE ** 2 * (1.0 + float(rhs_hard @ rhs_hard)):
+        return None
+    return x
 

@@ -24,7 +24,7 @@ from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import available_solvers, make_backend
 from ..tasks import Task
-from .closed_form import ClosedFormStep
+from .closed_form import ClosedFormStep, inside_limits
 from .diagnostics import explain_infeasibility
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
@@ -180,7 +180,7 @@ class QPController:
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
         if self._closed_form is not None and self._skip_closed_form == 0:
             x = self._closed_form.solve(H, self._Ac, self.b)
-            if x is not None and self._inside_limits(x):
+            if x is not None and inside_limits(x, self.lb, self.ub, self.G, self.h):
                 self.qdot = x
                 return x
             # A limit binds: it usually still does next step, where the closed form would be
@@ -237,16 +237,6 @@ class QPController:
         if scale <= bound:
             return c
         return c * (bound / scale)
-
-    def _inside_limits(self, x: np.ndarray) -> bool:
-        """x finite, in the box and under every general row (exact comparisons: a point
-        on a bound goes to the solver, which decides whether that bound is active)."""
-        for value, low, high in zip(x.tolist(), self.lb.tolist(), self.ub.tolist()):
-            if not low <= value <= high:  # NaN fails too
-                return False
-        if self.G.shape[0] and not (self.G @ x <= self.h).all():
-            return False
-        return True
 
     def _retry_regularized(self, failure: SolverError) -> np.ndarray:
         """A solver that fails on a (nearly) singular or badly scaled problem is not the
