@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qpik.controllers.closed_form import ClosedFormStep
+from qpik.controllers import closed_form
+from qpik.controllers.closed_form import ClosedFormStep, damped_least_squares_step
 from qpik.scenario import build_scenario
 from qpik.solvers import make_backend
 
@@ -61,3 +62,45 @@ def test_dependent_hard_rows_are_left_to_the_solver():
     for meq_rows in (A, np.vstack([A, [[0.0, 0.0, 1.0]]])):
         Ac = np.vstack([meq_rows, np.zeros(3)])
         assert ClosedFormStep(H, len(meq_rows)).solve(H, Ac, np.ones(len(meq_rows))) is None
+
+
+@pytest.mark.parametrize("soft_rows, hard_rows", [(2, 0), (3, 2), (1, 3), (6, 1)])
+@pytest.mark.parametrize("epsilon", [1e-10, 1e-3])
+def test_damped_least_squares_step_is_the_kkt_solution(soft_rows, hard_rows, epsilon):
+    """min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂, against the KKT system solved in
+    extended precision-free form (numpy's lstsq on the bordered matrix)."""
+    rng = np.random.default_rng(soft_rows + 10 * hard_rows)
+    nv = 7
+    for _ in range(20):
+        R = rng.normal(size=(soft_rows + hard_rows, nv))
+        rhs, c = rng.normal(size=soft_rows + hard_rows), rng.normal(size=nv) * epsilon
+        diagonal = epsilon * (1.0 + rng.random(nv))
+        x = damped_least_squares_step(1.0 / diagonal, R, soft_rows, rhs, c)
+        R1, R2 = R[:soft_rows], R[soft_rows:]
+        kkt = np.block([[R1.T @ R1 + np.diag(diagonal), R2.T], [R2, np.zeros((hard_rows, hard_rows))]])
+        expected = np.linalg.solve(kkt, np.concatenate([R1.T @ rhs[:soft_rows] - c, rhs[soft_rows:]]))[:nv]
+        assert x is not None
+        np.testing.assert_allclose(R2 @ x, rhs[soft_rows:], atol=1e-12)
+        # both meet the soft rows equally well (the ε-direction may differ at ε = 1e-10)
+        residual = np.linalg.norm(R1 @ x - rhs[:soft_rows]) - np.linalg.norm(R1 @ expected - rhs[:soft_rows])
+        assert abs(residual) <= 1e-9
+        if epsilon > 1e-6:
+            np.testing.assert_allclose(x, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_damped_least_squares_step_refuses_an_answer_that_misses_the_equalities(monkeypatch):
+    """Equalities that fix x entirely, ε = 1e-10 (a hierarchy level whose bounds left as
+    many free joints as rows above): the soft rows' Schur complement is a difference of
+    1e10-sized terms. Unguarded, the equalities are met to ~1e-6 relative; guarded, the
+    step declines (None) and the solver takes the level."""
+    rng = np.random.default_rng(0)
+    problems = [(rng.normal(size=(3, 2)), 100.0 * rng.normal(size=3)) for _ in range(50)]
+    assert all(damped_least_squares_step(np.full(2, 1e10), R, 1, rhs, np.zeros(2)) is None for R, rhs in problems)
+    monkeypatch.setattr(closed_form, "EQUALITY_TOLERANCE", np.inf)
+    misses = []
+    for R, rhs in problems:
+        x = damped_least_squares_step(np.full(2, 1e10), R, 1, rhs, np.zeros(2))
+        if x is None:  # declined on its pivots already
+            continue
+        misses.append(np.linalg.norm(R[1:] @ x - rhs[1:]) / np.linalg.norm(rhs[1:]))
+    assert len(misses) >= 25 and np.median(misses) > 1e-8
