@@ -105,3 +105,24 @@ def test_a_gain_above_one_over_dt_is_rejected_or_warned_about(tmp_path):
     result = _case("arm", 11, tmp_path)
     assert result["params"]["gain_dt_max"] > 1.0
     assert "gain_unflagged" not in result["classes"], result
+
+
+@pytest.mark.parametrize("seed", [24, 726])
+def test_a_far_soft_hexapod_target_is_not_declared_infeasible(seed, tmp_path):
+    """A target 1e8 m away puts a cost 1e9 times H's scale even once capped, and DAQP
+    declared the (feasible) loops and box infeasible; the step now checks feasibility and
+    re-solves (found by the full sweep at 2738452: 11 of 2,000 hexapod cases)."""
+    result = _case("hexapod", seed, tmp_path)
+    assert result["params"]["target_kind"] == "far" and result["params"]["start_inside"]
+    assert result["params"]["solver"] == "daqp"
+    assert "soft_bounded" in result["classes"], result["details"]
+    assert not {"typed", "crossing", "speed", "loop"} & set(result["classes"]), result["details"]
+
+
+def test_an_infeasible_start_still_names_the_binding_limits(tmp_path):
+    """A slider started outside the range the case gives it: loops and limits have no
+    common point (an exact solver confirms it), so the error stands and names them."""
+    result = _case("hexapod", 1803, tmp_path)
+    assert not result["params"]["start_inside"]
+    assert "InfeasibleProblem" in result["details"]["error"]
+    assert "at its upper position limit" in result["details"]["error"]

@@ -29,7 +29,11 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
     H = controller.H.copy()
     c = controller.c.copy()
     A, b = controller.A, controller.b
-    scale = ELASTIC_WEIGHT * max(1.0, float(np.trace(H)) / nv)
+    hessian_scale = max(1.0, float(np.trace(H)) / nv)
+    scale = ELASTIC_WEIGHT * hessian_scale
+    magnitude = float(np.abs(c).max()) if nv else 0.0
+    if magnitude > hessian_scale:  # a far target's cost (up to 1e29) would drown the elastic rows
+        c *= hessian_scale / magnitude
     H += scale * (A.T @ A)
     c -= scale * (A.T @ b)
     elastic = make_backend("daqp", nv, 0, controller.G.shape[0])
