@@ -64,7 +64,7 @@ def test_dependent_hard_rows_are_left_to_the_solver():
         assert ClosedFormStep(H, len(meq_rows)).solve(H, Ac, np.ones(len(meq_rows))) is None
 
 
-@pytest.mark.parametrize("soft_rows, hard_rows", [(2, 0), (3, 2), (1, 3), (6, 1)])
+@pytest.mark.parametrize("soft_rows, hard_rows", [(1, 0), (2, 0), (1, 1), (0, 2), (3, 2), (1, 3), (6, 1)])
 @pytest.mark.parametrize("epsilon", [1e-10, 1e-3])
 def test_damped_least_squares_step_is_the_kkt_solution(soft_rows, hard_rows, epsilon):
     """min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂, against the KKT system solved in

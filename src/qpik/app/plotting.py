@@ -250,7 +250,7 @@ def _level_figure(logs: Sequence[RolloutLog]):
         ax = axes[len(names)]
         for i, log in scaled:
             scale = np.atleast_2d(log.report["task_scale"].T).T
-            for k in range(scale.shape[1]):
+            for k in range(min(scale.shape[1], len(names))):  # the levels drawn above (not a last damping level)
                 style = dict(_style(i), linestyle=["-", "--", "-.", ":"][k % 4])
                 ax.plot(log.t, scale[:, k], **style)
         ax.set_ylabel("task scale s [-] (level 0 solid)")

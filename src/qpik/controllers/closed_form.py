@@ -132,10 +132,10 @@ def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, 
 
 
 def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
-                              c: np.ndarray) -> np.ndarray | None:
+                              c: np.ndarray | None) -> np.ndarray | None:
     r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂, D diagonal positive (``dinv`` = D⁻¹),
-    R₁ the first ``soft_rows`` rows of R (soft rows, scaled by √w), or None where the
-    system is singular.
+    R₁ the first ``soft_rows`` rows of R (soft rows, scaled by √w), c None for zero, or
+    None where the system is singular.
 
     With e = r₁ − R₁x, stationarity gives x = D⁻¹(Rᵀz − c) and z solves the symmetric
     system (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c, of the size of R's rows. Unlike
@@ -144,21 +144,54 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     loses them when the equalities leave x almost no freedom (the soft rows' Schur
     complement is then a difference of terms of order 1/ε): an x that misses R₂x = r₂ by
     more than ``EQUALITY_TOLERANCE`` relative is returned as None, for the solver.
+    Systems of up to ``SMALL_SYSTEM`` rows are solved in floats (cheaper than any call).
     """
+    m = R.shape[0]
     scaled = R * dinv
     K = scaled @ R.T
-    K.reshape(-1)[:: K.shape[0] + 1][:soft_rows] += 1.0
-    rhs0, rhs = rhs, rhs + scaled @ c
-    factor, z, info = lapack.dposv(K, rhs, overwrite_a=1, overwrite_b=1)
-    if info != 0:
-        return None
-    pivots = factor.diagonal().tolist()
-    if max(pivots) > SINGULAR_RATIO * min(pivots):
-        return None
-    x = dinv * (R.T @ z - c)
-    rhs_hard = rhs0[soft_rows:]
-    residual = R[soft_rows:] @ x - rhs_hard
-    if not float(residual @ residual) <= EQUALITY_TOLERANCE ** 2 * (1.0 + float(rhs_hard @ rhs_hard)):
-        return None
+    right = rhs if c is None else rhs + scaled @ c
+    if m <= SMALL_SYSTEM:
+        z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
+        if z is None:
+            return None
+        x = R.T @ np.array(z)
+    else:
+        K.reshape(-1)[:: m + 1][:soft_rows] += 1.0
+        factor, z, info = lapack.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
+        if info != 0:
+            return None
+        pivots = factor.diagonal().tolist()
+        if max(pivots) > SINGULAR_RATIO * min(pivots):
+            return None
+        x = R.T @ z
+    if c is not None:
+        x -= c
+    x *= dinv
+    if soft_rows < m:
+        rhs_hard = rhs[soft_rows:]
+        residual = R[soft_rows:] @ x - rhs_hard
+        if not float(residual @ residual) <= EQUALITY_TOLERANCE ** 2 * (1.0 + float(rhs_hard @ rhs_hard)):
+            return None
     return x
 
+
+# Up to this many rows, damped_least_squares_step solves in Python floats.
+SMALL_SYSTEM = 2
+
+
+def _small_spd_solve(K: list, r: list, soft_rows: int) -> list | None:
+    """z of (K + diag(I, 0)) z = r for one or two rows, in floats (K symmetric, as lists),
+    or None where it is not positive definite or its condition number passes
+    SINGULAR_RATIO² (as the LAPACK path's pivot test)."""
+    if len(r) == 1:
+        a = K[0][0] + (1.0 if soft_rows else 0.0)
+        return [r[0] / a] if a > 0.0 else None
+    (a, b), (_, d) = K
+    if soft_rows:
+        a += 1.0
+        if soft_rows > 1:
+            d += 1.0
+    det = a * d - b * b
+    if not (a > 0.0 and det * SINGULAR_RATIO ** 2 > a * d):
+        return None
+    return [(d * r[0] - b * r[1]) / det, (a * r[1] - b * r[0]) / det]

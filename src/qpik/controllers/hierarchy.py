@@ -85,8 +85,11 @@ class _Level:
         # with soft general rows, in damped least-squares form (accurate when only ε
         # makes H definite) on R = [√w J_soft; A].
         self.soft_rows = sum(t.dim for t in self.soft_general)
+        self.roots = [np.sqrt(t.weight) for t in self.soft_general]  # weights are read once
+        self.root_columns = [root[:, None] for root in self.roots]
         self.diagonal0 = np.diag(self.H0).copy()
         self.dinv = np.zeros(nv)
+        self.dinv_fixed = False  # dinv holds 1/diagonal0 (no LM damping at the last fill)
         if self.soft_general:
             self.R = np.zeros((self.soft_rows + rows, nv))
             self.rhs = np.zeros(self.soft_rows + rows)
@@ -278,19 +281,23 @@ class HierarchicalController:
         rows = level.above + level.hard_dim
         R, rhs, start = level.R, level.rhs, 0
         damping = 0.0
-        for task in level.soft_general:
-            root = np.sqrt(task.weight)
+        for task, root, column in zip(level.soft_general, level.roots, level.root_columns):
             stop = start + task.dim
-            np.multiply(root[:, None], task.jacobian, out=R[start:stop])
+            np.multiply(column, task.jacobian, out=R[start:stop])
             np.multiply(root, task.target_velocity, out=rhs[start:stop])
             if task.lm_damping:
                 error = task.error
                 damping += task.lm_damping * float(error @ (task.weight * error))
             start = stop
-        R[start:] = self._J[:rows]
-        rhs[start:start + level.above] = frozen
-        rhs[start + level.above:] = self._v[level.hard_rows]
-        np.divide(1.0, level.diagonal0 + damping, out=level.dinv)
+        if rows:
+            R[start:] = self._J[:rows]
+            if level.above:
+                rhs[start:start + level.above] = frozen
+            if level.hard_dim:
+                rhs[start + level.above:] = self._v[level.hard_rows]
+        if damping or not level.dinv_fixed:
+            np.divide(1.0, level.diagonal0 + damping, out=level.dinv)
+            level.dinv_fixed = not damping
 
     def _joint_space_cost(self, level: _Level) -> None:
         c = level.c
@@ -309,7 +316,8 @@ class HierarchicalController:
         self._joint_space_cost(level)
         if level.soft_general:
             self._least_squares(level, frozen)
-            x = damped_least_squares_step(level.dinv, level.R, level.soft_rows, level.rhs, level.c)
+            x = damped_least_squares_step(level.dinv, level.R, level.soft_rows, level.rhs,
+                                          level.c if level.soft_diagonal else None)
         else:
             level.Ac[:rows] = self._J[:rows]
             level.Ac[rows] = level.c
@@ -343,7 +351,7 @@ class HierarchicalController:
         polished = x.copy()
         polished[fixed] = bound
         step = damped_least_squares_step(dinv[free], R[:, free], level.soft_rows, rhs - R[:, fixed] @ bound,
-                                         c[free])
+                                         c[free] if level.soft_diagonal else None)
         if step is None:
             return x
         polished[free] = step
