@@ -666,16 +666,23 @@ def _failure(result: dict) -> dict:
             "details": details, "command": f"python benchmarks/fuzz.py --case {result['case']}"}
 
 
+def outcome_table(counts: dict) -> list[str]:
+    """The outcome classes by case kind (defects in bold): the fuzz's headline table."""
+    kinds = [k for k in KINDS if counts[k].get("runs")]
+    lines = ["| outcome | " + " | ".join(kinds) + " |", "|---|" + "---:|" * len(kinds)]
+    for key, label, bad in CLASSES:
+        row = [str(counts[k].get(key, 0)) for k in kinds]
+        if bad or any(v != "0" for v in row):
+            lines.append(f"| {'**' + label + '**' if bad else label} | " + " | ".join(row) + " |")
+    return lines
+
+
 def to_markdown(summary: dict, meta: dict) -> str:
     kinds = [k for k in KINDS if summary["counts"][k].get("runs")]
     lines = [f"Fuzz of qpik's promises, seed {meta['seed']}: "
              + ", ".join(f"{summary['counts'][k]['runs']} {k}" for k in kinds)
              + f" cases; per-case cap {meta['cap_s']:g} s (`{meta['command']}`). A case may fall in several classes.",
-             "", "| outcome | " + " | ".join(kinds) + " |", "|---|" + "---:|" * len(kinds)]
-    for key, label, bad in CLASSES:
-        row = [str(summary["counts"][k].get(key, 0)) for k in kinds]
-        if bad or any(v != "0" for v in row):
-            lines.append(f"| {'**' + label + '**' if bad else label} | " + " | ".join(row) + " |")
+             "", *outcome_table(summary["counts"])]
     solvers = sorted(summary["per_solver"])
     if solvers:
         shown = [key for key, _, bad in CLASSES if bad or key in ("ok", "typed")]
