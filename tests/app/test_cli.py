@@ -218,6 +218,13 @@ def test_options_that_do_not_apply_to_calibrate_are_errors(tmp_path, capsys):
     assert data["seed"] == 3 and data["repeats"] == 3 and len(data["poses"]) == 8
 
 
+def _default_sigint():
+    """In the child, before Python starts: SIGINT back to its default. A test run started in
+    the background of a non-interactive shell inherits SIGINT ignored, and Python then
+    never turns it into KeyboardInterrupt (a user's Ctrl-C reaches a foreground process)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_stops_compare_within_a_solve_and_leaves_nothing(tmp_path):
     """SIGINT during `qpik compare` (OSQP installs its own SIGINT handler during each solve
     and swallows it): exit 130, no output, no staging folder left."""
@@ -225,7 +232,7 @@ def test_ctrl_c_stops_compare_within_a_solve_and_leaves_nothing(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "qpik", "compare", "hexapod", "--scenario", "hexapod-circle",
                              "--solvers", "osqp,daqp", "--out", str(out), "--plot"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "MPLBACKEND": "Agg"})
+                            env={**os.environ, "MPLBACKEND": "Agg"}, preexec_fn=_default_sigint)
     # Wait until the command is past its checks and working (the staging folder exists),
     # then interrupt it during the first run, qp with OSQP (~2000 solves).
     import time
@@ -268,7 +275,8 @@ def test_interrupt_guard_stops_a_loop_of_osqp_solves():
     """Almost all of this loop's time is inside OSQP's solve, where OSQP catches SIGINT
     (status "interrupted") and Python never sees it; with the guard the first SIGINT stops
     the loop, and OSQP never reports an interruption."""
-    proc = subprocess.Popen([sys.executable, "-c", OSQP_LOOP], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", OSQP_LOOP], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)
     assert proc.stdout.readline().strip() == "ready"
     import time
 
