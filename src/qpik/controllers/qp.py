@@ -332,31 +332,21 @@ class QPController:
         return False
 
     def _exact_backend(self, name: str):
-        """Exact solver ``name`` (even the controller's own: a fresh workspace) with this
-        step's constraints, or None if not installed."""
+        """Solver ``name`` sized like the problem, with this step's constraints (a workspace
+        of its own, even for the controller's own solver), or None if not installed."""
         if name not in available_solvers():
             return None
-        key = ("exact", name)
-        if key not in self._fallbacks:
-            self._fallbacks[key] = make_backend(name, self.robot.nv, self._backend.meq, self._backend.mineq)
-        backend = self._fallbacks[key]
+        if name not in self._fallbacks:
+            self._fallbacks[name] = make_backend(name, self.robot.nv, self._backend.meq, self._backend.mineq)
+        backend = self._fallbacks[name]
         backend.A[:], backend.b[:] = self.A, self.b
         backend.G[:], backend.h[:] = self.G, self.h
         backend.lb[:], backend.ub[:] = self.lb, self.ub
         return backend
 
     def _fallback_backend(self, name: str):
-        """Solver ``name`` sized like the problem, with this step's data (None if it is the
-        failing one or not installed)."""
-        if self.solver == name or name not in available_solvers():
-            return None
-        if name not in self._fallbacks:
-            self._fallbacks[name] = make_backend(name, self.robot.nv, self._backend.meq, self._backend.mineq)
-        fallback = self._fallbacks[name]
-        fallback.A[:], fallback.b[:] = self.A, self.b
-        fallback.G[:], fallback.h[:] = self.G, self.h
-        fallback.lb[:], fallback.ub[:] = self.lb, self.ub
-        return fallback
+        """:meth:`_exact_backend`, None for the failing solver itself."""
+        return None if self.solver == name else self._exact_backend(name)
 
 
 def _row_slices(items, size) -> list[slice]:
