@@ -217,10 +217,8 @@ class HierarchicalController:
     def _cost(self, level: _Level) -> None:
         H, c = level.H, level.c
         H[:] = level.H0
-        c.fill(0.0)
+        self._joint_space_cost(level)
         diagonal = H.reshape(-1)[:: H.shape[0] + 1]
-        for task in level.soft_diagonal:
-            c[task.dofs] -= task.weight * task.target_velocity
         for task in level.soft_general:
             weighted = task.weight[:, None] * task.jacobian
             H += task.jacobian.T @ weighted
@@ -299,7 +297,10 @@ class HierarchicalController:
             np.divide(1.0, level.diagonal0 + damping, out=level.dinv)
             level.dinv_fixed = not damping
 
-    def _joint_space_cost(self, level: _Level) -> None:
+    @staticmethod
+    def _joint_space_cost(level: _Level) -> None:
+        """c of the level's joint-space tasks alone (the soft general rows add theirs in
+        :meth:`_cost`, or stay in R for the closed form)."""
         c = level.c
         c.fill(0.0)
         for task in level.soft_diagonal:
