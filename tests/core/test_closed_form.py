@@ -104,3 +104,19 @@ def test_damped_least_squares_step_refuses_an_answer_that_misses_the_equalities(
             continue
         misses.append(np.linalg.norm(R[1:] @ x - rhs[1:]) / np.linalg.norm(rhs[1:]))
     assert len(misses) >= 25 and np.median(misses) > 1e-8
+
+
+def test_the_pause_doubles_after_each_failure_and_resets_after_a_success():
+    pause = closed_form.ClosedFormPause()
+    tried = []
+    for step in range(200):  # every attempt fails: tried at 0, then after 8, 16, 32, 32, ... steps
+        if pause.ready():
+            tried.append(step)
+            pause.failed()
+    assert tried[:5] == [0, 9, 26, 59, 92]
+    assert all(b - a == closed_form.CLOSED_FORM_PAUSE_MAX + 1 for a, b in zip(tried[3:], tried[4:]))
+    pause.skip = 0
+    assert pause.ready()
+    pause.succeeded()
+    pause.failed()
+    assert pause.skip == closed_form.CLOSED_FORM_PAUSE

@@ -37,6 +37,38 @@ SINGULAR_RATIO = 1e6
 EQUALITY_TOLERANCE = 1e-10
 
 
+# After a step where the closed form crossed a limit, the solver is called directly for
+# this many steps, twice as many after each attempt that fails again, up to the maximum.
+CLOSED_FORM_PAUSE = 8
+CLOSED_FORM_PAUSE_MAX = 32
+
+
+class ClosedFormPause:
+    """When to try the closed form. A limit that binds usually still binds next step, where
+    the closed form would be wasted work: after a failed attempt the next few steps go to
+    the solver directly (the same answer), and twice as many after each attempt that fails
+    again (a humanoid whose limits bind at every step tried 167 times, 37 µs each, for
+    nothing); a success brings the pause back to its start."""
+
+    def __init__(self):
+        self.skip = 0  # steps left before the next attempt
+        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
+
+    def ready(self) -> bool:
+        """Whether to try this step (if not, one step of the pause is used up)."""
+        if self.skip:
+            self.skip -= 1
+            return False
+        return True
+
+    def succeeded(self) -> None:
+        self.next = CLOSED_FORM_PAUSE
+
+    def failed(self) -> None:
+        self.skip = self.next
+        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
+
+
 class ClosedFormStep:
     """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot.
 

@@ -42,9 +42,8 @@ from ..limits import order_limits
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
-from .closed_form import ClosedFormStep, damped_least_squares_step, inside_limits
+from .closed_form import ClosedFormPause, ClosedFormStep, damped_least_squares_step, inside_limits
 from .levels import StackedLevel, check_dt, group_levels
-from .qp import CLOSED_FORM_PAUSE
 
 # Singular values below this fraction of the largest are dropped when the rows above a
 # level are replaced by a basis of their row space.
@@ -97,7 +96,7 @@ class _Level:
             self.Ac = np.zeros((rows + 1, nv))  # [A; cᵀ]
             self.b = np.zeros(rows)
             self.closed_form = ClosedFormStep(self.H0, rows)
-        self.skip_closed_form = 0
+        self.pause = ClosedFormPause()
         self.backend = None
         self.reduced: dict[int, object] = {}  # back-ends for rows replaced by a basis, by count
 
@@ -309,9 +308,9 @@ class HierarchicalController:
     def _closed_form(self, level: _Level, frozen: np.ndarray) -> np.ndarray | None:
         """The level's equality-constrained minimiser when it meets every limit (then it is
         the level's QP solution, as for :class:`~qpik.controllers.qp.QPController`), else
-        None; after a step where a limit bound, the next few go to the solver directly."""
-        if level.skip_closed_form:
-            level.skip_closed_form -= 1
+        None; after a step where a limit bound, the next few go to the solver directly
+        (:class:`~qpik.controllers.closed_form.ClosedFormPause`)."""
+        if not level.pause.ready():
             return None
         above, rows = level.above, level.above + level.hard_dim
         self._joint_space_cost(level)
@@ -326,8 +325,9 @@ class HierarchicalController:
             level.b[above:] = self._v[level.hard_rows]
             x = level.closed_form.solve(level.H0, level.Ac, level.b)
         if x is not None and inside_limits(x, self.lb, self.ub, self.G, self.h):
+            level.pause.succeeded()
             return x
-        level.skip_closed_form = CLOSED_FORM_PAUSE
+        level.pause.failed()
         return None
 
     def _polish(self, level: _Level, x: np.ndarray, frozen: np.ndarray) -> np.ndarray:

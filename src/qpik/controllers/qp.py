@@ -24,7 +24,7 @@ from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import available_solvers, make_backend
 from ..tasks import Task
-from .closed_form import ClosedFormStep, inside_limits
+from .closed_form import ClosedFormPause, ClosedFormStep, inside_limits
 from .diagnostics import explain_infeasibility
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
@@ -34,9 +34,6 @@ LM_RESCALE = 1e6
 COST_SCALE_CAP = 1e9
 # Exact solvers a failing step falls back to, in this order.
 FALLBACK_SOLVERS = ("daqp", "quadprog")
-# Steps the solver is called directly after one where the closed form crossed a limit.
-CLOSED_FORM_PAUSE = 8
-CLOSED_FORM_PAUSE_MAX = 32
 
 def check_dt(dt) -> float:
     """The control period as a positive finite float, or InvalidInput."""
@@ -140,8 +137,7 @@ class QPController:
             self._box_updates.pop(0)
         self._lb0_list, self._ub0_list = self._lb0.tolist(), self._ub0.tolist()
         self._row_plan = list(zip(self._row_limits, self._inequality_slices))
-        self._skip_closed_form = 0  # steps left before the closed form is tried again
-        self._pause = CLOSED_FORM_PAUSE  # the next pause, doubled after each failed attempt
+        self._pause = ClosedFormPause()
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
         self.fallbacks = 0  # steps the solver failed on and a fallback solver solved
         self._fallbacks = {}
@@ -180,20 +176,13 @@ class QPController:
             apply(self.dt, lb, ub)
         for limit, rows in self._row_plan:
             limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
-        if self._closed_form is not None and self._skip_closed_form == 0:
+        if self._closed_form is not None and self._pause.ready():
             x = self._closed_form.solve(H, self._Ac, self.b)
             if x is not None and inside_limits(x, self.lb, self.ub, self.G, self.h):
-                self._pause = CLOSED_FORM_PAUSE
+                self._pause.succeeded()
                 self.qdot = x
                 return x
-            # A limit binds: it usually still does next step, where the closed form would be
-            # wasted work. Go straight to the solver for a few steps (the same answer), and
-            # for twice as many after each attempt that fails again (a humanoid whose limits
-            # bind at every step tried 167 times, 37 µs each, for nothing).
-            self._skip_closed_form = self._pause
-            self._pause = min(2 * self._pause, CLOSED_FORM_PAUSE_MAX)
-        elif self._skip_closed_form:
-            self._skip_closed_form -= 1
+            self._pause.failed()  # a limit binds: the solver takes the next few steps
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
