@@ -81,7 +81,8 @@ def test_unchanged_the_example_says_what_the_jaco_lacks(jaco_path, tmp_path):
 
 def test_the_third_party_table_renders_the_recorded_benchmark():
     """benchmarks/readme_tables.third_party_table: one row per case of third_party.json, its
-    medians and ratio as recorded (the README block it is meant for comes with the merge)."""
+    medians and ratio as recorded (the renderer against the JSON itself; the README block
+    against the renderer is tests/test_readme.py's check)."""
     import json
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
