@@ -186,7 +186,7 @@ class QPController:
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
-        c = self._tame(H, c)
+        c = self._tame(c)
         try:
             self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
         except InfeasibleProblem as exc:
@@ -216,8 +216,8 @@ class QPController:
             H *= scale
             c *= scale
 
-    def _tame(self, H: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """c capped at COST_SCALE_CAP times H's scale, on the steps that call the solver.
+    def _tame(self, c: np.ndarray, cap: float = COST_SCALE_CAP) -> np.ndarray:
+        """c capped at ``cap`` times H's scale, on the steps that call the solver.
 
         A soft task with a target absurdly far away (1e28 m) puts ~1e29 in c against ~1 in
         H: the minimiser is a vertex of the limits, but 1e29 next to a bound of 8 rad/s
@@ -227,7 +227,7 @@ class QPController:
         task degrades instead of failing.
         """
         scale = float(np.abs(c).max())
-        bound = COST_SCALE_CAP * max(1.0, float(self._diag.max()))
+        bound = cap * max(1.0, float(self._diag.max()))
         if scale <= bound:
             return c
         return c * (bound / scale)
@@ -242,7 +242,7 @@ class QPController:
         damping = 1e-9 * max(1.0, float(np.trace(self.H)) / nv)
         H = self.H.copy()  # the constant Hessian must not keep the damping
         H.reshape(-1)[:: nv + 1] += damping
-        c = self._tame(H, self.c)
+        c = self._tame(self.c)
         tried = []
         if self._backend.exact:
             tried.append(f"{damping:.1g} of damping on every dof")
@@ -274,7 +274,7 @@ class QPController:
 
         With a soft task's target far away the cost dwarfs the constraints (c at up to
         COST_SCALE_CAP times H even once capped) and DAQP can declare a feasible problem
-        infeasible: 11 of 2,000 fuzzed hexapod cases, whose loop closures and box a
+        infeasible: 9 of 2,000 fuzzed hexapod cases, whose loop closures and box a
         feasibility problem (c = 0) met to 1e-16. So: an empty box stands; otherwise an
         exact solver looks for any feasible point, and if there is one the step is solved
         again by the exact solvers with the cost capped harder (the minimiser is then a
@@ -283,10 +283,8 @@ class QPController:
         InfeasibleProblem, which names the binding limits."""
         if report.variable is None and self._has_feasible_point():
             H = self.H
-            scale = max(1.0, float(self._diag.max()))
-            magnitude = float(np.abs(self.c).max())
             for cap in (COST_SCALE_CAP, 1e6, 1e3):
-                c = self.c if magnitude <= cap * scale else self.c * (cap * scale / magnitude)
+                c = self._tame(self.c, cap)
                 for name in FALLBACK_SOLVERS:
                     backend = self._exact_backend(name)
                     if backend is None:
