@@ -89,6 +89,31 @@ class ClosedFormStep:
                     self._uniform = float(self._dinv[0])
         self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
         self._tail[meq] = -1.0
+        if self._uniform is not None and 0 < meq <= 2 and meq < H0.shape[0]:
+            self.solve = self._solve_uniform_small  # the general method's branch, chosen once
+
+    def _solve_uniform_small(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """:meth:`solve` for H = I/d and one or two rows: its branch for them, alone."""
+        return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self._uniform, Ac)
+
+    def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray) -> np.ndarray | None:
+        """The end of :meth:`solve` for one or two rows, in floats: ``rows`` is M as lists."""
+        tail = self._tail
+        if self.meq == 1:
+            s = d * rows[0][0]
+            if not s > 0.0:
+                return None
+            tail[:] = (d * (d * rows[0][1] + rhs[0]) / s, -d)
+        else:
+            (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
+            a, b_, d_ = d * a, d * b_, d * d_
+            det = a * d_ - b_ * b_
+            if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
+                return None
+            r0 = d * r0 + rhs[0]
+            r1 = d * r1 + rhs[1]
+            tail[:] = (d * (d_ * r0 - b_ * r1) / det, d * (a * r1 - b_ * r0) / det, -d)
+        return np.dot(tail, scaled)
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x of the KKT system, or None (H not positive definite, S singular).
@@ -116,27 +141,10 @@ class ClosedFormStep:
         tail = self._tail
         if not meq:
             return -d * scaled[0]
-        M = scaled @ Ac.T  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        # np.dot, not @: ~0.3 µs less per call on arrays this small.
+        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
         if meq <= 2:  # in floats: cheaper than any call
-            rows, rhs = M.tolist(), b.tolist()
-            if meq == 1:
-                s = d * rows[0][0]
-                if not s > 0.0:
-                    return None
-                tail[0] = d * (d * rows[0][1] + rhs[0]) / s
-                tail[1] = -d
-            else:
-                (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
-                a, b_, d_ = d * a, d * b_, d * d_
-                det = a * d_ - b_ * b_
-                if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
-                    return None
-                r0 = d * r0 + rhs[0]
-                r1 = d * r1 + rhs[1]
-                tail[0] = d * (d_ * r0 - b_ * r1) / det
-                tail[1] = d * (a * r1 - b_ * r0) / det
-                tail[2] = -d
-            return scaled.T @ tail
+            return self._small_rows(M.tolist(), b.tolist(), d, scaled)
         # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
         rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
         rhs += b
@@ -148,18 +156,25 @@ class ClosedFormStep:
             return None
         tail[:meq] = z
         tail[meq] = -d
-        return scaled.T @ tail
+        return np.dot(tail, scaled)
 
 
 
 def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, h: np.ndarray) -> bool:
     """x finite, in the box and under every general row (exact comparisons: a point on a
     bound goes to the solver, which decides whether that bound is active)."""
-    for value, low, high in zip(x.tolist(), lb.tolist(), ub.tolist()):
-        if not low <= value <= high:  # NaN fails too
-            return False
+    if not inside_box(x.tolist(), lb.tolist(), ub.tolist()):
+        return False
     if G.shape[0] and not (G @ x <= h).all():
         return False
+    return True
+
+
+def inside_box(x: list, lower: list, upper: list) -> bool:
+    """:func:`inside_limits` for a box alone, as lists of floats."""
+    for value, low, high in zip(x, lower, upper):
+        if not low <= value <= high:  # NaN fails too
+            return False
     return True
 
 

@@ -24,7 +24,7 @@ from ..limits.limit import as_slice
 from ..robot import Robot
 from ..solvers import available_solvers, make_backend
 from ..tasks import Task
-from .closed_form import ClosedFormPause, ClosedFormStep, inside_limits
+from .closed_form import ClosedFormPause, ClosedFormStep, inside_box, inside_limits
 from .diagnostics import explain_infeasibility
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
@@ -34,6 +34,10 @@ LM_RESCALE = 1e6
 COST_SCALE_CAP = 1e9
 # Exact solvers a failing step falls back to, in this order.
 FALLBACK_SOLVERS = ("daqp", "quadprog")
+# Up to this many dofs (and with no general rows) a closed-form step keeps the box as
+# lists of floats: on the arm (4 dofs) the box and its check cost 1.8 µs so, 3.4 with
+# the box written to arrays. (The position limit's float loop stops paying at ~8 joints.)
+BOX_AS_LISTS_MAX_DOFS = 8
 
 def check_dt(dt) -> float:
     """The control period as a positive finite float, or InvalidInput."""
@@ -104,7 +108,7 @@ class QPController:
         self.A, self.c = self._Ac[:meq], self._Ac[meq]
         self.b = np.zeros(meq)
         self.G, self.h = self._backend.G, self._backend.h
-        self.lb, self.ub = self._backend.lb, self._backend.ub
+        self._lb, self._ub = self._backend.lb, self._backend.ub
         # Parts that do not change between steps are computed once: the regulariser and
         # the joint-space tasks' weights on H's diagonal, and the constant bounds.
         self._H0 = np.eye(nv) * float(regularization)
@@ -121,14 +125,20 @@ class QPController:
         self._diag = self.H.reshape(-1)[:: nv + 1]
         self._scratch = np.zeros(nv)
         self.qdot = np.zeros(nv)
-        self._c_written_by_first = bool(self._soft_diagonal) and isinstance(self._diagonal_dofs[0], slice) \
-            and self._diagonal_dofs[0] == slice(0, nv)
         self._closed_form = ClosedFormStep(None if self._soft_general else self._H0, meq) if fast_path else None
+        # No general rows and a box of a few joints: the closed-form steps keep the box in
+        # floats (each NumPy call on an array this small costs more than the arithmetic).
+        self._box_as_lists = self._closed_form is not None and not mineq and nv <= BOX_AS_LISTS_MAX_DOFS
+        self._pending_box = None
         # The step's work as flat lists, read once here (a Python loop over them is the
         # hot path's overhead).
         self._task_updates = [task.update for task in self.tasks]
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self._diagonal_plan = list(zip(self._soft_diagonal, self._neg_weights, self._diagonal_dofs))
+        # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
+        c_written_by_first = bool(self._soft_diagonal) and isinstance(self._diagonal_dofs[0], slice) \
+            and self._diagonal_dofs[0] == slice(0, nv)
+        self._c_first = self._diagonal_plan.pop(0)[:2] if c_written_by_first else None
         self._hard_plan = [(self.A[rows], self.b[rows], task) for task, rows in zip(self._hard, self._rows)]
         self._box_updates = [limit.apply for limit in self._dynamic_limits]
         self._box_from = None
@@ -150,39 +160,54 @@ class QPController:
         H, c = self.H, self.c
         # The cost: joint-space tasks on c's entries (H's diagonal is constant), then the
         # soft tasks with their own Jacobian (H changes).
-        first = self._c_written_by_first
-        if not first:
+        if self._c_first is not None:
+            task, neg_weight = self._c_first
+            np.multiply(neg_weight, task.target_velocity, c)
+        else:
             c.fill(0.0)
         for task, neg_weight, dofs in self._diagonal_plan:
-            if first:  # a first task on every dof writes c directly
-                np.multiply(neg_weight, task.target_velocity, out=c)
-                first = False
-                continue
             scratch = self._scratch[: task.dim]
-            np.multiply(neg_weight, task.target_velocity, out=scratch)
+            np.multiply(neg_weight, task.target_velocity, scratch)
             c[dofs] += scratch
         if self._soft_general:
             self._add_general_tasks(H, c)
         for jacobian_rows, velocity_rows, task in self._hard_plan:
             jacobian_rows[...] = task.jacobian
             velocity_rows[...] = task.target_velocity
-        lb, ub = self.lb, self.ub
-        if self._box_from is not None:  # the first box limit writes the whole box
-            self._box_from(self.dt, self._lb0_list, self._ub0_list, lb, ub)
-        else:
-            lb[:] = self._lb0
-            ub[:] = self._ub0
-        for apply in self._box_updates:
-            apply(self.dt, lb, ub)
-        for limit, rows in self._row_plan:
-            limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
-        if self._closed_form is not None and self._pause.ready():
+        try_closed_form = self._closed_form is not None and self._pause.ready()
+        if try_closed_form and self._box_as_lists:
+            # A small box, in floats from start to finish: written to the solver's arrays
+            # only on a step that needs the solver (or when lb/ub are read).
+            lbs, ubs = self._lb0_list.copy(), self._ub0_list.copy()
+            for limit in self._dynamic_limits:
+                limit.apply_to_lists(self.dt, lbs, ubs)
+            self._pending_box = lbs, ubs
             x = self._closed_form.solve(H, self._Ac, self.b)
-            if x is not None and inside_limits(x, self.lb, self.ub, self.G, self.h):
+            if x is not None and inside_box(x.tolist(), lbs, ubs):
                 self._pause.succeeded()
                 self.qdot = x
                 return x
-            self._pause.failed()  # a limit binds: the solver takes the next few steps
+            self._pause.failed()
+            self._write_pending_box()
+        else:
+            self._pending_box = None
+            lb, ub = self._lb, self._ub
+            if self._box_from is not None:  # the first box limit writes the whole box
+                self._box_from(self.dt, self._lb0_list, self._ub0_list, lb, ub)
+            else:
+                lb[:] = self._lb0
+                ub[:] = self._ub0
+            for apply in self._box_updates:
+                apply(self.dt, lb, ub)
+            for limit, rows in self._row_plan:
+                limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
+            if try_closed_form:
+                x = self._closed_form.solve(H, self._Ac, self.b)
+                if x is not None and inside_limits(x, lb, ub, self.G, self.h):
+                    self._pause.succeeded()
+                    self.qdot = x
+                    return x
+                self._pause.failed()  # a limit binds: the solver takes the next few steps
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
@@ -194,6 +219,23 @@ class QPController:
         except SolverError as exc:
             self.qdot = self._retry_regularized(exc)
         return self.qdot
+
+    @property
+    def lb(self) -> np.ndarray:
+        """The lower bound on q̇ of the last step (nv,)."""
+        self._write_pending_box()
+        return self._lb
+
+    @property
+    def ub(self) -> np.ndarray:
+        """The upper bound on q̇ of the last step (nv,)."""
+        self._write_pending_box()
+        return self._ub
+
+    def _write_pending_box(self) -> None:
+        if self._pending_box is not None:
+            self._lb[:], self._ub[:] = self._pending_box
+            self._pending_box = None
 
     def _add_general_tasks(self, H: np.ndarray, c: np.ndarray) -> None:
         """H = H0 + Σ JᵀWJ (+ the Levenberg–Marquardt terms), c −= Σ JᵀWv."""

@@ -61,6 +61,7 @@ class SigmaProxy:
         self.qpos_index = np.array([robot.model.jnt_qposadr[i] for i in ids], dtype=int)
         self.dof_index = np.array([robot.model.jnt_dofadr[i] for i in ids], dtype=int)
         self._pairs = [(int(qpos), int(dof)) for qpos, dof in zip(self.qpos_index, self.dof_index)]
+        self._qpos = robot.data.qpos  # a view for the data's life (MuJoCo's getter makes a new one)
 
     def value(self, robot: Robot | None = None) -> float:
         s = np.sin((robot or self.robot).q[self.qpos_index])
@@ -68,7 +69,7 @@ class SigmaProxy:
 
     def gradient(self, out: np.ndarray) -> None:
         # A few joints: floats and math.sin beat three NumPy calls with fancy indexing.
-        q = self.robot.data.qpos
+        q = self._qpos.tolist()
         out.fill(0.0)
         for qpos, dof in self._pairs:
             out[dof] = 0.5 * math.sin(2.0 * q[qpos])
@@ -294,4 +295,4 @@ class ManipulabilityTask(JointSpaceTask):
     def update(self) -> None:
         self.measure.gradient(self._grad)
         gradient = self._grad if self._every_dof else self._grad[self.dofs]
-        np.multiply(self.gain, gradient, out=self.target_velocity)
+        np.multiply(gradient, self.gain, self.target_velocity)

@@ -113,6 +113,7 @@ class PositionTask(Task):
             return
         if not self._views:
             np.take(self.frame.position, self.rows, out=self.position)
-        np.subtract(self.target, self.position, out=self.error)
-        np.multiply(self.gain, self.error, out=self.target_velocity)
-        self.target_velocity += self.target_rate
+        # Outputs passed by position: a keyword costs ~30 ns more per call.
+        np.subtract(self.target, self.position, self.error)
+        np.multiply(self.gain, self.error, self.target_velocity)
+        np.add(self.target_velocity, self.target_rate, self.target_velocity)
