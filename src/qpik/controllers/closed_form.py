@@ -165,7 +165,7 @@ def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, 
     bound goes to the solver, which decides whether that bound is active)."""
     if not inside_box(x.tolist(), lb.tolist(), ub.tolist()):
         return False
-    if G.shape[0] and not (G @ x <= h).all():
+    if G.shape[0] and not (np.dot(G, x) <= h).all():
         return False
     return True
 
@@ -195,13 +195,13 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     """
     m = R.shape[0]
     scaled = R * dinv
-    K = scaled @ R.T
-    right = rhs if c is None else rhs + scaled @ c
+    K = np.dot(scaled, R.T)
+    right = rhs if c is None else rhs + np.dot(scaled, c)
     if m <= SMALL_SYSTEM:
         z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
         if z is None:
             return None
-        x = R.T @ np.array(z)
+        x = np.dot(z, R)
     else:
         K.reshape(-1)[:: m + 1][:soft_rows] += 1.0
         factor, z, info = lapack.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
@@ -210,14 +210,15 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
         pivots = factor.diagonal().tolist()
         if max(pivots) > SINGULAR_RATIO * min(pivots):
             return None
-        x = R.T @ z
+        x = np.dot(z, R)
     if c is not None:
         x -= c
     x *= dinv
     if soft_rows < m:
         rhs_hard = rhs[soft_rows:]
-        residual = R[soft_rows:] @ x - rhs_hard
-        if not float(residual @ residual) <= EQUALITY_TOLERANCE ** 2 * (1.0 + float(rhs_hard @ rhs_hard)):
+        residual = np.dot(R[soft_rows:], x) - rhs_hard
+        allowed = EQUALITY_TOLERANCE ** 2 * (1.0 + float(np.dot(rhs_hard, rhs_hard)))
+        if not float(np.dot(residual, residual)) <= allowed:
             return None
     return x
 

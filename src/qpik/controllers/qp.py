@@ -142,7 +142,9 @@ class QPController:
         self._hard_plan = [(self.A[rows], self.b[rows], task) for task, rows in zip(self._hard, self._rows)]
         self._box_updates = [limit.apply for limit in self._dynamic_limits]
         self._box_from = None
-        if self._dynamic_limits and hasattr(self._dynamic_limits[0], "apply_from"):
+        # Starting from the constant box as lists pays only for a limit that works in floats
+        # (30 joints: 5.8 µs against 4.1 from arrays).
+        if self._dynamic_limits and getattr(self._dynamic_limits[0], "in_floats", False):
             self._box_from = self._dynamic_limits[0].apply_from
             self._box_updates.pop(0)
         self._lb0_list, self._ub0_list = self._lb0.tolist(), self._ub0.tolist()
@@ -243,11 +245,11 @@ class QPController:
         lm_total = 0.0
         for task in self._soft_general:
             weighted = task.weight[:, None] * task.jacobian
-            H += task.jacobian.T @ weighted
-            c -= weighted.T @ task.target_velocity
+            H += np.dot(task.jacobian.T, weighted)  # np.dot: less overhead than @ on small arrays
+            c -= np.dot(task.target_velocity, weighted)
             if task.lm_damping:
                 error = task.error
-                lm = task.lm_damping * float(error @ (task.weight * error))
+                lm = task.lm_damping * float(np.dot(error, task.weight * error))
                 self._diag += lm
                 lm_total += lm
         if lm_total > LM_RESCALE:

@@ -65,6 +65,12 @@ class JointPositionLimit(Limit):
                                zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)] \
             if len(self.limits.names) <= SCALAR_JOINTS_MAX else None
 
+    @property
+    def in_floats(self) -> bool:
+        """Whether the box is computed joint by joint in floats (a few joints): then
+        :meth:`apply_from` and :meth:`apply_to_lists` are the cheap calls."""
+        return self._scalar_joints is not None
+
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
         if self._scalar_joints is not None:
