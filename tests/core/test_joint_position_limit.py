@@ -44,10 +44,11 @@ def test_float_and_vector_paths_are_identical(scene, influence):
         assert np.all(q_next[inside] <= limits.upper[inside])  # the upper bound is never stepped past
 
 
-def test_non_finite_position_is_an_error():
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_position_is_an_error(value):
     robot = Robot.load("arm")
     limit = JointPositionLimit(robot)
-    robot.q[1] = np.nan
+    robot.q[1] = value
     with pytest.raises(InvalidInput, match="theta2"):
         limit.apply(0.002, np.full(4, -1.0), np.full(4, 1.0))
 

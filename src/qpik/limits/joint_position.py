@@ -128,11 +128,11 @@ class JointPositionLimit(Limit):
         q = self._q.tolist()
         step_rate = self.gain / dt
         influence = self.influence
-        damped = min(self._rate, step_rate)
+        damped = self._rate if self._rate < step_rate else step_rate
+        total = 0.0  # one finiteness test for all the joints, after the loop
         for qi, di, lo, hi in self._scalar_joints:
             x = q[qi]
-            if not math.isfinite(x):
-                raise InvalidInput(f"joint {self.robot.dof_name(di)} has a non-finite position {x}")
+            total += x
             low, high = lo - x, hi - x
             if influence > 0.0:
                 low *= damped if abs(low) < influence else step_rate
@@ -150,3 +150,7 @@ class JointPositionLimit(Limit):
                 lbs[di] = low
             if high < v_hi:
                 ubs[di] = high
+        if not math.isfinite(total):
+            for qi, di, _, _ in self._scalar_joints:
+                if not math.isfinite(q[qi]):
+                    raise InvalidInput(f"joint {self.robot.dof_name(di)} has a non-finite position {q[qi]}")
