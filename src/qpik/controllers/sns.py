@@ -88,7 +88,7 @@ from ..robot import JointLimits, Robot
 from ..tasks import Task
 from .levels import StackedLevel, check_dt, group_levels
 
-_gesvd = lapack.dgesvd
+_gesvd = lapack.dgesvd  # products below use ndarray.dot: `@` costs twice as much at these sizes
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 
@@ -109,7 +109,7 @@ class _Solve:
         self._basis, self._matrix, self._vt, self._null = basis, matrix, None, None
         if matrix is None:  # J = I: x = F (I F)^# r = F Fᵀ r, and nothing of F is left
             self.rank = nv if basis is None else basis.shape[1]
-            self.pinv = np.eye(nv) if basis is None else basis @ basis.T
+            self.pinv = np.eye(nv) if basis is None else basis.dot(basis.T)
             self._null = np.zeros((nv, 0))
             return
         m, n = matrix.shape
@@ -119,12 +119,12 @@ class _Solve:
             return
         if m == 1:  # one row x: x^# = xᵀ/‖x‖²
             row = matrix[0]
-            norm_sq = float(row @ row)
+            norm_sq = float(row.dot(row))
             if not math.isfinite(norm_sq):
                 raise DivergenceError("SNS: a task Jacobian is not finite")
             self.rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
             pinv = (row / norm_sq if self.rank else 0.0 * row)[:, None]
-            self.pinv = pinv if basis is None else basis @ pinv
+            self.pinv = pinv if basis is None else basis.dot(pinv)
             return
         u, s, vt, info = _gesvd(matrix)
         largest = float(s[0])
@@ -134,10 +134,10 @@ class _Solve:
         rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
         self.rank, self._vt = rank, vt
         if rank == len(s) == m:  # full row rank, the usual case
-            pinv = vt[:rank].T @ (u.T / s[:, None])
+            pinv = vt[:rank].T.dot(u.T / s[:, None])
         else:
-            pinv = vt[:rank].T @ (u[:, :rank].T / s[:rank, None])
-        self.pinv = pinv if basis is None else basis @ pinv
+            pinv = vt[:rank].T.dot(u[:, :rank].T / s[:rank, None])
+        self.pinv = pinv if basis is None else basis.dot(pinv)
 
     @property
     def null(self) -> np.ndarray:
@@ -145,7 +145,7 @@ class _Solve:
             if self._vt is None:  # the one-row case: decompose now
                 self._vt = _gesvd(self._matrix)[2]
             null = self._vt[self.rank:].T
-            self._null = null if self._basis is None else self._basis @ null
+            self._null = null if self._basis is None else self._basis.dot(null)
         return self._null
 
 
@@ -286,24 +286,26 @@ class SNSController:
         # ‖J‖ for the rank decisions (None: J itself is decomposed, its largest singular value)
         scale = None if identity or basis is None else math.sqrt(float(np.vdot(J, J)))
         # The task's rows in the coordinates of the basis (y, with q̇ = Z y)
-        rows = None if identity else (J if basis is None else J @ basis)
+        rows = None if identity else (J if basis is None else J.dot(basis))
         task = _Solve(rows, basis, nv, scale)
         if task.rank == 0:  # the levels above took every direction this task moves
             return above, 0.0, 0, basis
         # The unsaturated pass: the prioritised pseudoinverse law.
         if above_zero:
-            qdot = task.pinv @ v
+            qdot = task.pinv.dot(v)
         else:
-            qdot = above + task.pinv @ (v - (above if identity else J @ above))
+            qdot = above + task.pinv.dot(v - (above if identity else J.dot(above)))
         if self._inside(qdot):
             return qdot, 1.0, 0, task.null if more else basis
         solve, shifted = task, above
         saturated: list[int] = []
         held: list[np.ndarray] = []  # unit directions (coordinates y) of the joints held
         best_scale, best = -1.0, None
+        first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
-            a = solve.pinv @ v
+            a = solve.pinv.dot(v) if first is None else first
+            first = None
             b = qdot - a
             s, critical = self._scaling(a, b, saturated)
             if s > best_scale:
@@ -326,20 +328,20 @@ class SNSController:
                 # h, the joint's row of Z less its part along the joints already held
                 h = basis[critical]
                 for u in held:
-                    h = h - (u @ h) * u
-                norm_sq = float(h @ h)
+                    h = h - u.dot(h) * u
+                norm_sq = float(h.dot(h))
                 if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = shifted + basis @ (h * ((target - shifted[critical]) / norm_sq))
+                shifted = shifted + basis.dot(h * ((target - shifted[critical]) / norm_sq))
                 u = h / math.sqrt(norm_sq)
                 held.append(u)
-                rows = rows - np.outer(rows @ u, u)  # J Z (I − u uᵀ): the task without u
+                rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
             # The rank tolerance of these passes scales with s, the last pass's task scale,
             # as in the code this replaced (its results kept; ‖J‖ looks intended).
             solve = _Solve(rows, basis, nv, s)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
-            qdot = shifted + solve.pinv @ (v - J @ shifted)
+            qdot = shifted + solve.pinv.dot(v - J.dot(shifted))
             if self._inside(qdot):
                 return qdot, 1.0, len(saturated), task.null if more else basis
         if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
