@@ -283,6 +283,7 @@ class SNSController:
         J, v = level.J, level.v
         if free == 0 or J.shape[0] == 0:
             return above, 0.0, 0, F, projector, free
+        lower, upper = self._lower, self._upper
         identity = level.identity  # J = I: no decomposition needed
         vt = None
         if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
@@ -311,7 +312,10 @@ class SNSController:
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             q_list = qdot.tolist()
-            if self._inside(q_list):
+            for x, lo, hi in zip(q_list, lower, upper):
+                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+                    break
+            else:  # inside the box
                 scale = 1.0
                 break
             # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
@@ -330,7 +334,7 @@ class SNSController:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
-            target = self._upper[critical] if q_list[critical] > self._upper[critical] else self._lower[critical]
+            target = upper[critical] if q_list[critical] > upper[critical] else lower[critical]
             if F is None:  # in joint space: the saturated joints are simply set, and the
                 # task keeps the other columns (zeroed columns: the same singular values as
                 # J without them, and a pseudoinverse with zero rows there)
@@ -345,9 +349,11 @@ class SNSController:
                 norm_sq = float(d[critical])  # ‖P̄ e_i‖²
                 if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = shifted + d * ((target - shifted[critical]) / norm_sq)
+                shifted = shifted + d * ((target - shifted.item(critical)) / norm_sq)
                 held.append((d, norm_sq))
-                rows = rows - (rows.dot(d) / norm_sq)[:, None] * d  # J P̄: the task without d
+                # J P̄: the task without d
+                rows = rows - (d * (rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                               (rows.dot(d) / norm_sq)[:, None] * d)
             else:  # within the basis, as close as it allows: along h, the joint's row of Z
                 # less its part along the joints already held
                 h = F[critical]
@@ -384,12 +390,6 @@ class SNSController:
             task_vt = _gesvd(task_X)[2]
         null = task_vt[rank:].T
         return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
-
-    def _inside(self, qdot: list[float]) -> bool:
-        for x, lo, hi in zip(qdot, self._lower, self._upper):
-            if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
-                return False
-        return True
 
     def _scaling(self, a: np.ndarray, b: np.ndarray, saturated: list[int]) -> tuple[float, int]:
         """For a + b outside the box: the largest s in [0, 1] with s·a + b inside on the
