@@ -107,9 +107,10 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
     J Z or J P: a task direction the levels above nearly took is kept, as the law would
     keep it; only rounding is cut; None: X's largest singular value). One row:
     xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
-    (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ with G⁻¹ from ‖x1‖², c and ‖r‖², and σ1σ2 =
-    ‖x1‖‖r‖ the rank and conditioning; if rank-deficient, near the rank threshold or
-    conditioned worse than 1e4, or otherwise: one SVD, from LAPACK directly (NumPy's
+    (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
+    (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
+    bound the rank and the conditioning; if rank-deficient, near the rank threshold or
+    conditioned worse than 1e2, or otherwise: one SVD, from LAPACK directly (NumPy's
     wrapper costs more than the decomposition at these sizes)."""
     m = X.shape[0]
     if m == 1:  # one row x: x^# = xᵀ/‖x‖²
@@ -127,15 +128,13 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
             if not nr >= 0.01 * g22:
                 r = X[1] - c * X[0]
                 nr = float(r.dot(r))
-            half = 0.5 * (n1 + nr + c * c * n1)  # trace(G)/2
-            det = n1 * nr
-            if math.isfinite(half) and det > 0.0:
-                largest = half + math.sqrt(max(half * half - det, 0.0))  # σ1²
-                smallest = det / largest  # σ2²
-                threshold = _RANK_TOLERANCE * (math.sqrt(largest) if scale is None else scale)
-                if smallest > 4.0 * threshold * threshold and smallest > 1e-4 * largest:
-                    inverse = np.array([[1.0 / n1 + c * c / nr, -c / nr], [-c / nr, 1.0 / nr]])
-                    return X.T.dot(inverse), 2, None
+            det, trace = n1 * nr, n1 + g22  # σ1² ≤ trace, so σ2² ≥ det/trace, σ2²/σ1² ≥ det/trace²
+            if det > 1e-4 * trace * trace and (scale is None or det > 4e-20 * scale * scale * trace):
+                inverse = np.empty((2, 2))  # G⁻¹
+                inverse[1, 1] = i22 = 1.0 / nr
+                inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
+                inverse[0, 0] = 1.0 / n1 - c * i12
+                return X.T.dot(inverse), 2, None
     u, s, vt, info = _gesvd(X)
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
