@@ -48,18 +48,25 @@ above keep theirs: everything task k adds lies in the null space of their Jacobi
 A task that no scale in [0, 1] can fit into the box is not executed (:math:`s_k = 0`).
 After task k, :math:`P_k = P_{k-1} - (J_k P_{k-1})^\# J_k P_{k-1}`.
 
-Here the projectors are carried as orthonormal bases Z (:math:`P = Z Z^T`), so every
-pseudoinverse is of a small matrix: :math:`(J Z Z^T)^\# = Z (J Z)^\#`. Holding the
+Here a projector is carried as an orthonormal basis Z (:math:`P = Z Z^T`) after a
+level solved by an SVD, so that every pseudoinverse is of a small matrix:
+:math:`(J Z Z^T)^\# = Z (J Z)^\#`; and as P itself after a level of one or two rows
+solved in closed form (:math:`x^T/\|x\|^2`; for two rows a Gram-Schmidt step, with the
+SVD kept for rank-deficient or badly conditioned rows), where
+:math:`P_k = P_{k-1} - X^\# X`, :math:`X = J_k P_{k-1}`, costs two products. Holding the
 saturated joints S at their bounds within the null space is the minimum-norm
 :math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, built one joint at a
 time: joint i moves along :math:`Z h_\perp`, with :math:`h_\perp` its row of Z less its
 components along the joints held before (which :math:`h_\perp` leaves where they are),
 by its distance to the bound over :math:`\|h_\perp\|^2`; and the task's rows :math:`J Z`
 lose the direction :math:`u = h_\perp/\|h_\perp\|`, :math:`J Z \leftarrow J Z (I - u u^T)`
-(the freedom the joints have left). Without levels above (Z = I) that is setting the
-joint and zeroing its column of J. With no saturation this is exactly the prioritised
-pseudoinverse law; with one task and a joint-space secondary (:math:`J = I`) it is the
-null-space law :math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
+(the freedom the joints have left). With P carried the same step reads
+:math:`d = \bar P e_i = Z h_\perp`, :math:`\|h_\perp\|^2 = d_i`, and
+:math:`J \bar P \leftarrow J \bar P - (J \bar P d)\,d^T/d_i` (:math:`\bar P`: P less the
+joints held). Without levels above (Z = I) that is setting the joint and zeroing its
+column of J. With no saturation this is exactly the prioritised pseudoinverse law; with
+one task and a joint-space secondary (:math:`J = I`) it is the null-space law
+:math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
 
 Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
 squares, as the QP weighs them). ``hard`` plays no role: priority decides.
@@ -93,60 +100,50 @@ _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest co
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 
 
-class _Solve:
-    """The minimum-norm solution of J F y = r mapped back, x = F y (F: an orthonormal
-    basis, or None for the identity): ``pinv`` (n x m) applied to r; and ``null``, a basis
-    of the null space of J F mapped back (computed when asked for). Singular values below
-    ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (not of
-    J F: a task direction the levels above nearly took is kept, as the law would keep
-    it; only rounding is cut; None: the matrix is J, its largest singular value). One
-    SVD, from LAPACK directly (NumPy's wrapper costs more than the decomposition at these
-    sizes), or none for one row."""
-
-    __slots__ = ("pinv", "rank", "_basis", "_matrix", "_vt", "_null")
-
-    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float | None = 1.0):
-        self._basis, self._matrix, self._vt, self._null = basis, matrix, None, None
-        if matrix is None:  # J = I: x = F (I F)^# r = F Fᵀ r, and nothing of F is left
-            self.rank = nv if basis is None else basis.shape[1]
-            self.pinv = np.eye(nv) if basis is None else basis.dot(basis.T)
-            self._null = np.zeros((nv, 0))
-            return
-        m, n = matrix.shape
-        if m == 0 or n == 0:
-            self.rank, self.pinv = 0, np.zeros((nv, m))
-            self._null = np.eye(nv) if basis is None else basis
-            return
-        if m == 1:  # one row x: x^# = xᵀ/‖x‖²
-            row = matrix[0]
-            norm_sq = float(row.dot(row))
-            if not math.isfinite(norm_sq):
-                raise DivergenceError("SNS: a task Jacobian is not finite")
-            self.rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
-            pinv = (row / norm_sq if self.rank else 0.0 * row)[:, None]
-            self.pinv = pinv if basis is None else basis.dot(pinv)
-            return
-        u, s, vt, info = _gesvd(matrix)
-        largest = float(s[0])
-        if info != 0 or not math.isfinite(largest):
-            raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-        threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
-        rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
-        self.rank, self._vt = rank, vt
-        if rank == len(s) == m:  # full row rank, the usual case
-            pinv = vt[:rank].T.dot(u.T / s[:, None])
-        else:
-            pinv = vt[:rank].T.dot(u[:, :rank].T / s[:rank, None])
-        self.pinv = pinv if basis is None else basis.dot(pinv)
-
-    @property
-    def null(self) -> np.ndarray:
-        if self._null is None:
-            if self._vt is None:  # the one-row case: decompose now
-                self._vt = _gesvd(self._matrix)[2]
-            null = self._vt[self.rank:].T
-            self._null = null if self._basis is None else self._basis.dot(null)
-        return self._null
+def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray, int, np.ndarray | None]:
+    """X⁺ (n x m), the minimum-norm solution of X y = r applied to r, X's rank, and the
+    Vᵀ of its SVD when one was made (None otherwise). Singular values below
+    ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (X =
+    J Z or J P: a task direction the levels above nearly took is kept, as the law would
+    keep it; only rounding is cut; None: X's largest singular value). One row:
+    xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
+    (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
+    (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
+    bound the rank and the conditioning; if rank-deficient, near the rank threshold or
+    conditioned worse than 1e2, or otherwise: one SVD, from LAPACK directly (NumPy's
+    wrapper costs more than the decomposition at these sizes)."""
+    m = X.shape[0]
+    if m == 1:  # one row x: x^# = xᵀ/‖x‖²
+        row = X[0]
+        norm_sq = float(row.dot(row))
+        if not math.isfinite(norm_sq):
+            raise DivergenceError("SNS: a task Jacobian is not finite")
+        rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
+        return (row / norm_sq if rank else 0.0 * row)[:, None], rank, None
+    if m == 2 and closed:
+        (n1, g12), (_, g22) = X.dot(X.T).tolist()
+        if n1 > 0.0:
+            c = g12 / n1
+            nr = g22 - c * g12  # ‖r‖², from G where that loses at most two digits
+            if not nr >= 0.01 * g22:
+                r = X[1] - c * X[0]
+                nr = float(r.dot(r))
+            det, trace = n1 * nr, n1 + g22  # σ1² ≤ trace, so σ2² ≥ det/trace, σ2²/σ1² ≥ det/trace²
+            if det > 1e-4 * trace * trace and (scale is None or det > 4e-20 * scale * scale * trace):
+                inverse = np.empty((2, 2))  # G⁻¹
+                inverse[1, 1] = i22 = 1.0 / nr
+                inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
+                inverse[0, 0] = 1.0 / n1 - c * i12
+                return X.T.dot(inverse), 2, None
+    u, s, vt, info = _gesvd(X)
+    largest = float(s[0])
+    if info != 0 or not math.isfinite(largest):
+        raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
+    threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
+    rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
+    if rank == len(s) == m:  # full row rank, the usual case
+        return vt[:rank].T.dot(u.T / s[:, None]), rank, vt
+    return vt[:rank].T.dot(u[:, :rank].T / s[:rank, None]), rank, vt
 
 
 class SNSController:
@@ -197,6 +194,7 @@ class SNSController:
         self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
         self._braking = self._braking_terms(max_acceleration)
         self._zero = np.zeros(nv)
+        self._eye = np.eye(nv)
         # The box as lists of floats (the loop reads it joint by joint): the constant part,
         # and the last step's
         self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
@@ -260,10 +258,12 @@ class SNSController:
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
         zero = max(lower) <= 0.0 <= min(upper)
         qdot = self._zero if zero else np.array([min(max(0.0, lo), hi) for lo, hi in zip(lower, upper)])
-        basis = None  # orthonormal basis of the null space of the levels done (None: all)
+        # The null space of the levels done: all (None), a basis Z or a projector P, its dimension
+        space, projector, free = None, False, self.robot.nv
         last = len(self.levels) - 1
         for k, level in enumerate(self.levels):
-            qdot, self.task_scale[k], self.saturated[k], basis = self._level(level, qdot, zero, basis, k < last)
+            qdot, self.task_scale[k], self.saturated[k], space, projector, free = \
+                self._level(level, qdot, zero, space, projector, free, k < last)
             zero = False
         # Clipped to the box (rounding only: every pass ends inside it), on floats.
         clipped = [hi if x > hi else lo if x < lo else x for x, lo, hi in zip(qdot.tolist(), lower, upper)]
@@ -272,88 +272,123 @@ class SNSController:
         self.qdot[:] = clipped
         return self.qdot
 
-    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, basis: np.ndarray | None,
-               more: bool):
-        """SNS for one level in the null space ``basis`` (None: all of joint space) of the
-        levels above, whose velocity is ``above``. Returns (q̇, scale, saturated joints,
-        the basis left for the levels below: computed only when ``more`` levels follow)."""
-        nv = self.robot.nv
-        free_count = nv if basis is None else basis.shape[1]
+    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, F: np.ndarray | None,
+               projector: bool, free: int, more: bool):
+        """SNS for one level in the null space of the levels above (``F``: None, all of
+        joint space; an orthonormal basis Z; or, ``projector``, P = Z Zᵀ itself), of
+        dimension ``free``, whose velocity is ``above``. Returns (q̇, scale, saturated
+        joints, and the null space left for the levels below as (F, projector, free):
+        computed only when ``more`` levels follow)."""
         J, v = level.J, level.v
-        if free_count == 0 or J.shape[0] == 0:
-            return above, 0.0, 0, basis
+        if free == 0 or J.shape[0] == 0:
+            return above, 0.0, 0, F, projector, free
+        lower, upper = self._lower, self._upper
         identity = level.identity  # J = I: no decomposition needed
-        # ‖J‖ for the rank decisions (None: J itself is decomposed, its largest singular value)
-        scale = None if identity or basis is None else math.sqrt(float(np.vdot(J, J)))
-        # The task's rows in the coordinates of the basis (y, with q̇ = Z y)
-        rows = None if identity else (J if basis is None else J.dot(basis))
-        task = _Solve(rows, basis, nv, scale)
-        if task.rank == 0:  # the levels above took every direction this task moves
-            return above, 0.0, 0, basis
+        vt = None
+        if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
+            X = None
+            pinv, rank = (self._eye if F is None else F if projector else F.dot(F.T)), free
+        else:
+            # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
+            # singular value). Two rows in joint space or in a projector's: closed form.
+            X = J if F is None else J.dot(F)
+            pinv, rank, vt = _solve(X, None if F is None else math.sqrt(float(np.vdot(J, J))),
+                                    F is None or projector)
+            if rank == 0:  # the levels above took every direction this task moves
+                return above, 0.0, 0, F, projector, free
+            if F is not None and not projector:
+                pinv = F.dot(pinv)
         # The unsaturated pass: the prioritised pseudoinverse law.
         if above_zero:
-            qdot = task.pinv.dot(v)
+            qdot = pinv.dot(v)
         else:
-            qdot = above + task.pinv.dot(v - (above if identity else J.dot(above)))
-        if self._inside(qdot):
-            return qdot, 1.0, 0, task.null if more else basis
-        solve, shifted = task, above
+            qdot = above + pinv.dot(v - (above if identity else J.dot(above)))
+        task_pinv, task_X, task_vt = pinv, X, vt
         saturated: list[int] = []
-        held: list[np.ndarray] = []  # unit directions (coordinates y) of the joints held
+        held: list = []  # joints held within F: unit directions u (basis) or (d, ‖d‖²) (projector)
+        shifted, rows = above, X
         best_scale, best = -1.0, None
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
+            q_list = qdot.tolist()
+            for x, lo, hi in zip(q_list, lower, upper):
+                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+                    break
+            else:  # inside the box
+                scale = 1.0
+                break
             # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
-            a = solve.pinv.dot(v) if first is None else first
-            first = None
-            b = qdot - a
+            if first is None:
+                a = pinv.dot(v)
+                b = qdot - a
+            else:  # a = q̇, b = 0
+                a, b, first = first, self._zero, None
             s, critical = self._scaling(a, b, saturated)
             if s > best_scale:
                 best_scale, best = s, (a, b)
-            # One more saturated joint leaves free_count − len(saturated) − 1 directions: if
-            # that is fewer than the task needs, it would cost the task one: scale it now.
-            if critical < 0 or free_count - len(saturated) - 1 < task.rank:
+            scale = -1.0
+            # One more saturated joint leaves free − len(saturated) − 1 directions: if that
+            # is fewer than the task needs, it would cost the task one: scale it now.
+            if critical < 0 or free - len(saturated) - 1 < rank:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
-            target = self._upper[critical] if qdot[critical] > self._upper[critical] else self._lower[critical]
-            if basis is None:  # in joint space: the saturated joints are simply set, and the
+            target = upper[critical] if q_list[critical] > upper[critical] else lower[critical]
+            if F is None:  # in joint space: the saturated joints are simply set, and the
                 # task keeps the other columns (zeroed columns: the same singular values as
                 # J without them, and a pseudoinverse with zero rows there)
                 if shifted is above:
                     shifted, rows = above.copy(), J.copy()
                 shifted[critical] = target
                 rows[:, critical] = 0.0
-            else:  # within the null space of the levels above, as close as it allows: along
-                # h, the joint's row of Z less its part along the joints already held
-                h = basis[critical]
+            elif projector:  # along d = P̄ e_i, P̄ = P less the joints already held
+                d = F[critical]
+                for e, norm in held:
+                    d = d - e * (e[critical] / norm)
+                norm_sq = float(d[critical])  # ‖P̄ e_i‖²
+                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
+                    break
+                shifted = shifted + d * ((target - shifted.item(critical)) / norm_sq)
+                held.append((d, norm_sq))
+                # J P̄: the task without d
+                rows = rows - (d * (rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                               (rows.dot(d) / norm_sq)[:, None] * d)
+            else:  # within the basis, as close as it allows: along h, the joint's row of Z
+                # less its part along the joints already held
+                h = F[critical]
                 for u in held:
                     h = h - u.dot(h) * u
                 norm_sq = float(h.dot(h))
                 if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = shifted + basis.dot(h * ((target - shifted[critical]) / norm_sq))
+                shifted = shifted + F.dot(h * ((target - shifted[critical]) / norm_sq))
                 u = h / math.sqrt(norm_sq)
                 held.append(u)
                 rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
             # The rank tolerance of these passes scales with s, the last pass's task scale,
             # as in the code this replaced (its results kept; ‖J‖ looks intended).
-            solve = _Solve(rows, basis, nv, s)
-            if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
+            pinv, pass_rank, _ = _solve(rows, s, F is None or projector)
+            if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
-            qdot = shifted + solve.pinv.dot(v - J.dot(shifted))
-            if self._inside(qdot):
-                return qdot, 1.0, len(saturated), task.null if more else basis
-        if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
-            return above, 0.0, len(saturated), basis
-        a, b = best
-        return best_scale * a + b, best_scale, len(saturated), task.null if more else basis
-
-    def _inside(self, qdot: np.ndarray) -> bool:
-        for x, lo, hi in zip(qdot.tolist(), self._lower, self._upper):
-            if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
-                return False
-        return True
+            if F is not None and not projector:
+                pinv = F.dot(pinv)
+            qdot = shifted + pinv.dot(v - J.dot(shifted))
+        if scale < 0.0:
+            if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
+                return above, 0.0, len(saturated), F, projector, free
+            scale, qdot = best_scale, best[1] if best_scale == 0.0 else best_scale * best[0] + best[1]
+        if not more or identity:
+            return qdot, scale, len(saturated), F, projector, free - rank
+        if F is None or projector:
+            if task_vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
+                return qdot, scale, len(saturated), (self._eye if F is None else F) - task_pinv.dot(task_X), \
+                    True, free - rank
+            if projector:
+                return qdot, scale, len(saturated), F - task_pinv.dot(task_X), True, free - rank
+        if task_vt is None:  # one row: decompose now
+            task_vt = _gesvd(task_X)[2]
+        null = task_vt[rank:].T
+        return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
 
     def _scaling(self, a: np.ndarray, b: np.ndarray, saturated: list[int]) -> tuple[float, int]:
         """For a + b outside the box: the largest s in [0, 1] with s·a + b inside on the
