@@ -119,7 +119,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
         if not math.isfinite(norm_sq):
             raise DivergenceError("SNS: a task Jacobian is not finite")
         rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
-        return (row / norm_sq if rank else 0.0 * row)[:, None], rank, None
+        return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
     if m == 2 and closed:
         (n1, g12), (_, g22) = X.dot(X.T).tolist()
         if n1 > 0.0:
@@ -199,6 +199,8 @@ class SNSController:
         # and the last step's
         self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
         self._lower, self._upper = list(self._lower0), list(self._upper0)
+        self._tolerant = ([lo - _BOUND_TOLERANCE for lo in self._lower],  # the box widened by
+                          [hi + _BOUND_TOLERANCE for hi in self._upper])  # the rounding tolerance
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
         self.qdot = np.zeros(nv)
@@ -245,6 +247,7 @@ class SNSController:
                 lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
             lower, upper = lb.tolist(), ub.tolist()
         self._lower, self._upper = lower, upper
+        self._tolerant = [lo - _BOUND_TOLERANCE for lo in lower], [hi + _BOUND_TOLERANCE for hi in upper]
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and bound, then run SNS level by level."""
@@ -283,6 +286,7 @@ class SNSController:
         if free == 0 or J.shape[0] == 0:
             return above, 0.0, 0, F, projector, free
         lower, upper = self._lower, self._upper
+        outside_low, outside_high = self._tolerant
         identity = level.identity  # J = I: no decomposition needed
         vt = None
         if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
@@ -311,8 +315,8 @@ class SNSController:
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             q_list = qdot.tolist()
-            for x, lo, hi in zip(q_list, lower, upper):
-                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+            for x, lo, hi in zip(q_list, outside_low, outside_high):
+                if x < lo or x > hi:
                     break
             else:  # inside the box
                 scale = 1.0
@@ -322,9 +326,10 @@ class SNSController:
             if first is None:
                 a = pinv.dot(v)
                 whole = qdot
+                s, critical = self._scaling(a.tolist(), q_list, saturated)
             else:  # a = q̇, b = 0
                 a, whole, first = first, None, None
-            s, critical = self._scaling(a.tolist(), None if whole is None else q_list, saturated)
+                s, critical = self._scaling(q_list, None, saturated)
             if s > best_scale:
                 best_scale, best = s, (a, whole)
             scale = -1.0
@@ -349,10 +354,10 @@ class SNSController:
                 norm_sq = float(d[critical])  # ‖P̄ e_i‖²
                 if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = shifted + d * ((target - shifted.item(critical)) / norm_sq)
+                shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
                 held.append((d, norm_sq))
                 # J P̄: the task without d
-                rows = rows - (d * (rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                rows = rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
                                (rows.dot(d) / norm_sq)[:, None] * d)
             else:  # within the basis, as close as it allows: along h, the joint's row of Z
                 # less its part along the joints already held
