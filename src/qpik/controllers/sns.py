@@ -199,8 +199,6 @@ class SNSController:
         # and the last step's
         self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
         self._lower, self._upper = list(self._lower0), list(self._upper0)
-        self._tolerant = ([lo - _BOUND_TOLERANCE for lo in self._lower],  # the box widened by
-                          [hi + _BOUND_TOLERANCE for hi in self._upper])  # the rounding tolerance
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
         self.qdot = np.zeros(nv)
@@ -247,7 +245,6 @@ class SNSController:
                 lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
             lower, upper = lb.tolist(), ub.tolist()
         self._lower, self._upper = lower, upper
-        self._tolerant = [lo - _BOUND_TOLERANCE for lo in lower], [hi + _BOUND_TOLERANCE for hi in upper]
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and bound, then run SNS level by level."""
@@ -286,7 +283,6 @@ class SNSController:
         if free == 0 or J.shape[0] == 0:
             return above, 0.0, 0, F, projector, free
         lower, upper = self._lower, self._upper
-        outside_low, outside_high = self._tolerant
         identity = level.identity  # J = I: no decomposition needed
         vt = None
         if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
@@ -315,8 +311,8 @@ class SNSController:
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             q_list = qdot.tolist()
-            for x, lo, hi in zip(q_list, outside_low, outside_high):
-                if x < lo or x > hi:
+            for x, lo, hi in zip(q_list, lower, upper):
+                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
                     break
             else:  # inside the box
                 scale = 1.0
