@@ -205,3 +205,20 @@ def test_closed_form_pseudoinverse_equals_numpy_and_falls_back_near_singular():
     # below the threshold 1e-10 · scale the second row counts as dependent
     X = np.array([[1.0, 0.0, 0.0], [0.0, 1e-11, 0.0]])
     assert _solve(X, 1.0, True)[1] == 1 and _solve(X, 1e-2, True)[1] == 2
+
+
+def test_scaling_takes_b_as_q_minus_a_or_zero():
+    """_scaling reads b = q̇ − a joint by joint from the pass's q̇ (None: b = 0), skips
+    the saturated joints, and names the joint that limits s."""
+    robot = _arm_at([0.9, -0.7, 0.5, 0.5])
+    position, _ = _tasks(robot)
+    caps = np.array([1.0, 2.0, 4.0, 8.0])
+    sns = SNSController(robot, [position], [JointVelocityLimit(robot, caps)], dt=DT)
+    sns.compute_velocity()
+    assert sns._lower == list(-caps) and sns._upper == list(caps)
+    a = [2.0, -1.0, 0.5, 0.0]
+    assert sns._scaling(a, None, []) == (0.5, 0)  # b = 0: joint 0 reaches 1 at s = 0.5
+    q = [x + y for x, y in zip(a, [0.5, -1.5, 0.0, 0.0])]  # b = (0.5, -1.5, 0, 0)
+    assert sns._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
+    assert sns._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
+    assert sns._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8

@@ -119,7 +119,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
         if not math.isfinite(norm_sq):
             raise DivergenceError("SNS: a task Jacobian is not finite")
         rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
-        return (row / norm_sq if rank else 0.0 * row)[:, None], rank, None
+        return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
     if m == 2 and closed:
         (n1, g12), (_, g22) = X.dot(X.T).tolist()
         if n1 > 0.0:
@@ -317,15 +317,17 @@ class SNSController:
             else:  # inside the box
                 scale = 1.0
                 break
-            # q̇(s) = s a + b: a the task's share, b the saturated joints' and the levels above'
+            # q̇(s) = s a + b: a the task's share, b = q̇ − a the saturated joints' and the
+            # levels above' (taken joint by joint where needed; None: b = 0)
             if first is None:
                 a = pinv.dot(v)
-                b = qdot - a
+                whole = qdot
+                s, critical = self._scaling(a.tolist(), q_list, saturated)
             else:  # a = q̇, b = 0
-                a, b, first = first, self._zero, None
-            s, critical = self._scaling(a, b, saturated)
+                a, whole, first = first, None, None
+                s, critical = self._scaling(q_list, None, saturated)
             if s > best_scale:
-                best_scale, best = s, (a, b)
+                best_scale, best = s, (a, whole)
             scale = -1.0
             # One more saturated joint leaves free − len(saturated) − 1 directions: if that
             # is fewer than the task needs, it would cost the task one: scale it now.
@@ -348,10 +350,10 @@ class SNSController:
                 norm_sq = float(d[critical])  # ‖P̄ e_i‖²
                 if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
                     break
-                shifted = shifted + d * ((target - shifted.item(critical)) / norm_sq)
+                shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
                 held.append((d, norm_sq))
                 # J P̄: the task without d
-                rows = rows - (d * (rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                rows = rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
                                (rows.dot(d) / norm_sq)[:, None] * d)
             else:  # within the basis, as close as it allows: along h, the joint's row of Z
                 # less its part along the joints already held
@@ -376,7 +378,8 @@ class SNSController:
         if scale < 0.0:
             if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
                 return above, 0.0, len(saturated), F, projector, free
-            scale, qdot = best_scale, best[1] if best_scale == 0.0 else best_scale * best[0] + best[1]
+            a, b = best[0], self._zero if best[1] is None else best[1] - best[0]
+            scale, qdot = best_scale, b if best_scale == 0.0 else best_scale * a + b
         if not more or identity:
             return qdot, scale, len(saturated), F, projector, free - rank
         if F is None or projector:
@@ -390,19 +393,18 @@ class SNSController:
         null = task_vt[rank:].T
         return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
 
-    def _scaling(self, a: np.ndarray, b: np.ndarray, saturated: list[int]) -> tuple[float, int]:
-        """For a + b outside the box: the largest s in [0, 1] with s·a + b inside on the
-        free joints (−1: none) and the most critical joint (the next to saturate; −1: none
-        left). A plain loop: nv is small, and NumPy's per-call cost would dominate."""
+    def _scaling(self, a_list: list[float], q_list: list[float] | None, saturated: list[int]) -> tuple[float, int]:
+        """For q̇ = a + b outside the box (``q_list``: q̇; None: b = 0): the largest s in
+        [0, 1] with s·a + b inside on the free joints (−1: none) and the most critical
+        joint (the next to saturate; −1: none left). A plain loop: nv is small, and NumPy's
+        per-call cost would dominate."""
         lower, upper = self._lower, self._upper
-        b_list = b.tolist()
-        a_list = a.tolist()
         tiny = 1e-14 * (1.0 + max(map(abs, a_list)))
         s_max, s_min, first_out, last_in = math.inf, -math.inf, -1, -1
         for i, ai in enumerate(a_list):
             if i in saturated:
                 continue
-            bi = b_list[i]
+            bi = 0.0 if q_list is None else q_list[i] - ai
             if -tiny <= ai <= tiny:  # the task does not move this joint
                 if bi < lower[i] - _BOUND_TOLERANCE or bi > upper[i] + _BOUND_TOLERANCE:
                     return -1.0, i  # out of bounds whatever the scale
