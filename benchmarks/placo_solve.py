@@ -2,10 +2,12 @@
 
 placo's step in ``compare_peers.py`` includes the Python glue every peer needs to be
 given qpik's problem (targets retargeted, step bounds re-set, the state synced). Here the
-glue is left out of placo's side: only its C++ ``KinematicsSolver.solve`` is timed, while
-qpik's side is its whole step (kinematics update, tasks, limits, QP). The two run
-block-interleaved on their own copies of the scenario (``timing.interleave``, gc off);
-per repeat, the ratio qp step median / placo solve median.
+glue is left out of placo's side: its C++ ``KinematicsSolver.solve`` is timed, and with it
+its C++ ``RobotWrapper.update_kinematics`` (once a step: like qpik's step, which includes
+its kinematics update), while qpik's side is its whole step (kinematics update, tasks,
+limits, QP). The two run block-interleaved on their own copies of the scenario
+(``timing.interleave``, gc off); per repeat, the ratios of qp's step median to placo's
+solve median and to its kinematics + solve median.
 
     python benchmarks/placo_solve.py [--repeats 5] [--out benchmarks/results]
 
@@ -31,29 +33,34 @@ RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
 
 
-class _TimedSolve:
-    """placo's solver with its ``solve`` timed; every other attribute passed through."""
+class _Timed:
+    """An object with one method timed into ``times``; every other attribute passed through."""
 
-    def __init__(self, ik, times: list[float]):
-        self._ik, self._times = ik, times
+    def __init__(self, inner, method: str, times: list[float]):
+        self._inner, self._method, self._times = inner, getattr(inner, method), times
+        setattr(self, method, self._timed)
 
     def __getattr__(self, name):
-        return getattr(self._ik, name)
+        return getattr(self._inner, name)
 
-    def solve(self, *args):
+    def _timed(self, *args):
         start = time.perf_counter()
-        result = self._ik.solve(*args)
+        result = self._method(*args)
         self._times.append(time.perf_counter() - start)
         return result
 
 
 def measure(robot: str, scenario: str, repeats: int) -> dict:
     solve_times: list[list[float]] = []
+    kinematics_times: list[list[float]] = []
 
     def placo_rollout():
         rollout = start_run(robot, scenario, "placo", "daqp", on_failure="stop")[1]
         solve_times.append([])
-        rollout.controller.ik = _TimedSolve(rollout.controller.ik, solve_times[-1])
+        kinematics_times.append([])
+        controller = rollout.controller
+        controller.ik = _Timed(controller.ik, "solve", solve_times[-1])
+        controller.wrapper = _Timed(controller.wrapper, "update_kinematics", kinematics_times[-1])
         return rollout
 
     contenders = [Contender("qp (daqp)", lambda: start_run(robot, scenario, "qp", "daqp", on_failure="stop")[1]),
@@ -61,24 +68,38 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
     timing = interleave(contenders, repeats=repeats)
     qp_medians = timing.contenders["qp (daqp)"].repeat_medians_us
     solve_medians = np.array([np.median(t[1:]) * 1e6 for t in solve_times])  # the first sets placo up
+    # placo's compiled work per step: its kinematics update (once a step) and its solve.
+    # (one more kinematics update than solves: the set-up's check of the URDF, first)
+    compiled_medians = np.array([np.median(np.add(k[len(k) - len(t) + 1:], t[1:])) * 1e6
+                                 for k, t in zip(kinematics_times, solve_times)])
     ratios = qp_medians / solve_medians
+    compiled_ratios = qp_medians / compiled_medians
     return {"robot": robot, "scenario": scenario, "qp_step_median_us": [float(v) for v in qp_medians],
             "placo_solve_median_us": [float(v) for v in solve_medians],
+            "placo_compiled_median_us": [float(v) for v in compiled_medians],
             "placo_step_median_us": [float(v) for v in timing.contenders["placo"].repeat_medians_us],
-            "ratio": {"median": float(np.median(ratios)), "min": float(ratios.min()), "max": float(ratios.max()),
-                      "per_repeat": [float(r) for r in ratios]}}
+            "ratio": _spread(ratios), "compiled_ratio": _spread(compiled_ratios)}
+
+
+def _spread(ratios: np.ndarray) -> dict:
+    return {"median": float(np.median(ratios)), "min": float(ratios.min()), "max": float(ratios.max()),
+            "per_repeat": [float(r) for r in ratios]}
 
 
 def to_markdown(results: list[dict], repeats: int) -> str:
-    lines = [f"qpik's whole step against placo's compiled `solve` alone, block-interleaved, gc off, {repeats} "
-             "repeats (medians over the repeats' medians; the ratio's median and range).", "",
-             "| robot / scenario | qp (daqp) step [µs] | placo step [µs] | placo solve [µs] | qp step / placo solve |",
-             "|---|---:|---:|---:|---:|"]
+    lines = [f"qpik's whole step (kinematics update + controller) against placo's compiled `solve` alone, and "
+             f"against its compiled work per step (`update_kinematics` + `solve`); block-interleaved, gc off, "
+             f"{repeats} repeats (medians over the repeats' medians; the ratios' median and range).", "",
+             "| robot / scenario | qp (daqp) step [µs] | placo step [µs] | placo solve [µs] | "
+             "placo kinematics + solve [µs] | qp step / placo solve | qp step / placo kinematics + solve |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        ratio = r["ratio"]
+        ratio, compiled = r["ratio"], r["compiled_ratio"]
         lines.append(f"| {r['robot']} / {r['scenario']} | {np.median(r['qp_step_median_us']):.1f} | "
                      f"{np.median(r['placo_step_median_us']):.1f} | {np.median(r['placo_solve_median_us']):.1f} | "
-                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) |")
+                     f"{np.median(r['placo_compiled_median_us']):.1f} | "
+                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) | "
+                     f"{compiled['median']:.2f} ({compiled['min']:.2f}–{compiled['max']:.2f}) |")
     return "\n".join(lines) + "\n"
 
 
