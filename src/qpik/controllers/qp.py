@@ -177,6 +177,7 @@ class QPController:
             jacobian_rows[...] = task.jacobian
             velocity_rows[...] = task.target_velocity
         try_closed_form = self._closed_form is not None and self._pause.ready()
+        lbs = None
         if try_closed_form and self._box_as_lists:
             # A small box, in floats from start to finish: written to the solver's arrays
             # only on a step that needs the solver (or when lb/ub are read).
@@ -184,13 +185,6 @@ class QPController:
             for limit in self._dynamic_limits:
                 limit.apply_to_lists(self.dt, lbs, ubs)
             self._pending_box = lbs, ubs
-            x = self._closed_form.solve(H, self._Ac, self.b)
-            if x is not None and inside_box(x.tolist(), lbs, ubs):
-                self._pause.succeeded()
-                self.qdot = x
-                return x
-            self._pause.failed()
-            self._write_pending_box()
         else:
             self._pending_box = None
             lb, ub = self._lb, self._ub
@@ -203,13 +197,15 @@ class QPController:
                 apply(self.dt, lb, ub)
             for limit, rows in self._row_plan:
                 limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
-            if try_closed_form:
-                x = self._closed_form.solve(H, self._Ac, self.b)
-                if x is not None and inside_limits(x, lb, ub, self.G, self.h):
-                    self._pause.succeeded()
-                    self.qdot = x
-                    return x
-                self._pause.failed()  # a limit binds: the solver takes the next few steps
+        if try_closed_form:
+            x = self._closed_form.solve(H, self._Ac, self.b)
+            if x is not None and (inside_box(x.tolist(), lbs, ubs) if lbs is not None
+                                  else inside_limits(x, self._lb, self._ub, self.G, self.h)):
+                self._pause.succeeded()
+                self.qdot = x
+                return x
+            self._pause.failed()  # a limit binds: the solver takes the next few steps
+            self._write_pending_box()
         self.solver_calls += 1
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
