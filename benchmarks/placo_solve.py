@@ -27,7 +27,7 @@ import numpy as np
 from qpik.app.peers import peer_installed
 from qpik.app.runs import start_run
 from qpik.io import write_json, write_text
-from timing import Contender, interleave
+from timing import Contender, interleave, ratio_cell, spread
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -78,12 +78,7 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
             "placo_solve_median_us": [float(v) for v in solve_medians],
             "placo_compiled_median_us": [float(v) for v in compiled_medians],
             "placo_step_median_us": [float(v) for v in timing.contenders["placo"].repeat_medians_us],
-            "ratio": _spread(ratios), "compiled_ratio": _spread(compiled_ratios)}
-
-
-def _spread(ratios: np.ndarray) -> dict:
-    return {"median": float(np.median(ratios)), "min": float(ratios.min()), "max": float(ratios.max()),
-            "per_repeat": [float(r) for r in ratios]}
+            "ratio": spread(ratios), "compiled_ratio": spread(compiled_ratios)}
 
 
 def to_markdown(results: list[dict], repeats: int) -> str:
@@ -94,12 +89,10 @@ def to_markdown(results: list[dict], repeats: int) -> str:
              "placo kinematics + solve [µs] | qp step / placo solve | qp step / placo kinematics + solve |",
              "|---|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        ratio, compiled = r["ratio"], r["compiled_ratio"]
         lines.append(f"| {r['robot']} / {r['scenario']} | {np.median(r['qp_step_median_us']):.1f} | "
                      f"{np.median(r['placo_step_median_us']):.1f} | {np.median(r['placo_solve_median_us']):.1f} | "
                      f"{np.median(r['placo_compiled_median_us']):.1f} | "
-                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) | "
-                     f"{compiled['median']:.2f} ({compiled['min']:.2f}–{compiled['max']:.2f}) |")
+                     f"{ratio_cell(r['ratio'])} | {ratio_cell(r['compiled_ratio'])} |")
     return "\n".join(lines) + "\n"
 
 

@@ -93,11 +93,15 @@ class Timing:
         """Median step of ``numerator`` / of ``denominator``: per repeat, their median,
         min and max (the spread the load left), and over all steps pooled."""
         num, den = self.contenders[numerator], self.contenders[denominator]
-        per_repeat = num.repeat_medians_us / den.repeat_medians_us
         pooled = float(np.median(num.all_steps_us) / np.median(den.all_steps_us))
         return {"numerator": numerator, "denominator": denominator, "pooled": pooled,
-                "median": float(np.median(per_repeat)), "min": float(per_repeat.min()),
-                "max": float(per_repeat.max()), "per_repeat": [float(r) for r in per_repeat]}
+                **spread(num.repeat_medians_us / den.repeat_medians_us)}
+
+
+def spread(per_repeat: np.ndarray) -> dict:
+    """A ratio measured once per repeat: its median, min, max and the values."""
+    return {"median": float(np.median(per_repeat)), "min": float(per_repeat.min()),
+            "max": float(per_repeat.max()), "per_repeat": [float(r) for r in per_repeat]}
 
 
 def rotated(labels: Sequence[str], shift: int) -> list[str]:
