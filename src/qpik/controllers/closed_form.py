@@ -26,14 +26,19 @@ closures) the feasible set is the single point :math:`A^{-1}b`: one LU solve.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg import lapack
+
+from ..solvers.base import equalities_met
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
 SINGULAR_RATIO = 1e6
-# Equality residual (relative to the right-hand side) a closed-form step may leave; the
-# solvers' own check is 1e-6 (qpik.solvers.base).
+# Equality residual (relative to 1 + |b|) a closed-form step may leave: every answer is
+# checked against it (qpik.solvers.base.equalities_met, the solvers' check), since a
+# nearly singular H or S loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
 
 
@@ -90,7 +95,18 @@ class ClosedFormStep:
         self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
         self._tail[meq] = -1.0
         if self._uniform is not None and 0 < meq <= 2 and meq < H0.shape[0]:
-            self.solve = self._solve_uniform_small  # the general method's branch, chosen once
+            self._solve_kkt = self._solve_uniform_small  # the general method's branch, chosen once
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """x of the KKT system, or None (H not positive definite, S singular, or x misses
+        the equalities by more than ``EQUALITY_TOLERANCE``: then the solver decides).
+
+        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
+        """
+        x = self._solve_kkt(H, Ac, b)
+        if x is None or (self.meq and not equalities_met(Ac[:self.meq], x, b, EQUALITY_TOLERANCE)):
+            return None
+        return x
 
     def _solve_uniform_small(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """:meth:`solve` for H = I/d and one or two rows: its branch for them, alone."""
@@ -115,11 +131,8 @@ class ClosedFormStep:
             tail[:] = (d * (d_ * r0 - b_ * r1) / det, d * (a * r1 - b_ * r0) / det, -d)
         return np.dot(tail, scaled)
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """x of the KKT system, or None (H not positive definite, S singular).
-
-        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
-        """
+    def _solve_kkt(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """:meth:`solve` before its check."""
         meq = self.meq
         if meq == len(b) and meq == Ac.shape[1]:  # as many independent rows as dofs: x = A⁻¹b
             lu, _, x, info = lapack.dgesv(Ac[:meq], b)
@@ -171,9 +184,12 @@ def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, 
 
 
 def inside_box(x: list, lower: list, upper: list) -> bool:
-    """:func:`inside_limits` for a box alone, as lists of floats."""
+    """:func:`inside_limits` for a box alone, as lists of floats (x finite: an absent
+    bound admits ±inf, which is no answer)."""
+    if not math.isfinite(sum(x)):  # NaN or ±inf anywhere
+        return False
     for value, low, high in zip(x, lower, upper):
-        if not low <= value <= high:  # NaN fails too
+        if not low <= value <= high:
             return False
     return True
 
@@ -214,12 +230,8 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     if c is not None:
         x -= c
     x *= dinv
-    if soft_rows < m:
-        rhs_hard = rhs[soft_rows:]
-        residual = np.dot(R[soft_rows:], x) - rhs_hard
-        allowed = EQUALITY_TOLERANCE ** 2 * (1.0 + float(np.dot(rhs_hard, rhs_hard)))
-        if not float(np.dot(residual, residual)) <= allowed:
-            return None
+    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
+        return None
     return x
 
 

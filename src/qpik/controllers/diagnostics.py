@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import QpikError
 from ..solvers import make_backend
+from .fallbacks import has_feasible_point
 
 ELASTIC_WEIGHT = 1e6
 
@@ -42,37 +43,69 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
     try:
         x = elastic.solve(H, c)
     except QpikError:
-        return ("the limits alone cannot be met together (the box and the general inequality rows, e.g. "
-                "collision avoidance, exclude each other); relax them")
+        if not has_feasible_point(elastic):
+            return ("the limits alone cannot be met together (the box and the general inequality rows, e.g. "
+                    "collision avoidance, exclude each other): " + _row_limit_names(controller) + "; relax them")
+        return ("the solvers found no point meeting the constraints, and the closest point to the hard tasks "
+                "could not be computed either: the problem is badly conditioned; add a DampingTask or try "
+                "another solver")
+    unmet = _unmet_tasks(controller, x)
+    if not unmet:
+        return "the solver found no point meeting the constraints, but their elastic version is met: " \
+               "the problem is badly conditioned; add a DampingTask or try another solver"
+    binding = _binding_limits(controller, x)
+    text = "cannot meet " + "; ".join(unmet)
+    if binding:
+        return (text + " within the limits: " + ", ".join(binding) + ". Make the task soft (hard=False) to let "
+                "it degrade, lower its gain, or relax those limits.")
+    return (text + ", with no limit in the way: the hard tasks ask for motions no joint velocity gives together "
+            "(they contradict each other, or the robot is at a singularity of their Jacobian). Make one of "
+            "them soft (hard=False) or give it a lower priority.")
+
+
+def _unmet_tasks(controller, x: np.ndarray) -> list[str]:
+    """Each hard task that the elastic solution misses, with its frame and by how much."""
+    A, b = controller.A, controller.b
     unmet = []
     for task, rows in zip(controller._hard, controller._rows):
         residual = A[rows] @ x - b[rows]
         worst = float(np.max(np.abs(residual))) if residual.size else 0.0
         if worst > 1e-6 * (1.0 + float(np.max(np.abs(b[rows])))):
-            unmet.append(f"{_task_label(task)} (misses its target velocity by {worst:.3g} at best)")
+            unmet.append(f"{task_label(task)} (misses its target velocity by {worst:.3g} at best)")
+    return unmet
+
+
+def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
+    """The bounds and general rows the elastic solution sits on, named."""
+    robot = controller.robot
     binding = []
-    tol = 1e-9
-    for dof in range(nv):
-        for side, value, bound, constant in (("lower", x[dof], controller.lb[dof], controller._lb0[dof]),
-                                             ("upper", x[dof], controller.ub[dof], controller._ub0[dof])):
-            if np.isfinite(bound) and abs(value - bound) <= tol * (1.0 + abs(bound)):
+    for dof in range(robot.nv):
+        for side, bound, constant in (("lower", controller.lb[dof], controller._lb0[dof]),
+                                      ("upper", controller.ub[dof], controller._ub0[dof])):
+            if np.isfinite(bound) and abs(x[dof] - bound) <= tol * (1.0 + abs(bound)):
                 kind = "speed" if bound == constant else "position"
-                binding.append(f"joint {robot.dof_name(dof)} at its {side} {kind} limit")
+                binding.append(f"joint {robot.dof_name(dof)} at its {side} {kind} limit ({bound:.6g})")
     if controller.G.shape[0]:
-        active = controller.G @ x >= controller.h - tol * (1.0 + np.abs(controller.h))
+        finite = np.isfinite(controller.h)
+        active = np.zeros(len(controller.h), dtype=bool)
+        active[finite] = controller.G[finite] @ x >= controller.h[finite] - tol * (1.0 + np.abs(controller.h[finite]))
         for limit, rows in zip(controller._row_limits, controller._inequality_slices):
             count = int(np.count_nonzero(active[rows]))
             if count:
                 binding.append(f"{count} row(s) of the {type(limit).__name__}")
-    if not unmet:
-        return "the solver found no point meeting the constraints, but their elastic version is met: " \
-               "the problem is badly conditioned; add a DampingTask or try another solver"
-    text = "cannot meet " + "; ".join(unmet)
-    if binding:
-        text += " within the limits: " + ", ".join(binding)
-    return text + ". Make the task soft (hard=False) to let it degrade, lower its gain, or relax those limits."
+    return binding
 
 
-def _task_label(task) -> str:
-    frame = getattr(task, "frame", None) or getattr(task, "site", None)
-    return f"hard {task.name}" + (f" on {frame!r}" if isinstance(frame, str) else "")
+def _row_limit_names(controller) -> str:
+    names = [type(limit).__name__ for limit in controller._row_limits]
+    return "the joint box" + (" and the rows of the " + ", ".join(names) if names else "")
+
+
+def task_label(task) -> str:
+    """A task's name with the frame it acts on, so that two tasks of one kind differ
+    (``hard position task on site 'left_foot'``)."""
+    frame = getattr(task, "frame", None)
+    name = getattr(frame, "name", frame)
+    kind = getattr(frame, "type", None)
+    where = f" on {kind + ' ' if kind else ''}{name!r}" if isinstance(name, str) else ""
+    return f"{'hard ' if task.hard else ''}{task.name}{where}"

@@ -18,22 +18,19 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import InfeasibleProblem, InvalidInput, SolverError
+from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit, order_limits
 from ..limits.limit import as_slice
 from ..robot import Robot
-from ..solvers import available_solvers, make_backend
+from ..solvers import make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormPause, ClosedFormStep, inside_box, inside_limits
 from .diagnostics import explain_infeasibility
+from .fallbacks import GuardedSolve
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
 # together (same minimiser) so no solver sees huge numbers from a far-away target.
 LM_RESCALE = 1e6
-# On solver steps, c is scaled down to at most this times H's diagonal (see _tame).
-COST_SCALE_CAP = 1e9
-# Exact solvers a failing step falls back to, in this order.
-FALLBACK_SOLVERS = ("daqp", "quadprog")
 # Up to this many dofs (and with no general rows) a closed-form step keeps the box as
 # lists of floats: on the arm (4 dofs) the box and its check cost 1.8 µs so, 3.4 with
 # the box written to arrays. (The position limit's float loop stops paying at ~8 joints.)
@@ -151,8 +148,7 @@ class QPController:
         self._row_plan = list(zip(self._row_limits, self._inequality_slices))
         self._pause = ClosedFormPause()
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
-        self.fallbacks = 0  # steps the solver failed on and a fallback solver solved
-        self._fallbacks = {}
+        self._guard = GuardedSolve(self._backend, solver)  # taming, fallbacks, infeasibility confirmed
 
     def compute_velocity(self) -> np.ndarray:
         """Update every task and limit from the current kinematics and solve the QP."""
@@ -207,15 +203,14 @@ class QPController:
             self._pause.failed()  # a limit binds: the solver takes the next few steps
             self._write_pending_box()
         self.solver_calls += 1
+        self._check_finite()
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
-        c = self._tame(c)
         try:
-            self.qdot = self._backend.solve(H, c, hessian_changed=bool(self._soft_general))
+            self.qdot = self._guard.solve(H, c, hessian_changed=bool(self._soft_general))
         except InfeasibleProblem as exc:
-            self.qdot = self._confirm_infeasible(exc, self.solver)
-        except SolverError as exc:
-            self.qdot = self._retry_regularized(exc)
+            raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
+                                    exc.variable) from None
         return self.qdot
 
     @property
@@ -256,124 +251,18 @@ class QPController:
             H *= scale
             c *= scale
 
-    def _tame(self, c: np.ndarray, cap: float = COST_SCALE_CAP) -> np.ndarray:
-        """c capped at ``cap`` times H's scale, on the steps that call the solver.
+    @property
+    def fallbacks(self) -> int:
+        """Steps the solver failed on and a fallback solver solved."""
+        return self._guard.fallbacks
 
-        A soft task with a target absurdly far away (1e28 m) puts ~1e29 in c against ~1 in
-        H: the minimiser is a vertex of the limits, but 1e29 next to a bound of 8 rad/s
-        leaves no digit for any solver to find it with (DAQP then reports infeasibility,
-        quadprog and ProxQP fail). Scaling c down to 1e9 times H's diagonal keeps its
-        direction, and the minimiser stays the same vertex up to 1e-9 relative: the soft
-        task degrades instead of failing.
-        """
-        scale = float(np.abs(c).max())
-        bound = cap * max(1.0, float(self._diag.max()))
-        if scale <= bound:
-            return c
-        return c * (bound / scale)
-
-    def _retry_regularized(self, failure: SolverError) -> np.ndarray:
-        """A solver that fails on a (nearly) singular or badly scaled problem is not the
-        end of the step. An exact active-set solver (DAQP, quadprog: cycling) gets one more
-        try with a little damping on every dof; an iterative one that ran out of
-        iterations (OSQP, ProxQP) would only run out again, so it goes straight to the
-        exact solvers: DAQP, then quadprog. If those fail too, the error says what to do."""
-        nv = self.robot.nv
-        damping = 1e-9 * max(1.0, float(np.trace(self.H)) / nv)
-        H = self.H.copy()  # the constant Hessian must not keep the damping
-        H.reshape(-1)[:: nv + 1] += damping
-        c = self._tame(self.c)
-        tried = []
-        if self._backend.exact:
-            tried.append(f"{damping:.1g} of damping on every dof")
-            try:
-                return self._backend.solve(H, c, hessian_changed=True)
-            except InfeasibleProblem as exc:
-                return self._confirm_infeasible(exc, self.solver)
-            except SolverError:
-                pass
-        for name in FALLBACK_SOLVERS:
-            fallback = self._fallback_backend(name)
-            if fallback is None:
-                continue
-            tried.append(name)
-            try:
-                x = fallback.solve(H, c)
-            except InfeasibleProblem as exc:
-                return self._confirm_infeasible(exc, f"{self.solver}, then {name}")
-            except SolverError:
-                continue
-            self.fallbacks += 1
-            return x
-        raise SolverError(f"{failure} (also with {', and with '.join(tried)}): the cost is nearly singular or badly "
-                          "scaled; add a DampingTask (weight 1e-6 or more), lower the task gains or try another "
-                          "solver") from None
-
-    def _confirm_infeasible(self, report: InfeasibleProblem, solvers: str) -> np.ndarray:
-        """A solver's "infeasible" checked before the step fails.
-
-        With a soft task's target far away the cost dwarfs the constraints (c at up to
-        COST_SCALE_CAP times H even once capped) and DAQP can declare a feasible problem
-        infeasible: 9 of 2,000 fuzzed hexapod cases, whose loop closures and box a
-        feasibility problem (c = 0) met to 1e-16. So: an empty box stands; otherwise an
-        exact solver looks for any feasible point, and if there is one the step is solved
-        again by the exact solvers with the cost capped harder (the minimiser is then a
-        vertex of the limits in the cost's direction, which a 1e3 cap still finds to
-        about 1e-3 relative). Only a problem with no feasible point raises
-        InfeasibleProblem, which names the binding limits."""
-        if report.variable is None and self._has_feasible_point():
-            H = self.H
-            for cap in (COST_SCALE_CAP, 1e6, 1e3):
-                c = self._tame(self.c, cap)
-                for name in FALLBACK_SOLVERS:
-                    backend = self._exact_backend(name)
-                    if backend is None:
-                        continue
-                    try:
-                        x = backend.solve(H, c)
-                    except (InfeasibleProblem, SolverError):
-                        continue
-                    self.fallbacks += 1
-                    return x
-            raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
-                              "point and no exact solver found the minimiser: the cost is badly scaled (a soft task "
-                              "with a target far out of reach?); add LM damping (lm_damping) or a DampingTask")
-        raise InfeasibleProblem(f"QP infeasible ({solvers}): {explain_infeasibility(self, report.variable)}",
-                                report.variable) from None
-
-    def _has_feasible_point(self) -> bool:
-        """Whether the equalities, the box and the general rows admit a point (min ½‖x‖²
-        over them, by an exact solver)."""
-        nv = self.robot.nv
-        for name in FALLBACK_SOLVERS:
-            backend = self._exact_backend(name)
-            if backend is None:
-                continue
-            try:
-                backend.solve(np.eye(nv), np.zeros(nv))
-                return True
-            except InfeasibleProblem:
-                return False
-            except SolverError:
-                continue
-        return False
-
-    def _exact_backend(self, name: str):
-        """Solver ``name`` sized like the problem, with this step's constraints (a workspace
-        of its own, even for the controller's own solver), or None if not installed."""
-        if name not in available_solvers():
-            return None
-        if name not in self._fallbacks:
-            self._fallbacks[name] = make_backend(name, self.robot.nv, self._backend.meq, self._backend.mineq)
-        backend = self._fallbacks[name]
-        backend.A[:], backend.b[:] = self.A, self.b
-        backend.G[:], backend.h[:] = self.G, self.h
-        backend.lb[:], backend.ub[:] = self.lb, self.ub
-        return backend
-
-    def _fallback_backend(self, name: str):
-        """:meth:`_exact_backend`, None for the failing solver itself."""
-        return None if self.solver == name else self._exact_backend(name)
+    def _check_finite(self) -> None:
+        """A task velocity that overflowed (a target ~1e308 away) is named, not solved."""
+        if np.isfinite(self.c).all() and np.isfinite(self.b).all():
+            return
+        bad = [task.name for task in self.tasks if not np.isfinite(task.target_velocity).all()]
+        raise InvalidInput(f"the target velocity of the {', '.join(bad) or 'cost'} is not finite (K·e overflowed): "
+                           "check the target and the gain")
 
 
 def _row_slices(items, size) -> list[slice]:

@@ -17,8 +17,10 @@ wants them, then calls :meth:`QPBackend.solve` with H and c.
   variable) before any solver sees it; non-finite H, c, b, h are refused;
 - its answer is checked: finite, within the box (a tolerance-based solver that lands a
   hair outside is projected back in; farther than ``bound_tolerance`` is a failure), the
-  equalities and inequalities met to ``constraint_tolerance`` (relative to the data's
-  scale), so a stale or wrong answer never passes as a solution;
+  equalities met to ``equality_tolerance`` by :func:`equalities_met` (the one check every
+  answer of a controller goes through, the closed form's too) and the inequalities to
+  ``constraint_tolerance`` (relative to the data's scale), so a stale or wrong answer
+  never passes as a solution, whatever the solver;
 - every failure is a typed qpik error: :class:`~qpik.errors.InfeasibleProblem` or
   :class:`~qpik.errors.SolverError`, naming the solver and the cause; iteration and time
   limits are set on every solver, so a solve cannot hang.
@@ -43,6 +45,18 @@ ITERATION_LIMIT = 10000  # DAQP's active-set iterations
 # fails within milliseconds and falls back to an exact solver.
 OSQP_ITERATIONS = 4000
 PROXQP_ITERATIONS = 200
+# Equality residual an exact answer may leave, relative to 1 + |b| (the hard rows'
+# promise): an active-set solver or the closed form meets it unless the rows are
+# ill-conditioned or contradictory, and then the answer is not one.
+EXACT_EQUALITY_TOLERANCE = 1e-9
+
+
+def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
+    """Whether |Ax − b| <= tolerance (1 + |b|) (Euclidean norms): the check every
+    answer that promises to meet hard rows goes through, solver or closed form."""
+    residual = np.dot(A, x)
+    residual -= b
+    return float(np.dot(residual, residual)) <= tolerance * tolerance * (1.0 + float(np.dot(b, b)))
 
 
 class QPBackend:
@@ -53,16 +67,20 @@ class QPBackend:
 
     Attributes:
         exact: an active-set solver: its equalities (always in the active set) and
-            active bounds hold to machine precision, so their residual is not re-checked.
+            active bounds hold to machine precision on a well-posed problem.
         bound_tolerance: how far outside the box an answer may land and still be
             projected back in (beyond it the solve failed).
-        constraint_tolerance: allowed residual of equalities and general inequalities,
-            relative to 1 + the largest right-hand side.
+        equality_tolerance: allowed residual of the equalities, relative to 1 + |b|
+            (:data:`EXACT_EQUALITY_TOLERANCE` for an exact solver: a larger one means
+            contradictory or ill-conditioned rows).
+        constraint_tolerance: allowed excess of the general inequalities, relative to
+            1 + the largest right-hand side.
     """
 
     name = "qp"
     exact = False
     bound_tolerance = 1e-6
+    equality_tolerance = 1e-6
     constraint_tolerance = 1e-6
 
     def __init__(self, nv: int, meq: int, mineq: int = 0):
@@ -135,13 +153,10 @@ class QPBackend:
                 x[i] = high
         if outside > self.bound_tolerance:
             raise SolverError(f"QP solver {self.name} returned a point {outside:.3g} outside its bounds")
-        if self.meq and not self.exact:  # an active-set solver keeps its equalities exactly
-            residual = self.A @ x
-            residual -= self.b
-            # |r|² <= tol² (1 + |b|²): the equalities met relative to their scale.
-            if not float(residual @ residual) <= self.constraint_tolerance ** 2 * (1.0 + float(self.b @ self.b)):
-                raise SolverError(f"QP solver {self.name} returned a point that misses the equality "
-                                  f"constraints by {float(np.abs(residual).max()):.3g}")
+        if self.meq and not equalities_met(self.A, x, self.b, self.equality_tolerance):
+            miss = float(np.abs(self.A @ x - self.b).max())
+            raise SolverError(f"QP solver {self.name} returned a point that misses the equality "
+                              f"constraints by {miss:.3g}")
         if self.mineq:
             finite = self.h < BIG
             if finite.any():

@@ -6,7 +6,7 @@ from ctypes import c_int
 
 import numpy as np
 
-from .base import ITERATION_LIMIT, TIME_LIMIT, QPBackend
+from .base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT, QPBackend
 
 
 class DaqpBackend(QPBackend):
@@ -20,6 +20,7 @@ class DaqpBackend(QPBackend):
     name = "daqp"
     exact = True  # active set: an active bound holds exactly
     bound_tolerance = 1e-5
+    equality_tolerance = EXACT_EQUALITY_TOLERANCE
     _EXIT = {-1: "primal infeasible", -2: "cycling detected", -3: "unbounded problem",
              -4: "iteration limit reached", -5: "nonconvex problem", -6: "overdetermined initial active set",
              -7: "time limit reached"}

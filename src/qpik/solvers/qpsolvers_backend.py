@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import qpsolvers
 
-from .base import BIG, QPBackend
+from .base import BIG, EXACT_EQUALITY_TOLERANCE, QPBackend
 
 
 # Active-set solvers among qpsolvers' (their active constraints hold to machine precision).
@@ -19,6 +19,8 @@ class QpsolversBackend(QPBackend):
         super().__init__(nv, meq, mineq)
         self.name = solver
         self.exact = solver in EXACT_SOLVERS
+        if self.exact:
+            self.equality_tolerance = EXACT_EQUALITY_TOLERANCE
         self._settings = settings
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:

@@ -1,0 +1,168 @@
+"""A QP step solved so that it fails only where the problem is infeasible.
+
+:class:`GuardedSolve` wraps one solver back-end, shared by
+:class:`~qpik.controllers.qp.QPController` and each level of
+:class:`~qpik.controllers.hierarchy.HierarchicalController`:
+
+- the cost vector is *tamed* (:func:`tame`): a soft task with a target absurdly far away
+  puts ~1e29 in c against ~1 in H, leaving no digit for a solver to find the vertex of
+  the limits it points at; c scaled down to ``COST_SCALE_CAP`` times H's scale keeps its
+  direction, and the minimiser stays the same vertex up to 1e-9 relative;
+- a solver failure gets a second try with a little damping (exact solvers) and then the
+  exact solvers DAQP and quadprog;
+- a solver's "infeasible", and any failure that no fallback overcomes, is checked by an
+  independent LP (:func:`has_feasible_point`): only a problem with no feasible point
+  raises :class:`~qpik.errors.InfeasibleProblem`; a feasible one is solved again with
+  the cost capped harder, or ends in a :class:`~qpik.errors.SolverError` that says so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linprog
+
+from ..errors import InfeasibleProblem, SolverError
+from ..solvers import available_solvers, make_backend
+
+# On solver steps, c is scaled down to at most this times H's diagonal (see tame).
+COST_SCALE_CAP = 1e9
+# Exact solvers a failing step falls back to, in this order.
+FALLBACK_SOLVERS = ("daqp", "quadprog")
+
+
+def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
+    """c scaled down to at most ``cap`` times ``max(1, hessian_scale)`` (c itself when
+    it already is)."""
+    scale = float(np.abs(c).max()) if c.size else 0.0
+    bound = cap * max(1.0, hessian_scale)
+    if scale <= bound:
+        return c
+    return c * (bound / scale)
+
+
+def has_feasible_point(backend) -> bool:
+    """Whether the back-end's constraints (A x = b, G x <= h, lb <= x <= ub, as written)
+    admit a point, by an LP (HiGHS, its feasibility tolerance 1e-7): a check that shares
+    nothing with the QP solvers it judges."""
+    lb, ub = backend.lb, backend.ub
+    if (lb > ub).any():
+        return False
+    finite = np.isfinite(backend.h)
+    result = linprog(np.zeros(backend.nv),
+                     A_ub=backend.G[finite] if finite.any() else None, b_ub=backend.h[finite] if finite.any() else None,
+                     A_eq=backend.A if backend.meq else None, b_eq=backend.b if backend.meq else None,
+                     bounds=np.column_stack([lb, ub]), method="highs")
+    return result.status != 2  # 2: infeasible; a numerical failure is not a proof of it
+
+
+class GuardedSolve:
+    """``backend.solve`` with taming, fallbacks and a confirmed infeasibility.
+
+    Args:
+        backend: the step's back-end; the caller writes the constraints into its arrays.
+        solver: the back-end's solver name (for the messages, and not retried as a fallback).
+    """
+
+    def __init__(self, backend, solver: str):
+        self.backend = backend
+        self.solver = solver
+        self.fallbacks = 0  # steps the solver failed on and a fallback solved
+        self._spares = {}
+
+    def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
+        """The checked minimiser.
+
+        Raises:
+            InfeasibleProblem: no point meets the constraints (the LP agrees), or the box
+                is empty (``variable`` set).
+            SolverError: a feasible problem that no solver could solve.
+        """
+        try:
+            return self.backend.solve(H, tame(c, _scale(H)), hessian_changed=hessian_changed)
+        except InfeasibleProblem as exc:
+            return self._confirm_infeasible(exc, H, c, self.solver)
+        except SolverError as exc:
+            return self._retry(exc, H, c)
+
+    def _retry(self, failure: SolverError, H: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """An exact active-set solver (DAQP, quadprog: cycling) gets one more try with a
+        little damping on every dof; an iterative one that ran out of iterations (OSQP,
+        ProxQP) would only run out again, so it goes straight to the exact solvers."""
+        nv = H.shape[0]
+        damping = 1e-9 * max(1.0, float(np.trace(H)) / nv)
+        H = H.copy()  # the caller's Hessian must not keep the damping
+        H.reshape(-1)[:: nv + 1] += damping
+        c = tame(c, _scale(H))
+        tried = []
+        if self.backend.exact:
+            tried.append(f"{damping:.1g} of damping on every dof")
+            try:
+                return self.backend.solve(H, c, hessian_changed=True)
+            except InfeasibleProblem as exc:
+                return self._confirm_infeasible(exc, H, c, self.solver)
+            except SolverError:
+                pass
+        for name in FALLBACK_SOLVERS:
+            spare = None if name == self.solver else self._spare(name)
+            if spare is None:
+                continue
+            tried.append(name)
+            try:
+                x = spare.solve(H, c)
+            except InfeasibleProblem as exc:
+                return self._confirm_infeasible(exc, H, c, f"{self.solver}, then {name}")
+            except SolverError:
+                continue
+            self.fallbacks += 1
+            return x
+        also = f" (also with {', and with '.join(tried)})" if tried else ""
+        if not has_feasible_point(self.backend):
+            raise InfeasibleProblem(f"{failure}{also}, and an LP finds no point that meets the constraints") from None
+        raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
+                          "(weight 1e-6 or more), lower the task gains or try another solver") from None
+
+    def _confirm_infeasible(self, report: InfeasibleProblem, H: np.ndarray, c: np.ndarray,
+                            solvers: str) -> np.ndarray:
+        """A solver's "infeasible" checked before the step fails: with a soft task's target
+        far away the cost dwarfs the constraints and DAQP can declare a feasible problem
+        infeasible (9 of 2,000 fuzzed hexapod cases). An empty box stands; a feasible
+        problem is solved again by the exact solvers with the cost capped harder (the
+        minimiser is then a vertex of the limits in the cost's direction, which a 1e3 cap
+        still finds to about 1e-3 relative)."""
+        if report.variable is not None or not has_feasible_point(self.backend):
+            raise report
+        for cap in (COST_SCALE_CAP, 1e6, 1e3):
+            capped = tame(c, _scale(H), cap)
+            for name in FALLBACK_SOLVERS:
+                spare = self._spare(name)
+                if spare is None:
+                    continue
+                try:
+                    x = spare.solve(H, capped)
+                except (InfeasibleProblem, SolverError):
+                    continue
+                self.fallbacks += 1
+                return x
+        raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
+                          "point (an LP finds one) and no exact solver found the minimiser: the cost is badly "
+                          "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
+                          "or a DampingTask")
+
+    def _spare(self, name: str):
+        """Solver ``name`` sized like the problem, with the back-end's constraints (a
+        workspace of its own, even for the solver itself), or None if not installed."""
+        if name not in available_solvers():
+            return None
+        backend = self.backend
+        if name not in self._spares:
+            self._spares[name] = make_backend(name, backend.nv, backend.meq, backend.mineq)
+        spare = self._spares[name]
+        spare.A[:], spare.b[:] = backend.A, backend.b
+        spare.G[:], spare.h[:] = backend.G, backend.h
+        spare.lb[:], spare.ub[:] = backend.lb, backend.ub
+        return spare
+
+
+def _scale(H: np.ndarray) -> float:
+    """H's scale for :func:`tame`: its largest diagonal entry."""
+    return float(H.diagonal().max())

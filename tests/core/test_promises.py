@@ -1,0 +1,141 @@
+"""Promises every controller keeps on any robot: a returned step meets its hard rows, is
+finite, and a typed error is raised only on a problem that is infeasible (checked by an
+independent LP), with a message that names what to change.
+
+The robots are small chains generated here (hinges about alternating axes), so each case
+is a few lines and runs in milliseconds."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+
+from qpik import (DampingTask, FrameTask, HierarchicalController, InfeasibleProblem, JointPositionLimit,
+                  JointVelocityLimit, PositionTask, PostureTask, QpikError, QPController, Robot)
+from qpik.solvers import available_solvers
+
+SOLVERS = [name for name in ("daqp", "osqp", "proxqp", "quadprog") if name in available_solvers()]
+# The issue's bar for a hard row: |J q̇ − v| <= 1e-9 (1 + |v|). The closed form and the
+# active-set solvers meet it (their residual is a few ulps times cond(S) <= 1e12 · 1e-16
+# only in the worst case the closed form still accepts, which is then rejected).
+HARD_ROW_TOLERANCE = 1e-9
+
+
+def chain(n: int, limited: bool = False) -> Robot:
+    """An n-hinge serial chain, links 0.2 m, axes z, y, x in turn; a site at the tip and
+    one ("mid") on the second body."""
+    bodies, closing = "", ""
+    for i in range(n):
+        axis = ("0 0 1", "0 1 0", "1 0 0")[i % 3]
+        limits = ' limited="true" range="-2 2"' if limited else ""
+        site = '<site name="mid" pos="0 0 0.1"/>' if i == 1 else ""
+        bodies += (f'<body name="b{i}" pos="0 0 0.2"><joint name="j{i}" axis="{axis}"{limits}/>'
+                   f'<geom type="capsule" size="0.02" fromto="0 0 0 0 0 0.2" mass="1"/>{site}')
+        closing += "</body>"
+    xml = (f'<mujoco><compiler angle="radian"/><worldbody>{bodies}<site name="tip" pos="0 0 0.2"/>'
+           f'{closing}</worldbody></mujoco>')
+    return Robot(mujoco.MjModel.from_xml_string(xml))
+
+
+def relative_miss(task, qdot: np.ndarray) -> float:
+    v = task.target_velocity
+    return float(np.abs(task.jacobian @ qdot - v).max()) / (1.0 + float(np.abs(v).max()))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_fast_path_meets_the_hard_rows_beside_a_soft_task_with_its_own_jacobian(seed):
+    """A 7-DoF chain, no limits: a hard tip position and a soft frame task on a middle body
+    (its Jacobian makes H = JᵀWJ + εI, nearly singular). The closed form through H⁻¹ lost
+    up to 3e-4 relative of the hard row here; the returned step must meet it to 1e-9 as
+    the solver's does."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.0, 1.0, 7)
+    tip_target = rng.normal(0.0, 0.1, 3)
+    body_target = rng.normal(0.0, 1.0, 3)
+    for fast_path in (True, False):
+        robot = chain(7)
+        robot.set_q(q)
+        hard = PositionTask(robot, "tip", gain=10.0, hard=True)
+        hard.set_target(hard.target + tip_target)
+        soft = FrameTask(robot, "b3", frame_type="body", position_gain=10.0, orientation_gain=10.0)
+        soft.set_target(body_target, np.eye(3))
+        qdot = QPController(robot, [hard, soft], dt=0.01, fast_path=fast_path).compute_velocity()
+        assert relative_miss(hard, qdot) <= HARD_ROW_TOLERANCE
+        assert np.all(np.isfinite(qdot))
+
+
+def contradictory_hard_tasks(robot: Robot):
+    """Two hard position tasks on the same tip, with targets 10 cm apart: no q̇ meets both."""
+    first = PositionTask(robot, "tip", gain=10.0, hard=True)
+    second = PositionTask(robot, "tip", gain=10.0, hard=True)
+    first.set_target(first.target + [0.1, 0.0, 0.0])
+    second.set_target(second.target - [0.1, 0.0, 0.0])
+    return [first, second, DampingTask(robot, weight=1e-3)]
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("fast_path", [True, False])
+def test_every_solver_reports_contradictory_hard_tasks_as_infeasible(solver, fast_path):
+    """quadprog returned a q̇ that missed both rows (its answers were never checked):
+    every solver's answer goes through the same check, and the step is infeasible for
+    all of them (an LP confirms it)."""
+    robot = chain(4)
+    robot.set_q([0.3, 0.5, -0.4, 0.2])
+    tasks = contradictory_hard_tasks(robot)
+    ctrl = QPController(robot, tasks, dt=0.01, solver=solver, fast_path=fast_path)
+    with pytest.raises(InfeasibleProblem):
+        ctrl.compute_velocity()
+    A = np.vstack([tasks[0].jacobian, tasks[1].jacobian])
+    b = np.concatenate([tasks[0].target_velocity, tasks[1].target_velocity])
+    lp = linprog(np.zeros(robot.nv), A_eq=A, b_eq=b, bounds=[(None, None)] * robot.nv, method="highs")
+    assert lp.status == 2  # infeasible
+
+
+def test_an_infeasibility_message_names_the_frames_and_the_binding_limits():
+    """Two hard position tasks of one kind were both "hard position task", and the limits
+    that bind were named only by kind: the message names each task's frame and each
+    binding bound with its value."""
+    robot = chain(4)
+    robot.set_q([0.3, 0.5, -0.4, 0.2])
+    tip, mid = PositionTask(robot, "tip", gain=10.0, hard=True), PositionTask(robot, "mid", gain=10.0, hard=True)
+    tip.set_target(tip.target + [0.1, 0.0, 0.0])
+    mid.set_target(mid.target + [0.0, 0.1, 0.0])
+    speed = JointVelocityLimit(robot, np.full(robot.nv, 0.01))
+    with pytest.raises(InfeasibleProblem) as error:
+        QPController(robot, [tip, mid, DampingTask(robot)], [speed], dt=0.01).compute_velocity()
+    message = str(error.value)
+    assert "'tip'" in message and "'mid'" in message
+    assert "joint j0 at its" in message and "relax those limits" in message
+
+
+def test_a_singular_infeasibility_does_not_ask_to_relax_unnamed_limits():
+    """A straight chain cannot move its tip along itself: a hard task asking for it is
+    infeasible with no limit in the way, and the message says so instead of "relax those
+    limits" with none named."""
+    robot = chain(3)
+    robot.set_q([0.0, 0.0, 0.0])
+    tip = PositionTask(robot, "tip", gain=10.0, hard=True)
+    tip.set_target(tip.target + [0.0, 0.0, 0.1])
+    limits = [JointVelocityLimit(robot, np.full(robot.nv, 5.0))]
+    with pytest.raises(InfeasibleProblem) as error:
+        QPController(robot, [tip, DampingTask(robot)], limits, dt=0.01).compute_velocity()
+    message = str(error.value)
+    assert "relax those limits" not in message and "singularity" in message and "'tip'" in message
+
+
+@pytest.mark.parametrize("fast_path", [True, False])
+def test_an_overflowing_target_is_a_typed_error_never_an_infinite_step(fast_path):
+    """A finite posture target of 1e308 overflows K·e to inf: the fast path's box test
+    accepted −inf ≤ inf ≤ inf and returned [inf]."""
+    robot = chain(1)
+    posture = PostureTask(robot, gain=10.0)
+    posture.set_target([1e308])
+    ctrl = QPController(robot, [posture], [JointVelocityLimit(robot, np.array([np.inf]))], dt=0.01,
+                        fast_path=fast_path)
+    try:
+        qdot = ctrl.compute_velocity()
+    except QpikError:
+        return
+    assert np.all(np.isfinite(qdot))
