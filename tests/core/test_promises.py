@@ -7,6 +7,8 @@ is a few lines and runs in milliseconds."""
 
 from __future__ import annotations
 
+import warnings
+
 import mujoco
 import numpy as np
 import pytest
@@ -125,17 +127,63 @@ def test_a_singular_infeasibility_does_not_ask_to_relax_unnamed_limits():
     assert "relax those limits" not in message and "singularity" in message and "'tip'" in message
 
 
-@pytest.mark.parametrize("fast_path", [True, False])
-def test_an_overflowing_target_is_a_typed_error_never_an_infinite_step(fast_path):
+CONTROLLERS = {
+    "qp": lambda robot, tasks, limits: QPController(robot, tasks, limits, dt=0.01),
+    "qp-solver": lambda robot, tasks, limits: QPController(robot, tasks, limits, dt=0.01, fast_path=False),
+    "hqp": lambda robot, tasks, limits: HierarchicalController(robot, levels=[[t] for t in tasks], limits=limits,
+                                                               dt=0.01),
+}
+
+
+# The overflow of K·e itself warns in the task (its target's validation is the task's).
+@pytest.mark.filterwarnings("ignore:overflow encountered in multiply:RuntimeWarning")
+@pytest.mark.parametrize("controller", sorted(CONTROLLERS))
+def test_an_overflowing_target_is_a_typed_error_never_an_infinite_step(controller):
     """A finite posture target of 1e308 overflows K·e to inf: the fast path's box test
-    accepted −inf ≤ inf ≤ inf and returned [inf]."""
+    accepted −inf ≤ inf ≤ inf and returned [inf]; the solver path tamed inf into NaN."""
     robot = chain(1)
     posture = PostureTask(robot, gain=10.0)
     posture.set_target([1e308])
-    ctrl = QPController(robot, [posture], [JointVelocityLimit(robot, np.array([np.inf]))], dt=0.01,
-                        fast_path=fast_path)
-    try:
-        qdot = ctrl.compute_velocity()
-    except QpikError:
-        return
+    ctrl = CONTROLLERS[controller](robot, [posture], [JointVelocityLimit(robot, np.array([np.inf]))])
+    with pytest.raises(QpikError, match="posture task is not finite"):
+        ctrl.compute_velocity()
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("distance", [1e8, 1e15, 1e28])
+def test_hierarchy_tames_a_far_soft_target_as_the_qp_does(solver, distance):
+    """A soft tip target far out of reach: QPController returned a step with every solver,
+    the hierarchy raised InfeasibleProblem (daqp), SolverError (proxqp, quadprog). Both
+    now share the taming and the fallbacks: the step is finite, inside the box, and
+    moves the tip toward the target (a vertex of the limits in the cost's direction)."""
+    robot = chain(4, limited=True)
+    robot.set_q([0.3, 0.5, -0.4, 0.2])
+    tip = PositionTask(robot, "tip", gain=10.0)
+    direction = np.ones(3) / np.sqrt(3.0)
+    tip.set_target(tip.target + distance * direction)
+    posture = PostureTask(robot, gain=1.0, weight=1e-3)
+    limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(robot.nv, 2.0))]
+    ctrl = HierarchicalController(robot, levels=[[tip], [posture]], limits=limits, dt=0.01, solver=solver)
+    qdot = ctrl.compute_velocity()
     assert np.all(np.isfinite(qdot))
+    assert np.all(qdot >= ctrl.lb - 1e-9) and np.all(qdot <= ctrl.ub + 1e-9)
+    assert float(direction @ (tip.jacobian @ qdot)) > 0.1  # m/s toward the target
+
+
+def test_hierarchy_polish_leaves_unbounded_dofs_free():
+    """With two dofs' speeds bounded (one binding) and the others not, the polish counted every unbounded
+    dof as "at its bound" (|x − (−inf)| <= inf): it multiplied inf by the Jacobian (a
+    RuntimeWarning) and never polished. The polished level matches the QP with the same
+    level alone (the same strictly convex problem; DAQP alone leaves ~1e-7)."""
+    robot = chain(4)
+    robot.set_q([0.3, 0.5, -0.4, 0.2])
+    tip = PositionTask(robot, "tip", gain=10.0)
+    tip.set_target(tip.target + [0.5, 0.3, 0.0])
+    speed = JointVelocityLimit(robot, np.array([0.05, 10.0, np.inf, np.inf]))
+    hierarchy = HierarchicalController(robot, [tip], [speed], dt=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        qdot = hierarchy.compute_velocity()
+    assert abs(qdot[0]) == pytest.approx(0.05)  # the bound binds: the solver's step, polished
+    reference = QPController(robot, [tip], [speed], dt=0.01, regularization=1e-10, fast_path=False).compute_velocity()
+    assert np.allclose(tip.jacobian @ qdot, tip.jacobian @ reference, atol=1e-9)

@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import QpikError
 from ..solvers import make_backend
 from .fallbacks import has_feasible_point
+from .labels import task_label
 
 ELASTIC_WEIGHT = 1e6
 
@@ -99,13 +100,3 @@ def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
 def _row_limit_names(controller) -> str:
     names = [type(limit).__name__ for limit in controller._row_limits]
     return "the joint box" + (" and the rows of the " + ", ".join(names) if names else "")
-
-
-def task_label(task) -> str:
-    """A task's name with the frame it acts on, so that two tasks of one kind differ
-    (``hard position task on site 'left_foot'``)."""
-    frame = getattr(task, "frame", None)
-    name = getattr(frame, "name", frame)
-    kind = getattr(frame, "type", None)
-    where = f" on {kind + ' ' if kind else ''}{name!r}" if isinstance(name, str) else ""
-    return f"{'hard ' if task.hard else ''}{task.name}{where}"

@@ -21,8 +21,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linprog
 
-from ..errors import InfeasibleProblem, SolverError
+from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..solvers import available_solvers, make_backend
+from .labels import task_label
 
 # On solver steps, c is scaled down to at most this times H's diagonal (see tame).
 COST_SCALE_CAP = 1e9
@@ -38,6 +39,16 @@ def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np
     if scale <= bound:
         return c
     return c * (bound / scale)
+
+
+def check_finite_velocities(tasks, c: np.ndarray, b: np.ndarray) -> None:
+    """InvalidInput naming the tasks whose target velocity is not finite (K·e overflowed
+    for a target ~1e308 away), when c or b is not: never solved, never returned."""
+    if np.isfinite(c).all() and np.isfinite(b).all():
+        return
+    bad = [task_label(task) for task in tasks if not np.isfinite(task.target_velocity).all()]
+    raise InvalidInput(f"the target velocity of the {', '.join(bad) or 'cost'} is not finite (K·e overflowed): "
+                       "check the target and the gain")
 
 
 def has_feasible_point(backend) -> bool:

@@ -43,6 +43,7 @@ from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormPause, ClosedFormStep, damped_least_squares_step, inside_limits
+from .fallbacks import GuardedSolve, check_finite_velocities
 from .levels import StackedLevel, check_dt, group_levels
 
 # Singular values below this fraction of the largest are dropped when the rows above a
@@ -98,7 +99,8 @@ class _Level:
             self.closed_form = ClosedFormStep(self.H0, rows)
         self.pause = ClosedFormPause()
         self.backend = None
-        self.reduced: dict[int, object] = {}  # back-ends for rows replaced by a basis, by count
+        self.guard = None  # the back-end with taming and fallbacks (qpik.controllers.fallbacks)
+        self.reduced: dict[int, GuardedSolve] = {}  # for rows replaced by a basis, by count
 
 
 class HierarchicalController:
@@ -174,6 +176,7 @@ class HierarchicalController:
             level = _Level(k, level_tasks, stack.offset, stack, nv, float(regularization))
             level.backend = make_backend(solver, nv, level.above + level.hard_dim, self._mineq, native=native,
                                          **solver_settings)
+            level.guard = GuardedSolve(level.backend, solver)
             self.levels.append(level)
         self.tasks = [t for level in grouped for t in level]
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
@@ -239,9 +242,10 @@ class HierarchicalController:
             backend.G[:] = self.G
             backend.h[:] = self.h
 
-    def _run(self, backend, level: _Level) -> np.ndarray:
-        # The back-end checks the answer: finite, projected into the box, rows met.
-        return backend.solve(level.H, level.c, hessian_changed=level.hessian_changes)
+    def _run(self, guard: GuardedSolve, level: _Level) -> np.ndarray:
+        # The back-end checks the answer (finite, projected into the box, rows met); the
+        # guard tames a far target's cost and falls back as QPController does.
+        return guard.solve(level.H, level.c, hessian_changed=level.hessian_changes)
 
     def _solve_level(self, level: _Level, previous: np.ndarray | None) -> np.ndarray:
         above = self._J[: level.above]
@@ -250,9 +254,10 @@ class HierarchicalController:
         if x is not None:
             return x
         self._cost(level)
+        check_finite_velocities(self.tasks, level.c, self._v)
         try:
             self._write(level.backend, level, above, frozen)
-            return self._polish(level, self._run(level.backend, level), frozen)
+            return self._polish(level, self._run(level.guard, level), frozen)
         except (InfeasibleProblem, SolverError) as first:
             if not level.above:
                 raise self._named(level, first) from None
@@ -261,14 +266,14 @@ class HierarchicalController:
         _, singular, vt = np.linalg.svd(above, full_matrices=False)
         rank = int(np.sum(singular > _RANK_TOLERANCE * singular[0])) if singular.size and singular[0] > 0 else 0
         basis = vt[:rank]
-        backend = level.reduced.get(rank)
-        if backend is None:
-            backend = make_backend(self.solver, self.robot.nv, rank + level.hard_dim, self._mineq,
-                                   native=self._native, **self._solver_settings)
-            level.reduced[rank] = backend
+        guard = level.reduced.get(rank)
+        if guard is None:
+            guard = GuardedSolve(make_backend(self.solver, self.robot.nv, rank + level.hard_dim, self._mineq,
+                                              native=self._native, **self._solver_settings), self.solver)
+            level.reduced[rank] = guard
         try:
-            self._write(backend, level, basis, basis @ previous)
-            return self._polish(level, self._run(backend, level), frozen)
+            self._write(guard.backend, level, basis, basis @ previous)
+            return self._polish(level, self._run(guard, level), frozen)
         except (InfeasibleProblem, SolverError) as second:
             raise self._named(level, second) from None
 
@@ -339,8 +344,9 @@ class HierarchicalController:
         if not level.soft_general or (self._mineq and not (self.G @ x < self.h).all()):
             return x  # a general row on its bound: left to the solver
         lb, ub = self.lb, self.ub
-        at_lower = np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb))
-        at_upper = np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub))
+        # An absent bound (±inf) is never "reached" (|x − inf| <= inf would say it is).
+        at_lower = np.isfinite(lb) & (np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb)))
+        at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
         fixed = at_lower | at_upper
         free = ~fixed
         if not free.any():

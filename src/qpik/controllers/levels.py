@@ -15,11 +15,12 @@ import numpy as np
 from ..errors import InvalidInput
 from ..robot import Robot
 from ..tasks import Task
+from .labels import task_label
 from .qp import check_dt  # noqa: F401 (re-exported for hierarchy and sns)
 
 
 def _describe(tasks: Sequence[Task]) -> str:
-    return ", ".join(task.name for task in tasks)
+    return ", ".join(task_label(task) for task in tasks)
 
 
 def group_levels(robot: Robot, tasks: Sequence[Task] | None, levels: Sequence[Sequence[Task]] | None,

@@ -26,7 +26,7 @@ from ..solvers import make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormPause, ClosedFormStep, inside_box, inside_limits
 from .diagnostics import explain_infeasibility
-from .fallbacks import GuardedSolve
+from .fallbacks import GuardedSolve, check_finite_velocities
 
 # Beyond this the Levenberg–Marquardt term dominates the cost: H and c are scaled down
 # together (same minimiser) so no solver sees huge numbers from a far-away target.
@@ -203,7 +203,7 @@ class QPController:
             self._pause.failed()  # a limit binds: the solver takes the next few steps
             self._write_pending_box()
         self.solver_calls += 1
-        self._check_finite()
+        check_finite_velocities(self.tasks, self.c, self.b)
         self._backend.A[:] = self.A
         self._backend.b[:] = self.b
         try:
@@ -255,15 +255,6 @@ class QPController:
     def fallbacks(self) -> int:
         """Steps the solver failed on and a fallback solver solved."""
         return self._guard.fallbacks
-
-    def _check_finite(self) -> None:
-        """A task velocity that overflowed (a target ~1e308 away) is named, not solved."""
-        if np.isfinite(self.c).all() and np.isfinite(self.b).all():
-            return
-        bad = [task.name for task in self.tasks if not np.isfinite(task.target_velocity).all()]
-        raise InvalidInput(f"the target velocity of the {', '.join(bad) or 'cost'} is not finite (K·e overflowed): "
-                           "check the target and the gain")
-
 
 def _row_slices(items, size) -> list[slice]:
     """Consecutive row blocks, one per item, of ``size(item)`` rows each."""
