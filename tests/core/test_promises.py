@@ -187,3 +187,27 @@ def test_hierarchy_polish_leaves_unbounded_dofs_free():
     assert abs(qdot[0]) == pytest.approx(0.05)  # the bound binds: the solver's step, polished
     reference = QPController(robot, [tip], [speed], dt=0.01, regularization=1e-10, fast_path=False).compute_velocity()
     assert np.allclose(tip.jacobian @ qdot, tip.jacobian @ reference, atol=1e-9)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_lower_level_is_never_infeasible_when_the_level_above_is_in_the_box(solver):
+    """A tip target 1e13 m away with two joints unbounded: level 0 sits at a vertex of
+    the box with 1e13 rad/s on the free joints, and the levels below (whose set holds
+    level 0's velocity) were declared infeasible. Each step now returns a velocity in
+    the box that keeps level 0's task velocity (to its scale, 1e-9 relative)."""
+    robot = chain(5)
+    robot.set_q([0.4, -0.6, 0.9, 0.3, -0.2])
+    tip = PositionTask(robot, "tip", gain=20.0)
+    tip.set_target(tip.target + 5.6e12 * np.array([0.6, -0.48, 0.64]))
+    body = FrameTask(robot, "b0", frame_type="body", position_gain=5.0, orientation_gain=5.0)
+    body.set_target([0.3, -0.2, 0.5], np.eye(3))
+    posture = PostureTask(robot, gain=1.0, weight=1e-3)
+    speed = JointVelocityLimit(robot, np.array([2.0, 2.8, 2.7, np.inf, np.inf]))
+    ctrl = HierarchicalController(robot, levels=[[tip], [body], [posture]], limits=[speed], dt=0.01, solver=solver)
+    for _ in range(3):
+        qdot = ctrl.compute_velocity()
+        assert np.all(np.isfinite(qdot))
+        assert np.all(qdot >= ctrl.lb) and np.all(qdot <= ctrl.ub)
+        level0 = tip.jacobian @ ctrl.level_velocities[0]
+        assert np.allclose(tip.jacobian @ qdot, level0, rtol=0.0, atol=1e-9 * (1.0 + np.abs(level0).max()))
+        robot.integrate(qdot, 0.01)

@@ -17,7 +17,11 @@ level's cost is strictly convex in its task velocities :math:`J_j \dot q`, these
 unique: the set the equalities leave is exactly the set of optima of the level above.
 :math:`\dot q^*_{k-1}` satisfies all of them, so a level below can never be infeasible;
 only a level's own hard tasks (or an empty box) can make it so, and the error then names
-that level. The regulariser ε (and a task's Levenberg–Marquardt term) only picks one
+that level. In floating point a lower level's set can be too thin for a solver (level 0
+at a vertex of the box, velocities of 1e13 rad/s from a target far out of reach): when
+every solver and the fallbacks fail on a level without hard tasks of its own, the level
+keeps :math:`\dot q^*_{k-1}`, a point of its set (every limit and every level above
+kept; only its own cost is not improved on that step), and ``kept_above`` counts it. The regulariser ε (and a task's Levenberg–Marquardt term) only picks one
 optimum within a level; what the levels below keep is each task's velocity.
 
 Each level owns a back-end of the solver asked for (:func:`qpik.solvers.make_backend`:
@@ -190,6 +194,7 @@ class HierarchicalController:
         self.lb, self.ub = np.zeros(nv), np.zeros(nv)
         self.level_velocities = np.zeros((len(self.levels), nv))  # q̇*_k of each level
         self.qdot = np.zeros(nv)
+        self.kept_above = 0  # level solves that failed and kept the level above's velocity
 
     @property
     def level_count(self) -> int:
@@ -275,7 +280,10 @@ class HierarchicalController:
             self._write(guard.backend, level, basis, basis @ previous)
             return self._polish(level, self._run(guard, level), frozen)
         except (InfeasibleProblem, SolverError) as second:
-            raise self._named(level, second) from None
+            if level.hard_dim:  # previous misses the level's own hard rows
+                raise self._named(level, second) from None
+        self.kept_above += 1  # previous is a point of the level's set (see the module's docstring)
+        return previous
 
     def _least_squares(self, level: _Level, frozen: np.ndarray) -> None:
         """Fill R = [√w J_soft; A], its right-hand side, D⁻¹ and c of a level with soft
