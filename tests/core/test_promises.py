@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from qpik import (DampingTask, FrameTask, HierarchicalController, InfeasibleProblem, JointPositionLimit,
+from qpik import (ComTask, DampingTask, FrameTask, HierarchicalController, InfeasibleProblem, InvalidInput, JointPositionLimit,
                   JointVelocityLimit, PositionTask, PostureTask, QpikError, QPController, Robot)
 from qpik.solvers import available_solvers
 
@@ -211,3 +211,17 @@ def test_a_lower_level_is_never_infeasible_when_the_level_above_is_in_the_box(so
         level0 = tip.jacobian @ ctrl.level_velocities[0]
         assert np.allclose(tip.jacobian @ qdot, level0, rtol=0.0, atol=1e-9 * (1.0 + np.abs(level0).max()))
         robot.integrate(qdot, 0.01)
+
+
+def test_a_com_target_whose_feedback_overflows_is_refused_without_a_warning():
+    """A CoM target of 1e308 on one axis is finite, but K·(target − CoM) overflowed every
+    step (RuntimeWarnings, then an inf velocity): refused when set, with no warning."""
+    robot = chain(3)
+    com = ComTask(robot, gain=10.0, axes="z")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInput, match="overflows"):
+            com.set_target([1e308])
+        com.set_target([1e300])  # far, but K·e stays finite
+        com.update()
+    assert np.all(np.isfinite(com.target_velocity))

@@ -31,7 +31,7 @@ import math
 import numpy as np
 from scipy.linalg import lapack
 
-from ..solvers.base import equalities_met
+from ..solvers.base import equalities_met, equalities_met_in_floats
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -95,25 +95,15 @@ class ClosedFormStep:
         self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
         self._tail[meq] = -1.0
         if self._uniform is not None and 0 < meq <= 2 and meq < H0.shape[0]:
-            self._solve_kkt = self._solve_uniform_small  # the general method's branch, chosen once
-
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """x of the KKT system, or None (H not positive definite, S singular, or x misses
-        the equalities by more than ``EQUALITY_TOLERANCE``: then the solver decides).
-
-        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
-        """
-        x = self._solve_kkt(H, Ac, b)
-        if x is None or (self.meq and not equalities_met(Ac[:self.meq], x, b, EQUALITY_TOLERANCE)):
-            return None
-        return x
+            self.solve = self._solve_uniform_small  # the general method's branch, chosen once
 
     def _solve_uniform_small(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """:meth:`solve` for H = I/d and one or two rows: its branch for them, alone."""
-        return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self._uniform, Ac)
+        return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self._uniform, Ac, Ac)
 
-    def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray) -> np.ndarray | None:
-        """The end of :meth:`solve` for one or two rows, in floats: ``rows`` is M as lists."""
+    def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
+        """The end of :meth:`solve` for one or two rows, in floats: ``rows`` is M as lists;
+        x checked against the rows as :meth:`solve` checks it, in floats."""
         tail = self._tail
         if self.meq == 1:
             s = d * rows[0][0]
@@ -129,17 +119,25 @@ class ClosedFormStep:
             r0 = d * r0 + rhs[0]
             r1 = d * r1 + rhs[1]
             tail[:] = (d * (d_ * r0 - b_ * r1) / det, d * (a * r1 - b_ * r0) / det, -d)
-        return np.dot(tail, scaled)
+        x = np.dot(tail, scaled)
+        return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
-    def _solve_kkt(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """:meth:`solve` before its check."""
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """x of the KKT system, or None (H not positive definite, S singular, or x misses
+        the equalities by more than ``EQUALITY_TOLERANCE``: a nearly singular H or S loses
+        digits no cheaper test foresees; the solver then decides).
+
+        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
+        """
         meq = self.meq
         if meq == len(b) and meq == Ac.shape[1]:  # as many independent rows as dofs: x = A⁻¹b
             lu, _, x, info = lapack.dgesv(Ac[:meq], b)
             if info != 0:
                 return None
             pivots = np.abs(lu.diagonal()).tolist()
-            return x if max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots) else None
+            if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
+                return None
+            return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
         if self._uniform is not None:
             scaled = Ac  # H⁻¹ = d I: the scalar d is applied to S, A H⁻¹c and x below
         elif self._dinv is not None:
@@ -157,7 +155,7 @@ class ClosedFormStep:
         # np.dot, not @: ~0.3 µs less per call on arrays this small.
         M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
         if meq <= 2:  # in floats: cheaper than any call
-            return self._small_rows(M.tolist(), b.tolist(), d, scaled)
+            return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
         # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
         rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
         rhs += b
@@ -169,7 +167,8 @@ class ClosedFormStep:
             return None
         tail[:meq] = z
         tail[meq] = -d
-        return np.dot(tail, scaled)
+        x = np.dot(tail, scaled)
+        return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
 
 
 

@@ -59,6 +59,13 @@ def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float
     return float(np.dot(residual, residual)) <= tolerance * tolerance * (1.0 + float(np.dot(b, b)))
 
 
+def equalities_met_in_floats(Ax: list, b: list, tolerance: float) -> bool:
+    """:func:`equalities_met` with Ax and b given as lists of floats (a row or two: cheaper
+    than any NumPy call); extra entries of ``Ax`` past ``b``'s are ignored."""
+    miss = sum((value - target) ** 2 for value, target in zip(Ax, b))
+    return miss <= tolerance * tolerance * (1.0 + sum(target * target for target in b))
+
+
 class QPBackend:
     """Base class: one solver instance per controller, sized at construction.
 

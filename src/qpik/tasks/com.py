@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import InvalidInput, ModelError
 from ..robot import Robot
 from .task import Task, axis_rows, finite_vector, positive
 
@@ -65,9 +65,15 @@ class ComTask(Task):
         """Desired CoM and its feed-forward velocity, on the masked world axes.
 
         Raises:
-            InvalidInput: a wrong length, NaN or inf.
+            InvalidInput: a wrong length, NaN or inf, or a target so far away that the
+                feedback K·e would overflow.
         """
-        self.target[:] = finite_vector(position, self.dim, "target CoM")
+        target = finite_vector(position, self.dim, "target CoM")
+        # e = target − CoM and K·e must stay finite (an overflow there would warn every step).
+        if not (np.abs(target) <= np.finfo(float).max / (2.0 * np.maximum(self.gain, 1.0))).all():
+            raise InvalidInput(f"{self.name}: target CoM {target} is so far away that the feedback "
+                               f"(gain {float(np.max(self.gain)):g} times the error) overflows")
+        self.target[:] = target
         self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, "target CoM velocity")
 
     def measured(self, robot: Robot | None = None) -> np.ndarray:
