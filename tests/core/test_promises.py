@@ -225,3 +225,24 @@ def test_a_com_target_whose_feedback_overflows_is_refused_without_a_warning():
         com.set_target([1e300])  # far, but K·e stays finite
         com.update()
     assert np.all(np.isfinite(com.target_velocity))
+
+
+@pytest.mark.parametrize("distance", [1e3, 1e12, 1e25])
+def test_a_far_hard_target_is_not_blamed_on_the_limits_alone(distance):
+    """A hard tip target far away within speed limits of 2 rad/s: the box alone is
+    feasible (an LP agrees), yet the message said "the limits alone cannot be met
+    together" (its elastic solve failed on the 1e19 cost). It names the task and the
+    bounds the closest point sits on."""
+    robot = chain(4, limited=True)
+    robot.set_q([0.3, 0.5, -0.4, 0.2])
+    tip = PositionTask(robot, "tip", gain=10.0, hard=True)
+    tip.set_target(tip.target + distance)
+    limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(robot.nv, 2.0))]
+    ctrl = QPController(robot, [tip, DampingTask(robot)], limits, dt=0.01)
+    with pytest.raises(InfeasibleProblem) as error:
+        ctrl.compute_velocity()
+    message = str(error.value)
+    lp = linprog(np.zeros(robot.nv), bounds=np.column_stack([ctrl.lb, ctrl.ub]), method="highs")
+    assert lp.status == 0  # the limits alone are feasible
+    assert "limits alone" not in message
+    assert "'tip'" in message and "speed limit" in message

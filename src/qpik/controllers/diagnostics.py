@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import QpikError
 from ..solvers import make_backend
-from .fallbacks import has_feasible_point
+from .fallbacks import has_feasible_point, tame
 from .labels import task_label
 
 ELASTIC_WEIGHT = 1e6
@@ -38,6 +38,7 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
         c *= hessian_scale / magnitude
     H += scale * (A.T @ A)
     c -= scale * (A.T @ b)
+    c = tame(c, float(H.diagonal().max()))  # a hard target far away: a vertex of the box, found
     elastic = make_backend("daqp", nv, 0, controller.G.shape[0])
     elastic.lb[:], elastic.ub[:] = controller.lb, controller.ub
     elastic.G[:], elastic.h[:] = controller.G, controller.h

@@ -26,7 +26,10 @@ NATIVE_BACKENDS: dict[str, Callable[..., QPBackend]] = {}
 # solver runs through qpsolvers.
 QPSOLVERS_DEFAULTS: dict[str, dict] = {
     "proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0},
-    "osqp": {key: value for key, value in OsqpBackend.SETTINGS.items() if key != "warm_starting"},
+    # raise_error=False: OSQP's own default is about to change (a PendingDeprecationWarning
+    # every solve); the back-end reads the status itself.
+    "osqp": {**{key: value for key, value in OsqpBackend.SETTINGS.items() if key != "warm_starting"},
+             "raise_error": False},
 }
 
 
