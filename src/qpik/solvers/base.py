@@ -62,8 +62,11 @@ def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float
 def equalities_met_in_floats(Ax: list, b: list, tolerance: float) -> bool:
     """:func:`equalities_met` with Ax and b given as lists of floats (a row or two: cheaper
     than any NumPy call); extra entries of ``Ax`` past ``b``'s are ignored."""
-    miss = sum((value - target) ** 2 for value, target in zip(Ax, b))
-    return miss <= tolerance * tolerance * (1.0 + sum(target * target for target in b))
+    miss = scale = 0.0
+    for value, target in zip(Ax, b):  # a loop: generator sums cost more on two rows
+        miss += (value - target) * (value - target)
+        scale += target * target
+    return miss <= tolerance * tolerance * (1.0 + scale)
 
 
 class QPBackend:
