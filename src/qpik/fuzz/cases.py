@@ -49,7 +49,7 @@ CLASSES = (
 DEFECTS = tuple(key for key, _, bad in CLASSES if bad)
 INVALID = ("posture_gain", "task_gain", "task_weight", "influence", "damper_rate", "limit_gain", "margin",
            "velocity_values", "target", "posture_target", "gain_over_2_per_dt", "dt", "solver", "model_range")
-BAD_VALUES = (None, "fast", [1.0, 2.0], float("nan"), float("inf"), -50.0)
+BAD_VALUES = (None, "fast", [[1.0, 2.0]], float("nan"), float("inf"), -50.0)  # [[..]]: no task has 2-D gains
 
 
 def solvers() -> list[str]:
@@ -220,7 +220,7 @@ class Case:
             return EqualityTask(robot, gain=gain, hard=hard, weight=weight)
         name, frame_type = frames[int(rng.integers(len(frames)))]
         return ManipulabilityTask(robot, Yoshikawa(robot, name, frame_type), gain=_log_uniform(rng, -2, 1),
-                                  weight=_log_uniform(rng, -4, 0))
+                                  weight=weight)
 
     def _point(self, current: np.ndarray) -> np.ndarray:
         """A target point: near, far (up to 1e8 m) or a finite 1e308."""
