@@ -230,3 +230,69 @@ def test_a_subset_of_equalities_and_bad_names():
     robot.data.eq_active[robot.equality_id("glue")] = 0
     with pytest.raises(ModelError, match="changed"):
         task.update()
+
+
+# A fixed tendon coupling two hinges and a joint equality on a slide, both active; and a
+# weld of a jointless body to the world (it acts on no dof: MuJoCo makes no row for it).
+TENDON_AND_JOINT = """<mujoco><worldbody>
+<body name="a"><joint name="j1"/><geom size=".1"/>
+ <body name="b" pos="0 0 1"><joint name="j2"/><geom size=".1"/></body></body>
+<body name="c" pos="1 0 0"><joint name="j3" type="slide" axis="1 0 0"/><geom size=".1"/></body>
+</worldbody>
+<tendon><fixed name="t1"><joint joint="j1" coef="1"/><joint joint="j2" coef="1"/></fixed></tendon>
+<equality><tendon name="sum" tendon1="t1"/><joint name="slide" joint1="j3"/></equality></mujoco>"""
+STATIC_WELD = """<mujoco><worldbody>
+<body name="fixed" pos="0 0 1"><geom size=".1"/></body>
+<body name="a"><joint name="j1" axis="0 0 1"/><geom size=".1" pos="0.2 0 0"/></body>
+</worldbody>
+<equality><weld name="glued" body1="fixed"/><joint name="hinge" joint1="j1"/></equality></mujoco>"""
+
+
+def _mujoco_rows(robot: Robot, equality: int) -> tuple[np.ndarray, np.ndarray]:
+    """(residual, Jacobian) of one equality from MuJoCo's full pipeline (mj_forward)."""
+    data = mujoco.MjData(robot.model)
+    data.qpos[:] = robot.q
+    mujoco.mj_forward(robot.model, data)
+    rows = np.flatnonzero(data.efc_id[: data.ne] == equality)
+    jacobian = data.efc_J[: data.nefc * robot.nv].reshape(data.nefc, robot.nv)
+    return data.efc_pos[rows], jacobian[rows]
+
+
+@pytest.mark.parametrize("first", ["kinematics", "forward"])
+def test_an_active_tendon_equality_left_out_of_the_task_leaves_its_rows_intact(first):
+    """The task on the slide's equality only, with a tendon equality active beside it:
+    MuJoCo makes the tendon's row from the tendon Jacobian of the last ``mj_tendon``
+    (none: no row; an earlier ``mj_forward``: a row), so the task must compute the tendons
+    whenever an active equality of the model needs them (it failed to reshape efc_J)."""
+    robot = Robot(mujoco.MjModel.from_xml_string(TENDON_AND_JOINT))
+    robot.q[:] = [0.3, -0.1, 0.2]
+    if first == "forward":
+        mujoco.mj_forward(robot.model, robot.data)
+    task = EqualityTask(robot, ["slide"], gain=50.0)
+    controller = QPController(robot, [task, DampingTask(robot, weight=1e-6)], dt=0.01)
+    for _ in range(20):
+        qdot = controller.compute_velocity()
+        error, jacobian = _mujoco_rows(robot, robot.equality_id("slide"))
+        np.testing.assert_allclose(task.error, error, atol=1e-15)
+        np.testing.assert_allclose(task.jacobian, jacobian, atol=1e-15)
+        robot.integrate(qdot, 0.01)
+    assert abs(robot.q[2]) < 0.2 * (1 - 0.5) ** 20 + 1e-12  # e(k+1) = (1 − KΔt) e(k)
+
+
+def test_a_weld_that_acts_on_no_dof_is_left_out_by_default_and_refused_by_name():
+    robot = Robot(mujoco.MjModel.from_xml_string(STATIC_WELD))
+    robot.q[:] = [0.4]
+    task = EqualityTask(robot)
+    assert task.equalities == (robot.equality_id("hinge"),) and task.dim == 1
+    qdot = QPController(robot, [task], dt=0.01).compute_velocity()
+    np.testing.assert_allclose(qdot, [-0.4 / 0.01], rtol=1e-12)  # dead-beat on the hinge
+    with pytest.raises(ModelError, match=r"'glued'.*no dof"):
+        EqualityTask(robot, ["glued", "hinge"])
+    with pytest.raises(ModelError, match="no dof"):
+        EqualityTask(robot, ["glued"])
+
+
+@pytest.mark.parametrize("gain", ["fast", [1.0, 2.0], np.nan, -1.0, np.inf])
+def test_a_bad_equality_gain_is_a_typed_error(gain):
+    with pytest.raises(InvalidInput, match="gain"):
+        EqualityTask(equality_robot(), gain=gain)

@@ -68,3 +68,20 @@ def test_apply_from_a_box_equals_copying_the_box_then_applying(scene):
         limit.apply_from(0.002, (-speed).tolist(), speed.tolist(), fused_lb, fused_ub)
         np.testing.assert_array_equal(fused_lb, lb)
         np.testing.assert_array_equal(fused_ub, ub)
+
+
+@pytest.mark.parametrize("argument, value", [
+    ("influence", "0.1 rad"), ("influence", [0.1, 0.2]), ("influence", None), ("influence", -0.1),
+    ("damper_rate", "fast"), ("damper_rate", [20.0]), ("damper_rate", 0.0), ("damper_rate", np.nan),
+    ("gain", "1"), ("gain", [0.5]), ("gain", 0.0), ("gain", 1.5),
+    ("margin", "tiny"), ("margin", [1e-10]), ("margin", np.inf)])
+def test_a_bad_parameter_is_a_typed_error_naming_it(argument, value):
+    """Strings and lists used to escape as TypeError/ValueError from a comparison."""
+    with pytest.raises(InvalidInput, match=argument.replace("_", " ").split()[0]):
+        JointPositionLimit(Robot.load("arm"), **{argument: value})
+
+
+def test_numbers_of_any_type_are_accepted_as_floats():
+    limit = JointPositionLimit(Robot.load("arm"), gain=np.float32(0.5), influence=1, damper_rate=np.int64(10))
+    assert (limit.gain, limit.influence, limit.damper_rate) == (0.5, 1.0, 10.0)
+    assert all(type(v) is float for v in (limit.gain, limit.influence, limit.damper_rate))

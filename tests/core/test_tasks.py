@@ -307,3 +307,20 @@ def test_humanoid_reaches_while_its_com_stays_put(humanoid_path):
     # DAQP keeps an inactive bound to its primal tolerance (1e-6 on q̇), so fingers that
     # start at a bound end ~1e-8 rad past it: 1e-6 Δt, not a task's doing.
     assert robot.joint_limits.violation(robot.q) <= 1e-6 * 0.01 * 2
+
+
+@pytest.mark.parametrize("gain", [None, "fast", [1.0, 2.0], np.nan, np.inf, -50.0, -1e-300])
+def test_a_bad_posture_gain_is_refused_as_every_other_tasks(gain, jaco_path):
+    """A negative gain makes the error grow (e(k+1) = (1 − KΔt) e(k)), NaN poisons every
+    answer: the posture task checks its gain as the frame tasks do."""
+    robot = Robot.load(jaco_path)
+    with pytest.raises(InvalidInput, match="posture gain"):
+        PostureTask(robot, gain=gain)
+    with pytest.raises(InvalidInput):
+        PositionTask(robot, "wristsite", gain=gain)  # the reference: the same input refused
+
+
+@pytest.mark.parametrize("gain", [0.0, 3, np.float32(2.5)])
+def test_a_posture_gain_of_zero_or_any_number_type_is_kept(gain, jaco_path):
+    task = PostureTask(Robot.load(jaco_path), gain=gain)
+    assert task.gain == float(gain) and type(task.gain) is float

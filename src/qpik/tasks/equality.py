@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InvalidInput, ModelError
 from ..robot import Robot
-from .task import Task
+from .task import Task, positive_scalar
 
 # The equality types whose rows the task takes from MuJoCo, and their row counts.
 SUPPORTED = {
@@ -65,7 +65,8 @@ class EqualityTask(Task):
     Args:
         robot: the robot.
         equalities: names of the equalities to enforce (default: every equality active
-            when the task is built, ``data.eq_active``).
+            when the task is built, ``data.eq_active``, that acts on a dof: MuJoCo makes
+            no row for one that does not, such as a weld of a jointless body to the world).
         gain: K (1/s); by default 1/Δt of the controller the task is given to
             (dead-beat): the rows J_e q̇ = −e_e/Δt remove the whole residual in one step, so
             the commanded configuration meets the constraints up to the step's second-order
@@ -76,9 +77,10 @@ class EqualityTask(Task):
 
     Raises:
         UnknownName: an unknown equality name (the closest are listed).
-        ModelError: no active equality, an inactive one named, or a type other than
-            connect, weld, joint and tendon (flex equalities are not supported).
-        InvalidInput: a negative or non-finite gain.
+        ModelError: no active equality, an inactive one or one that acts on no dof
+            named, or a type other than connect, weld, joint and tendon (flex equalities
+            are not supported).
+        InvalidInput: a gain that is not a finite number >= 0.
 
     The set of active equalities is read when the task is built; switching one on or off
     later (``data.eq_active``) makes :meth:`update` raise ModelError.
@@ -110,20 +112,23 @@ class EqualityTask(Task):
                 kind = mujoco.mjtEq(int(model.eq_type[i])).name
                 raise ModelError(f"{self.name}: equality {label!r} is a {kind}; supported: "
                                  f"{[name for name, _ in SUPPORTED.values()]}")
-        if gain is not None and not (np.isfinite(gain) and gain >= 0):
-            raise InvalidInput(f"{self.name}: gain must be finite and >= 0, got {gain}")
-        self.equalities = tuple(ids)  # model equality ids, in row order
-        self._tendons = any(int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_TENDON) for i in ids)
+        if gain is not None:
+            gain = positive_scalar(gain, f"{self.name} gain", allow_zero=True)
+        # MuJoCo makes an active tendon equality's row from the tendon Jacobian of the last
+        # mj_tendon, whether or not the task holds it: the row count must not depend on that.
+        self._tendons = any(int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_TENDON) for i in active)
         self._sparse = bool(mujoco.mj_isSparse(model))
         # Where each equality's rows lie among MuJoCo's equality rows (read once).
         robot.update_kinematics()
         make_equality_rows(model, data, self._tendons)
         self._ne = int(data.ne)
         efc_id = np.array(data.efc_id[: self._ne])
+        ids = self._acting(robot, ids, efc_id, named=equalities is not None)
+        self.equalities = tuple(ids)  # model equality ids, in row order
         rows = np.flatnonzero(np.isin(efc_id, ids))
         super().__init__(robot, len(rows), weight, hard)
         self.dead_beat = gain is None
-        self.gain = np.nan if gain is None else float(gain)  # set by attach() when dead-beat
+        self.gain = np.nan if gain is None else gain  # set by attach() when dead-beat
         self._rows = rows
         self._all_rows = len(rows) == self._ne
         self._dense = None if self._all_rows and self._sparse else np.zeros((self._ne, robot.nv))
@@ -132,6 +137,21 @@ class EqualityTask(Task):
             where = np.flatnonzero(efc_id[rows] == i)
             self._slices.append(slice(int(where[0]), int(where[-1]) + 1))
         self._scratch = None
+
+    def _acting(self, robot: Robot, ids: list[int], efc_id: np.ndarray, named: bool) -> list[int]:
+        """The equalities MuJoCo makes rows for: one that acts on no dof (a weld of a
+        jointless body to the world) has none, and no velocity can change its residual;
+        left out of the default set, refused when named."""
+        idle = [i for i in ids if i not in efc_id]
+        if idle and named:
+            labels = [mujoco.mj_id2name(robot.model, mujoco.mjtObj.mjOBJ_EQUALITY, i) or f"#{i}" for i in idle]
+            raise ModelError(f"{self.name}: equalities {labels} act on no dof (their bodies, joints or "
+                             "tendons move with no joint): MuJoCo makes no row for them")
+        acting = [i for i in ids if i not in idle]
+        if not acting:
+            raise ModelError(f"{self.name}: model {robot.name!r} has no active equality constraint that acts "
+                             "on a dof")
+        return acting
 
     def feedback_gains(self) -> np.ndarray:
         return np.full(self.dim, self.gain)
@@ -165,7 +185,8 @@ class EqualityTask(Task):
             dense = self.jacobian if self._all_rows else self._dense
             mujoco.mju_sparse2dense(dense, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
         else:
-            dense = data.efc_J.reshape(ne, self.robot.nv)
+            # efc_J's buffer may be longer than its nefc x nv dense rows.
+            dense = data.efc_J[: ne * self.robot.nv].reshape(ne, self.robot.nv)
             if self._all_rows:
                 self.jacobian[:] = dense
         if not self._all_rows:

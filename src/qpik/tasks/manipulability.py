@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import Robot
-from .task import JointSpaceTask
+from .task import JointSpaceTask, positive_scalar
 
 _ROTATING = (int(mujoco.mjtJoint.mjJNT_BALL), int(mujoco.mjtJoint.mjJNT_FREE))
 
@@ -285,10 +285,8 @@ class ManipulabilityTask(JointSpaceTask):
     def __init__(self, robot: Robot, measure: ManipulabilityMeasure, gain: float = 5.0, weight=1.0,
                  joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
-        if not np.isfinite(gain) or gain < 0:
-            raise InvalidInput(f"manipulability gain must be finite and >= 0, got {gain}")
         self.measure = measure
-        self.gain = float(gain)
+        self.gain = positive_scalar(gain, "manipulability gain", allow_zero=True)
         self._grad = np.zeros(robot.nv)
         self._every_dof = bool(np.array_equal(self.dofs, np.arange(robot.nv)))
 

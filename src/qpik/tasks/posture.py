@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from ..robot import Robot
-from .task import JointSpaceTask, contiguous_rows, finite_vector
+from .task import JointSpaceTask, contiguous_rows, finite_vector, positive_scalar
 
 
 class PostureTask(JointSpaceTask):
@@ -17,17 +17,20 @@ class PostureTask(JointSpaceTask):
     Args:
         robot: the robot.
         target: reference configuration (nq,), default the current one.
-        gain: K (1/s).
+        gain: K (1/s), a number >= 0.
         weight: cost weight.
         joints: joints whose dofs the task covers (default: every hinge and slide joint,
             so a floating base is left free).
+
+    Raises:
+        InvalidInput: a gain that is not a finite number >= 0, a bad weight or target.
     """
 
     name = "posture task"
 
     def __init__(self, robot: Robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
-        self.gain = float(gain)
+        self.gain = positive_scalar(gain, "posture gain", allow_zero=True)
         self.target = robot.q.copy() if target is None else finite_vector(target, robot.nq, "posture target")
         self._difference = np.zeros(robot.nv)
         # Consecutive dofs (every hinge, with or without a floating base before them): the

@@ -158,6 +158,14 @@ def positive(value, size: int, what: str, allow_zero: bool = False) -> np.ndarra
     return arr
 
 
+def positive_scalar(value, what: str, allow_zero: bool = False) -> float:
+    """One positive (or >= 0) finite number as a float, checked as :func:`positive` checks
+    a task's gains: for a parameter that takes no per-row values (InvalidInput otherwise)."""
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+        raise InvalidInput(f"{what} must be a number, got {value!r}")
+    return float(positive(value, 1, what, allow_zero)[0])
+
+
 class Task:
     """Base class: ``dim`` rows of :math:`J\\dot q \\approx v` with a weight.
 

@@ -1,0 +1,105 @@
+"""The fuzz's independent checks of a step: hard rows met, limits kept, and an LP (HiGHS via
+``scipy.optimize.linprog``) that tells an infeasible step from a failed solve.
+
+Nothing here reads a controller's own problem: the box and rows are rebuilt from the
+limits, and the hard rows from the tasks, as a user would write them down.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linprog
+
+from ..limits import JointPositionLimit, JointVelocityLimit, order_limits
+
+# The LP's box and rows pulled in by this much (relative to each bound's size): a step
+# feasible with this margin is feasible for every solver's tolerance (1e-9 to 1e-6).
+LP_MARGIN = 1e-5
+LP_EQUALITY_TOLERANCE = 1e-9
+
+
+def hard_residual(task, qdot: np.ndarray) -> float:
+    """|J q̇ − v|∞ of a hard task, relative to the rows' scale (|v|, |J||q̇|, 1)."""
+    jacobian, velocity = task.jacobian, task.target_velocity
+    residual = jacobian @ qdot - velocity
+    scale = max(1.0, float(np.max(np.abs(velocity), initial=0.0)),
+                float(np.max(np.abs(jacobian), initial=0.0)) * float(np.max(np.abs(qdot), initial=0.0)))
+    return float(np.max(np.abs(residual), initial=0.0)) / scale
+
+
+def crossing(robot, limits, q_before: np.ndarray, qdot: np.ndarray, dt: float) -> float:
+    """How far q + q̇Δt lies beyond a position limit's range (a joint that started outside
+    may not move farther out), in joint units; 0 when kept."""
+    worst = 0.0
+    for limit in limits:
+        if not isinstance(limit, JointPositionLimit):
+            continue
+        ranges = limit.limits
+        q0 = q_before[ranges.qpos_index]
+        q1 = q0 + qdot[ranges.dof_index] * dt
+        low, high = np.minimum(ranges.lower, q0), np.maximum(ranges.upper, q0)
+        if len(q1):
+            worst = max(worst, float(np.max(np.maximum(low - q1, q1 - high))))
+    return worst
+
+
+def velocity_excess(limits, qdot: np.ndarray) -> float:
+    """How far |q̇| exceeds a velocity limit, relative to max(1, the limit)."""
+    worst = 0.0
+    for limit in limits:
+        if isinstance(limit, JointVelocityLimit):
+            lb, ub = np.full(len(qdot), -np.inf), np.full(len(qdot), np.inf)
+            limit.apply(1.0, lb, ub)
+            scale = np.maximum(1.0, np.maximum(np.abs(lb), np.abs(ub)))
+            scale[~np.isfinite(scale)] = 1.0
+            worst = max(worst, float(np.max(np.maximum(lb - qdot, qdot - ub) / scale)))
+    return worst
+
+
+def box_and_rows(robot, hard_tasks, limits, dt: float):
+    """(A, b, lb, ub, G, h) of a step at the robot's configuration: the hard rows A q̇ = b
+    of the tasks (already updated), the box of the limits and their general rows."""
+    nv = robot.nv
+    A = np.vstack([t.jacobian for t in hard_tasks]) if hard_tasks else np.zeros((0, nv))
+    b = np.concatenate([t.target_velocity for t in hard_tasks]) if hard_tasks else np.zeros(0)
+    lb, ub = np.full(nv, -np.inf), np.full(nv, np.inf)
+    rows = []
+    for limit in order_limits(limits):
+        if limit.box:
+            limit.apply(dt, lb, ub)
+        if limit.inequality_rows:
+            G, h = np.zeros((limit.inequality_rows, nv)), np.zeros(limit.inequality_rows)
+            limit.fill_inequalities(dt, G, h)
+            rows.append((G, h))
+    G = np.vstack([g for g, _ in rows]) if rows else np.zeros((0, nv))
+    h = np.concatenate([v for _, v in rows]) if rows else np.zeros(0)
+    return A, b, lb, ub, G, h
+
+
+def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
+    """Whether some q̇ meets A q̇ = b, G q̇ ≤ h and lb ≤ q̇ ≤ ub — with every inequality
+    pulled in by :data:`LP_MARGIN` (relative) when ``margin``. The LP's point is checked
+    here again: its equality residual, after a least-squares correction onto A q̇ = b,
+    must be below 1e-9 relative with the box still kept (HiGHS works to 1e-7)."""
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b)) and np.all(np.isfinite(G))):
+        return False
+    finite_h = np.isfinite(h)
+    G, h = G[finite_h], h[finite_h]
+    delta = LP_MARGIN * np.maximum(1.0, np.maximum(np.abs(np.where(np.isfinite(lb), lb, 0)),
+                                                   np.abs(np.where(np.isfinite(ub), ub, 0)))) if margin else 0.0
+    low, high = lb + delta, ub - delta
+    if np.any(low > high):
+        return False
+    h_margin = h - (LP_MARGIN * np.maximum(1.0, np.abs(h)) if margin else 0.0)
+    bounds = [(None if not np.isfinite(lo) else lo, None if not np.isfinite(hi) else hi) for lo, hi in zip(low, high)]
+    answer = linprog(np.zeros(len(lb)), A_ub=G if len(h) else None, b_ub=h_margin if len(h) else None,
+                     A_eq=A if len(b) else None, b_eq=b if len(b) else None, bounds=bounds, method="highs")
+    if answer.status != 0:
+        return False
+    x = answer.x
+    if len(b):
+        x = x + np.linalg.lstsq(A, b - A @ x, rcond=None)[0]
+        scale = max(1.0, float(np.max(np.abs(b))), float(np.max(np.abs(A))) * float(np.max(np.abs(x))))
+        if np.max(np.abs(A @ x - b)) > LP_EQUALITY_TOLERANCE * scale:
+            return False
+    return bool(np.all(x >= lb) and np.all(x <= ub) and (not len(h) or np.all(G @ x <= h)))

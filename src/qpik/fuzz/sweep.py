@@ -1,0 +1,236 @@
+"""Run any-robot fuzz cases in chunks of worker processes: a hang detector, a determinism
+repeat in a second process, resumable chunk files, and the summary per failure class.
+
+A worker (``python -m qpik.fuzz.sweep --worker SEED ...``) prints a line when a case
+starts and one with its result; the parent kills a worker whose case runs past ``cap``
+seconds (that case is a hang) and gives the rest of its chunk to a fresh worker. Each
+finished chunk is written whole to ``chunks/`` (when a folder is given), so a stopped
+sweep resumes where it was.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+from ..io import write_json
+from .cases import CLASSES, DEFECTS, run_case
+
+PROTOCOL = "@@qpik-fuzz "
+
+
+def worker(seeds: list[int]) -> None:
+    with tempfile.TemporaryDirectory(prefix="qpik_fuzz_") as folder:
+        for seed in seeds:
+            print(PROTOCOL + json.dumps({"start": seed}), flush=True)
+            result = run_case(seed, Path(folder))
+            print(PROTOCOL + json.dumps({"result": _jsonable(result)}), flush=True)
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float) and value != value or value in (float("inf"), float("-inf")):
+        return str(value)
+    if hasattr(value, "item"):  # NumPy scalars
+        return _jsonable(value.item())
+    return value
+
+
+class _Worker:
+    def __init__(self, seeds: list[int], lines: queue.Queue, index: int):
+        self.seeds, self.done = seeds, set()
+        self.current, self.started = None, 0.0
+        self.process = subprocess.Popen([sys.executable, "-m", "qpik.fuzz.sweep", "--worker", *map(str, seeds)],
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        threading.Thread(target=self._read, args=(lines, index), daemon=True).start()
+
+    def _read(self, lines: queue.Queue, index: int) -> None:
+        for line in self.process.stdout:
+            if line.startswith(PROTOCOL):
+                lines.put((index, json.loads(line[len(PROTOCOL):])))
+        lines.put((index, None))
+
+    def rest(self) -> list[int]:
+        return [s for s in self.seeds if s not in self.done and s != self.current]
+
+
+def _lost(seed: int, why: str, detail: dict) -> dict:
+    return {"case": seed, "classes": [why], "params": {}, "details": detail}
+
+
+def run_workers(seeds: list[int], jobs: int, chunk: int, cap: float, progress=None) -> dict[int, dict]:
+    """Every seed's result, ``chunk`` seeds per worker, ``jobs`` workers at once."""
+    pending = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
+    results: dict[int, dict] = {}
+    lines: queue.Queue = queue.Queue()
+    workers: dict[int, _Worker] = {}
+    count = 0
+
+    def finish(seed: int, result: dict) -> None:
+        results[seed] = result
+        if progress:
+            progress(1)
+
+    while pending or workers:
+        while pending and len(workers) < jobs:
+            workers[count] = _Worker(pending.pop(0), lines, count)
+            count += 1
+        try:
+            index, message = lines.get(timeout=0.2)
+        except queue.Empty:
+            index, message = None, None
+        w = workers.get(index)
+        if w is not None and message is None:  # the worker ended, cleanly or mid-case
+            w.process.wait()
+            if w.current is not None:
+                finish(w.current, _lost(w.current, "untyped", {"error": f"worker died: exit {w.process.returncode}"}))
+            if w.rest():
+                pending.insert(0, w.rest())
+            del workers[index]
+        elif w is not None and "start" in message:
+            w.current, w.started = message["start"], time.monotonic()
+        elif w is not None:
+            w.done.add(message["result"]["case"])
+            w.current = None
+            finish(message["result"]["case"], message["result"])
+        for index, w in list(workers.items()):
+            if w.current is not None and time.monotonic() - w.started > cap:
+                w.process.kill()  # our own child: the hang detector
+                w.process.wait()
+                finish(w.current, _lost(w.current, "hang", {"cap_s": cap}))
+                w.done.add(w.current)
+                rest, w.current = w.rest(), None
+                if rest:
+                    pending.insert(0, rest)
+                del workers[index]
+    return results
+
+
+def sweep(seeds: list[int], jobs: int = 1, chunk: int = 50, cap: float = 60.0, folder: Path | None = None,
+          repeat_every: int = 20, progress=None) -> dict[int, dict]:
+    """Run the seeds (resuming from ``folder``'s chunk files), confirm slow cases once,
+    and re-run every ``repeat_every``-th case in another process for determinism."""
+    results: dict[int, dict] = {}
+    chunks = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
+    for part in chunks:
+        path = folder / "chunks" / f"{part[0]}-{part[-1]}.json" if folder else None
+        if path is not None and path.exists():
+            stored = {r["case"]: r for r in json.loads(path.read_text())}
+            if set(stored) == set(part):
+                results.update(stored)
+                if progress:
+                    progress(len(part))
+                continue
+        done = run_workers(part, jobs, max(1, -(-len(part) // jobs)), cap, progress)
+        if path is not None:
+            write_json(path, [done[s] for s in part])
+        results.update(done)
+    _confirm_slow(results, cap)
+    _repeat(results, seeds[::repeat_every], cap)
+    return results
+
+
+def _confirm_slow(results: dict[int, dict], cap: float) -> None:
+    """A loaded machine can stall one step: a slow step counts only if slow again."""
+    slow = [s for s, r in results.items() if "hang" in r["classes"] and "max_step_ms" in r["details"]]
+    again = run_workers(slow, 1, len(slow) or 1, cap) if slow else {}
+    for seed in slow:
+        if "hang" not in again[seed]["classes"]:
+            classes = results[seed]["classes"]
+            classes.remove("hang")
+            results[seed]["details"]["slow_once_ms"] = results[seed]["details"]["max_step_ms"]
+            if not any(c in DEFECTS or c in ("typed", "rejected") for c in classes):
+                classes.append("ok")
+
+
+def _repeat(results: dict[int, dict], sample: list[int], cap: float) -> None:
+    """The sample run again in a fresh process: the same classes and a bitwise-equal q."""
+    sample = [s for s in sample if "hang" not in results[s]["classes"]]
+    again = run_workers(sample, 1, len(sample) or 1, cap) if sample else {}
+    for seed in sample:
+        first, second = results[seed], again[seed]
+        first["details"]["repeated"] = True
+        if first.get("q_hash") != second.get("q_hash") or set(first["classes"]) != set(second["classes"]):
+            first["classes"] = [c for c in first["classes"] if c != "ok"] + ["nondeterministic"]
+            first["details"]["repeat"] = {"classes": second["classes"], "q_hash": second.get("q_hash")}
+
+
+# Summary ------------------------------------------------------------------------------
+
+def summarise(results: dict[int, dict]) -> dict:
+    counts, by_controller, by_model = Counter(), defaultdict(Counter), defaultdict(Counter)
+    sites, examples = defaultdict(Counter), defaultdict(list)
+    for seed in sorted(results):
+        result = results[seed]
+        params, details = result.get("params", {}), result["details"]
+        label = params.get("controller", "?") + (f"/{params['solver']}" if params.get("solver") else "") \
+            + ("" if params.get("fast_path") is None else f"/fast={params['fast_path']}")
+        model = "generated" if params.get("model") == "generated" else "third-party" if params else "?"
+        counts["cases"] += 1
+        by_controller[label]["cases"] += 1
+        by_model[model]["cases"] += 1
+        for c in set(result["classes"]):
+            counts[c] += 1
+            by_controller[label][c] += 1
+            by_model[model][c] += 1
+            if c in DEFECTS:
+                where = details.get("site") or details.get("error", "")[:90] or c
+                if c == "stray_warning":
+                    for w in details.get("warnings", []):
+                        sites[c][w.split(":")[0] + ":" + w.split(":")[1].split()[0]] += 1
+                else:
+                    sites[c][where] += 1
+                if len(examples[c]) < 8:
+                    examples[c].append(_example(result))
+    return {"counts": dict(counts), "by_controller": {k: dict(v) for k, v in sorted(by_controller.items())},
+            "by_model": {k: dict(v) for k, v in by_model.items()},
+            "sites": {k: dict(v.most_common(12)) for k, v in sites.items()}, "examples": dict(examples)}
+
+
+def _example(result: dict) -> dict:
+    params = result.get("params", {})
+    keep = ("model", "controller", "solver", "fast_path", "tasks", "limits", "levels", "invalid", "invalid_value",
+            "targets", "start")
+    return {"case": result["case"], "classes": result["classes"], "error": result["details"].get("error", "")[:200],
+            "site": result["details"].get("site"), "params": {k: params[k] for k in keep if k in params},
+            "command": f"python benchmarks/fuzz_any_robot.py --case {result['case']}"}
+
+
+def to_markdown(summary: dict, meta: dict) -> str:
+    counts = summary["counts"]
+    lines = [f"Any-robot fuzz, seeds {meta['first_seed']}–{meta['first_seed'] + meta['cases'] - 1} "
+             f"({meta['cases']} cases, {meta['elapsed_s']:.0f} s, `{meta['command']}`). A case may fall in several "
+             "classes; defects in bold.", "", "| class | cases |", "|---|---:|"]
+    for key, label, bad in CLASSES:
+        lines.append(f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |")
+    shown = ["cases", "ok", "typed", "rejected", *DEFECTS]
+    short = {"nondeterministic": "nondet", "stray_warning": "warning", "typed_on_feasible": "typed on feasible",
+             "invalid_accepted": "invalid accepted", "hard_missed": "hard missed"}
+    for title, table in (("Per controller (and solver, fast path)", summary["by_controller"]),
+                         ("Per model source", summary["by_model"])):
+        lines += ["", title + ":", "", "| | " + " | ".join(short.get(k, k) for k in shown) + " |",
+                  "|---|" + "---:|" * len(shown)]
+        for name, row in table.items():
+            lines.append(f"| {name} | " + " | ".join(str(row.get(k, 0)) for k in shown) + " |")
+    for key in DEFECTS:
+        if summary["sites"].get(key):
+            lines += ["", f"Where ({key}): " + "; ".join(f"{n} × `{s}`" for s, n in summary["sites"][key].items())]
+            for example in summary["examples"][key][:3]:
+                lines.append(f"- case {example['case']}: {json.dumps(example['params'])[:300]} — "
+                             f"{example['error'][:150]} (`{example['command']}`)")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["--worker"]:
+        worker([int(s) for s in sys.argv[2:]])

@@ -1,0 +1,48 @@
+"""The any-robot fuzz's short version (benchmarks/fuzz_any_robot.py runs the full one):
+300 seeded cases on generated and third-party models, every class of failure zero.
+
+Also checks the harness itself: the LP tells a feasible step from an infeasible one, a
+case past its time budget is a hang, and a repeat in another process gives the same q.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from qpik.fuzz import CLASSES, DEFECTS, run_case
+from qpik.fuzz.checks import lp_feasible
+from qpik.fuzz.sweep import run_workers, summarise, sweep
+
+SHORT = 300
+
+
+def test_the_lp_tells_feasible_from_infeasible_steps():
+    A, b = np.array([[1.0, 1.0]]), np.array([1.0])
+    box = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    no_rows = np.zeros((0, 2)), np.zeros(0)
+    assert lp_feasible(A, b, *box, *no_rows, margin=True)
+    assert not lp_feasible(A, np.array([2.0]), *box, *no_rows, margin=True)  # only at the corner
+    assert lp_feasible(A, np.array([2.0]), *box, *no_rows, margin=False)
+    contradictory = np.array([[1.0, 0.0], [1.0, 0.0]]), np.array([0.5, 0.6])
+    assert not lp_feasible(*contradictory, *box, *no_rows, margin=False)
+
+
+def test_a_case_past_its_budget_is_a_hang_and_the_rest_still_run():
+    results = run_workers([0, 1], jobs=1, chunk=2, cap=1e-3)
+    assert {seed: r["classes"] for seed, r in results.items()} == {0: ["hang"], 1: ["hang"]}
+
+
+def test_a_case_repeated_in_another_process_gives_the_same_trajectory(tmp_path):
+    here = {seed: run_case(seed, tmp_path) for seed in range(4)}
+    there = run_workers(list(range(4)), jobs=1, chunk=4, cap=120.0)
+    assert [here[s].get("q_hash") for s in range(4)] == [there[s].get("q_hash") for s in range(4)]
+
+
+def test_the_short_any_robot_fuzz_finds_no_defect(tmp_path):
+    results = sweep(list(range(SHORT)), jobs=2, chunk=50, cap=60.0, folder=tmp_path, repeat_every=30)
+    summary = summarise(results)
+    counts = summary["counts"]
+    assert counts["cases"] == SHORT and counts.get("ok", 0) > SHORT // 3  # the harness ran real rollouts
+    found = {key: counts.get(key, 0) for key in DEFECTS if counts.get(key, 0)}
+    assert not found, (found, summary["sites"], {k: v[:2] for k, v in summary["examples"].items()})
+    assert {key for key, _, _ in CLASSES} >= set(counts) - {"cases"}
