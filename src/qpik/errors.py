@@ -68,3 +68,8 @@ class OutsideJointLimits(ModelError):
     def __init__(self, message: str, excess: dict[str, float] | None = None):
         super().__init__(message)
         self.excess = dict(excess or {})
+
+
+class MissingExtra(QpikError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it
+    (``pip install -e ".[extra]"`` from qpik's clone)."""

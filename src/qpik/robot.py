@@ -390,8 +390,7 @@ class Robot:
                            f"{limits.upper[i]:.6g}] (by {excess[i]:.3g})" for i in outside[:8])
         more = f" and {len(outside) - 8} more" if len(outside) > 8 else ""
         raise OutsideJointLimits(f"model {self.name!r}: {what} lies outside the joint ranges ({listed}{more}); "
-                                 f"{remedy} allow_outside_limits=True for a JointPositionLimit to bring the "
-                                 "joints back", joints)
+                                 f"{remedy} (then a JointPositionLimit brings the joints back)", joints)
 
     # Configuration ---------------------------------------------------------------
     @property
@@ -412,7 +411,7 @@ class Robot:
             raise InvalidInput(f"configuration must have shape ({self.nq},), got {q.shape}")
         if not np.all(np.isfinite(q)):
             raise InvalidInput("configuration contains NaN or inf")
-        self._check_inside(q, "the configuration given to set_q", "give one inside them, or set robot.")
+        self._check_inside(q, "the configuration given to set_q", "give one inside them, or set robot.allow_outside_limits = True")
         self.data.qpos[:] = q
         self._start_unchecked = False
 
@@ -435,7 +434,7 @@ class Robot:
         """
         if self._start_unchecked:
             self._check_inside(self._qpos, "the start configuration", "start inside them (set_q(q) or "
-                               "keyframe=name), or pass")
+                               "keyframe=name), or load with allow_outside_limits=True")
             self._start_unchecked = False
         if self._state_bytes() != self._kinematics_state:
             self.update_kinematics()
@@ -503,7 +502,7 @@ class Robot:
         if not np.all(np.isfinite(qpos)):
             raise ModelError(f"model {self.name!r}: keyframe {keyframe!r} has a non-finite qpos: {qpos}")
         self._check_inside(qpos, f"keyframe {keyframe!r}", "fix the keyframe or the ranges, start elsewhere "
-                           "with keyframe=None, or pass")
+                           "with keyframe=None, or pass allow_outside_limits=True")
         mujoco.mj_resetDataKeyframe(m, self.data, key_id)
 
     def site_id(self, name: str) -> int:
