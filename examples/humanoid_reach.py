@@ -9,7 +9,7 @@ Prints how far the feet drifted and the CoM and hand errors.
 
     python examples/humanoid_reach.py [--duration 3] [--solver daqp] [--viewer]
 
-The model is read from the installed dm_control package (``pip install "qpik[models]"``).
+The model is read from the installed dm_control package (``pip install -e ".[models]"`` from a clone).
 """
 
 from __future__ import annotations

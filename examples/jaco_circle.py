@@ -8,7 +8,7 @@ any limit violation.
 
     python examples/jaco_circle.py [--duration 5] [--solver daqp] [--viewer]
 
-The model is read from the installed dm_control package (``pip install "qpik[models]"``).
+The model is read from the installed dm_control package (``pip install -e ".[models]"`` from a clone).
 """
 
 from __future__ import annotations

@@ -54,3 +54,22 @@ class DivergenceError(QpikError, RuntimeError):
 
 class GainWarning(UserWarning):
     """A feedback gain K with K·Δt > 1: the task's error overshoots every control step."""
+
+
+class OutsideJointLimits(ModelError):
+    """A configuration outside the model's joint ranges (at load, from ``qpos0`` or a
+    keyframe, or given to :meth:`~qpik.Robot.set_q`).
+
+    ``excess`` maps each joint outside its range to how far (joint units, > 0). Start
+    outside on purpose with ``allow_outside_limits=True``: a
+    :class:`~qpik.JointPositionLimit` then brings the joints back.
+    """
+
+    def __init__(self, message: str, excess: dict[str, float] | None = None):
+        super().__init__(message)
+        self.excess = dict(excess or {})
+
+
+class MissingExtra(QpikError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it
+    (``pip install -e ".[extra]"`` from qpik's clone)."""

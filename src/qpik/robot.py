@@ -25,8 +25,18 @@ named ``qpik_velocity_limit_<joint>`` holding one value per degree of freedom.
 At load a :class:`Robot` checks what MuJoCo's compiler lets through silently and raises
 :class:`~qpik.errors.ModelError` for it: a timestep that is not positive and finite, a
 joint range with a NaN or with its lower bound not below its upper one (MuJoCo then
-drops the limit without a word), the start keyframe outside the joint ranges (beyond
-:data:`KEYFRAME_TOLERANCE`) or not finite, and non-finite kinematics at the start.
+drops the limit without a word), a start keyframe that is not finite, non-finite
+kinematics at the start, and speed limits declared for some joints but not all.
+
+Starting states are checked: the start keyframe (at load), every :meth:`Robot.set_q` (at
+once) and the configuration of the first control step (:meth:`Robot.ensure_kinematics`:
+the model's ``qpos0`` unless another was set) must lie inside the joint ranges (beyond
+:data:`KEYFRAME_TOLERANCE`), else :class:`~qpik.errors.OutsideJointLimits` names each joint
+and by how much (as mink's ``NotWithinConfigurationLimits``). Loading a model whose
+``qpos0`` is outside (dm_control's Jaco, gymnasium's ant) and then calling ``set_q`` with
+a configuration inside is fine. ``allow_outside_limits=True`` accepts such a start on
+purpose: a :class:`~qpik.JointPositionLimit` then brings the joints back into range.
+Models may also be URDF files (MuJoCo reads them) or an :class:`mujoco.MjSpec`.
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .errors import InvalidInput, ModelError, UnknownName
+from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
 from .robots import BUNDLED
 
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
@@ -166,29 +176,68 @@ class Frame:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
 
 
+MODEL_SUFFIXES = (".xml", ".urdf")
+# What MuJoCo's compiler says about a URDF link without mass or inertia, and what to do.
+_MASSLESS = "mass and inertia of moving bodies must be larger than mjMINVAL"
+_URDF_HINT = ("a URDF link without an <inertial> is massless to MuJoCo: give the moving links inertials, or let "
+              "MuJoCo bound them by adding <mujoco><compiler boundmass=\"1e-3\" boundinertia=\"1e-6\"/></mujoco> "
+              "inside <robot>")
+
+
 def scene_path(scene: str | Path) -> Path:
-    """Resolve a bundled scene name (``"arm"``, ``"hexapod"``) or an MJCF path."""
+    """Resolve a bundled scene name (``"arm"``, ``"hexapod"``) or an MJCF or URDF path."""
     key = str(scene)
     if key in BUNDLED:
         return BUNDLED[key][0]
     path = Path(scene)
-    if path.suffix.lower() != ".xml" and not path.exists():
+    if path.suffix.lower() not in MODEL_SUFFIXES and not path.exists():
         raise UnknownName(
-            f"unknown robot {key!r}: expected one of {sorted(BUNDLED)} or a path to an MJCF file"
+            f"unknown robot {key!r}: expected one of {sorted(BUNDLED)} or a path to an MJCF or URDF file"
         )
     if not path.is_file():
-        raise ModelError(f"MJCF file not found: {path}")
+        raise ModelError(f"model file not found: {path}")
     return path
 
 
 def load_model(scene: str | Path) -> mujoco.MjModel:
-    """Load a bundled scene by name, or any MJCF file, with a clear error if it fails."""
+    """Load a bundled scene by name, or any MJCF or URDF file, with a clear error if it fails.
+
+    Raises:
+        UnknownName: not a bundled robot's name nor a model file's path.
+        ModelError: the file is missing or MuJoCo cannot compile it (for a URDF whose
+            links lack inertials, the message says how to give them some).
+    """
     path = scene_path(scene)
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:  # MuJoCo's parser and compiler errors
-        message = " ".join(str(exc).split())
-        raise ModelError(f"cannot load MJCF {path}: {message}") from None
+        urdf = path.suffix.lower() == ".urdf"
+        raise ModelError(f"cannot load {'URDF' if urdf else 'MJCF'} {path}: {_compile_message(exc, urdf)}") from None
+
+
+def compile_spec(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """Compile an :class:`mujoco.MjSpec` (a model built in Python) with a clear error."""
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise ModelError(f"cannot compile the MjSpec: {_compile_message(exc, False)}") from None
+
+
+def _compile_message(exc: Exception, urdf: bool) -> str:
+    message = " ".join(str(exc).split())
+    if urdf and _MASSLESS in message:
+        message += f"; {_URDF_HINT}"
+    return message
+
+
+def as_model(model) -> mujoco.MjModel:
+    """An MjModel from an MjModel or an MjSpec (compiled), else :class:`InvalidInput`."""
+    if isinstance(model, mujoco.MjModel):
+        return model
+    if isinstance(model, mujoco.MjSpec):
+        return compile_spec(model)
+    raise InvalidInput(f"expected a mujoco.MjModel or mujoco.MjSpec, got {type(model).__name__}; "
+                       "load a file or a bundled robot with Robot.load(path_or_name)")
 
 
 @dataclass(frozen=True)
@@ -250,23 +299,35 @@ class Robot:
     """A MuJoCo model and one MjData, read and written in place.
 
     Args:
-        model: compiled MuJoCo model.
+        model: compiled MuJoCo model, or an :class:`mujoco.MjSpec` (compiled here).
         name: a label for logs and summaries (defaults to the model's name).
         keyframe: keyframe to start from (default: none, the model's ``qpos0``).
+        allow_outside_limits: accept a start (the keyframe, :meth:`set_q`, the first
+            step's configuration) outside the joint ranges, for a :class:`~qpik.JointPositionLimit` to bring
+            the joints back; by default such a start raises :class:`OutsideJointLimits`
+            naming the joints (mink's ``NotWithinConfigurationLimits``). An attribute:
+            it can be switched later.
 
     Raises:
         ModelError: the model fails :func:`check_model`, or the start keyframe is not
-            finite or lies outside the joint ranges, or the start kinematics are not
-            finite (e.g. a NaN body position).
+            finite, or the start kinematics are not finite (e.g. a NaN body position),
+            or the model declares speed limits for some joints and not others.
+        OutsideJointLimits: the start keyframe lies outside the joint ranges (beyond
+            :data:`KEYFRAME_TOLERANCE`) and ``allow_outside_limits`` is False (``qpos0``
+            is checked at the first step, see :meth:`ensure_kinematics`).
         UnknownName: ``keyframe`` names no keyframe of the model.
+        InvalidInput: ``model`` is neither an MjModel nor an MjSpec.
     """
 
-    def __init__(self, model: mujoco.MjModel, name: str | None = None, keyframe: str | None = None):
+    def __init__(self, model: mujoco.MjModel | mujoco.MjSpec, name: str | None = None,
+                 keyframe: str | None = None, *, allow_outside_limits: bool = False):
+        model = as_model(model)
         self.model = model
         self.data = mujoco.MjData(model)
         self._qpos = self.data.qpos  # one view for the data's life: MuJoCo's getter makes a new one (~0.5 µs)
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
         check_model(model, f"model {self.name!r}")
+        self.allow_outside_limits = bool(allow_outside_limits)
         self.nq = model.nq
         self.nv = model.nv
         self._kinematics_state = b""
@@ -274,6 +335,8 @@ class Robot:
         self._velocity_shape = (model.nv,)
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
+        # qpos0 is checked at the first step (ensure_kinematics), a keyframe or set_q at once.
+        self._start_unchecked = True
         if keyframe is not None:
             self._reset_to_keyframe(keyframe)
         self.update_kinematics()
@@ -282,22 +345,52 @@ class Robot:
                              "(a NaN or inf in a body, joint or site placement?)")
 
     @classmethod
-    def load(cls, scene: str | Path, keyframe: str | None | _BundledDefault = BUNDLED_HOME) -> Robot:
-        """Load a bundled scene by name (``"arm"``, ``"hexapod"``) or an MJCF path.
+    def load(cls, scene: str | Path | mujoco.MjModel | mujoco.MjSpec,
+             keyframe: str | None | _BundledDefault = BUNDLED_HOME, *, allow_outside_limits: bool = False) -> Robot:
+        """Load a bundled scene by name (``"arm"``, ``"hexapod"``), an MJCF or URDF path,
+        an :class:`mujoco.MjModel` or an :class:`mujoco.MjSpec`.
 
         Args:
-            scene: a bundled robot's name or a path to an MJCF file.
+            scene: a bundled robot's name, a path to an MJCF or URDF file, or a model.
             keyframe: the keyframe to start from; by default ``"home"`` for a bundled
-                robot and none (``qpos0``) for a path; ``None``: ``qpos0``.
+                robot and none (``qpos0``) otherwise; ``None``: ``qpos0``.
+            allow_outside_limits: accept a start outside the joint ranges (see
+                :class:`Robot`).
 
         Raises:
             UnknownName: unknown robot name, or ``keyframe`` names no keyframe of the model.
             ModelError: the file is missing or MuJoCo cannot compile it.
+            OutsideJointLimits: the start keyframe lies outside the joint ranges.
         """
-        name = str(scene) if str(scene) in BUNDLED else None
+        if isinstance(scene, (mujoco.MjModel, mujoco.MjSpec)):
+            model, name = as_model(scene), None
+        elif isinstance(scene, (str, Path)):
+            name = str(scene) if str(scene) in BUNDLED else None
+            model = load_model(scene)
+        else:
+            raise InvalidInput(f"Robot.load takes a bundled robot's name {sorted(BUNDLED)}, a path, a mujoco.MjModel "
+                               f"or a mujoco.MjSpec, got {type(scene).__name__}")
         if isinstance(keyframe, _BundledDefault):
             keyframe = "home" if name is not None else None
-        return cls(load_model(scene), name=name, keyframe=keyframe)
+        return cls(model, name=name, keyframe=keyframe, allow_outside_limits=allow_outside_limits)
+
+    def _check_inside(self, q: np.ndarray, what: str, remedy: str) -> None:
+        """Raise :class:`OutsideJointLimits` for a configuration outside the joint ranges,
+        unless this robot allows it."""
+        if self.allow_outside_limits:
+            return
+        limits = self.joint_limits
+        values = q[limits.qpos_index]
+        excess = np.maximum(limits.lower - values, values - limits.upper)
+        outside = np.flatnonzero(excess > KEYFRAME_TOLERANCE)
+        if not len(outside):
+            return
+        joints = {limits.names[i]: float(excess[i]) for i in outside}
+        listed = ", ".join(f"{limits.names[i]} = {values[i]:.6g} not in [{limits.lower[i]:.6g}, "
+                           f"{limits.upper[i]:.6g}] (by {excess[i]:.3g})" for i in outside[:8])
+        more = f" and {len(outside) - 8} more" if len(outside) > 8 else ""
+        raise OutsideJointLimits(f"model {self.name!r}: {what} lies outside the joint ranges ({listed}{more}); "
+                                 f"{remedy} (then a JointPositionLimit brings the joints back)", joints)
 
     # Configuration ---------------------------------------------------------------
     @property
@@ -306,13 +399,21 @@ class Robot:
         return self._qpos
 
     def set_q(self, q: np.ndarray) -> None:
-        """Set the configuration after checking its shape and finiteness."""
+        """Set the configuration after checking its shape, finiteness and joint ranges.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN or inf.
+            OutsideJointLimits: a joint outside its range, unless
+                ``allow_outside_limits`` is set on the robot.
+        """
         q = np.asarray(q, dtype=float)
         if q.shape != (self.nq,):
             raise InvalidInput(f"configuration must have shape ({self.nq},), got {q.shape}")
         if not np.all(np.isfinite(q)):
             raise InvalidInput("configuration contains NaN or inf")
+        self._check_inside(q, "the configuration given to set_q", "give one inside them, or set robot.allow_outside_limits = True")
         self.data.qpos[:] = q
+        self._start_unchecked = False
 
     def update_kinematics(self) -> None:
         """The one kinematics update per control step: frames and Jacobian data."""
@@ -322,7 +423,19 @@ class Robot:
 
     def ensure_kinematics(self) -> None:
         """Update the kinematics if the configuration (or a mocap pose) changed since the
-        last update: what every controller calls first, so forgetting it cannot drift."""
+        last update: what every controller calls first, so forgetting it cannot drift.
+
+        The first call also checks the start (the model's ``qpos0`` or a configuration
+        written into :attr:`q` directly) against the joint ranges.
+
+        Raises:
+            OutsideJointLimits: at the first call, a start outside the joint ranges (unless
+                ``allow_outside_limits``).
+        """
+        if self._start_unchecked:
+            self._check_inside(self._qpos, "the start configuration", "start inside them (set_q(q) or "
+                               "keyframe=name), or load with allow_outside_limits=True")
+            self._start_unchecked = False
         if self._state_bytes() != self._kinematics_state:
             self.update_kinematics()
 
@@ -388,14 +501,8 @@ class Robot:
         qpos = m.key_qpos[key_id]
         if not np.all(np.isfinite(qpos)):
             raise ModelError(f"model {self.name!r}: keyframe {keyframe!r} has a non-finite qpos: {qpos}")
-        limits = self.joint_limits
-        values = qpos[limits.qpos_index]
-        outside = (values < limits.lower - KEYFRAME_TOLERANCE) | (values > limits.upper + KEYFRAME_TOLERANCE)
-        if np.any(outside):
-            bad = ", ".join(f"{limits.names[i]} = {values[i]:.6g} not in [{limits.lower[i]:.6g}, {limits.upper[i]:.6g}]"
-                            for i in np.flatnonzero(outside))
-            raise ModelError(f"model {self.name!r}: keyframe {keyframe!r} lies outside the joint ranges ({bad}); "
-                             "fix the keyframe or the ranges, or start elsewhere with keyframe=None")
+        self._check_inside(qpos, f"keyframe {keyframe!r}", "fix the keyframe or the ranges, start elsewhere "
+                           "with keyframe=None, or pass allow_outside_limits=True")
         mujoco.mj_resetDataKeyframe(m, self.data, key_id)
 
     def site_id(self, name: str) -> int:
@@ -510,4 +617,39 @@ class Robot:
                 raise ModelError(f"numeric {name!r} must hold one positive finite value"
                                  + (f" or {dofs}, one per dof" if dofs > 1 else ""))
             vmax[m.jnt_dofadr[jid]:m.jnt_dofadr[jid] + dofs] = values
+        self._check_every_joint_bounded(vmax)
         return vmax
+
+    def _check_every_joint_bounded(self, vmax: np.ndarray) -> None:
+        """All or nothing: a model that declares some joints' speed limits declares them all
+        (a joint left out would be silently unbounded)."""
+        missing = np.isinf(vmax)
+        if missing.all() or not missing.any():
+            return
+        joints = sorted({self.dof_name(int(d)).split("[")[0] for d in np.flatnonzero(missing)})
+        raise ModelError(f"model {self.name!r} declares speed limits ({VELOCITY_LIMIT_PREFIX}<joint> numerics) for "
+                         f"some joints but not for {joints}: declare one for every joint, or none and give "
+                         "JointVelocityLimit(robot, {joint: vmax}) the joints to bound")
+
+
+def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the controller") -> None:
+    """Refuse a task or limit built on another :class:`Robot` than the controller's.
+
+    Another instance, even of the same model, has its own MjData: a task bound to it
+    would read a robot that never moves. Objects without a ``robot`` attribute (a user's
+    limit that needs none) pass.
+
+    Raises:
+        InvalidInput: the first task or limit bound to another robot, named.
+    """
+    for kind, items in (("task", tasks), ("limit", limits)):
+        for item in items or ():
+            other = getattr(item, "robot", robot)
+            if other is robot:
+                continue
+            label = getattr(item, "name", None) or type(item).__name__
+            same = isinstance(other, Robot) and (other.name, other.nq, other.nv) == (robot.name, robot.nq, robot.nv)
+            why = (f"another Robot instance of the same model {robot.name!r} (its own MjData, which this controller "
+                   "never moves)" if same else f"robot {getattr(other, 'name', other)!r}")
+            raise InvalidInput(f"{controller}: {kind} {label!r} was built on {why}, not on the controller's robot "
+                               f"{robot.name!r}: build every task and limit on the robot given to the controller")

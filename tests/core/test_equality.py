@@ -77,7 +77,7 @@ ROWS = {"pin": 3, "glue": 6, "couple": 1, "cord": 1}
 
 def equality_robot(option: str = "", seed: int | None = 0) -> Robot:
     model = mujoco.MjModel.from_xml_string(EQUALITIES.format(option=option))
-    robot = Robot(model)
+    robot = Robot(model, allow_outside_limits=True)  # moved away at random: p1 may leave its range
     # Place the pin where the tip is at qpos0, then move away: every equality is violated.
     robot.update_kinematics()
     model.site_pos[model.site("pin").id] = robot.data.site("tip").xpos

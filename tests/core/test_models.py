@@ -30,7 +30,7 @@ def test_an_unknown_name_lists_the_close_ones():
 def test_a_missing_package_names_the_extra(monkeypatch):
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "gymnasium" else real(name, *a))
-    with pytest.raises(ModelError, match=r"gymnasium package, which is not installed: pip install \"qpik\[models\]\""):
+    with pytest.raises(ModelError, match=r"gymnasium package, which is not installed: pip install -e \"\.\[models\]\" from qpik.s clone"):
         third_party("pusher")
 
 

@@ -67,6 +67,6 @@ def test_jacobian_changed_after_the_controller_was_built_is_an_error(arm):
 
 
 def test_pseudoinverse_secondary_must_be_joint_space(arm):
-    primary = PositionTask(arm, "end_effector", axes="xy")
+    primary = PositionTask(arm, "end_effector", axes="xy", gain=1.0)
     with pytest.raises(InvalidInput, match="joint-space"):
         PseudoinverseController(arm, [primary], DoubledPosture(arm))

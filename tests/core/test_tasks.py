@@ -242,7 +242,7 @@ def test_feed_forward_tracks_a_moving_target_without_lag(jaco_path, axes_frame):
     gain, dt, speed = 20.0, 0.002, np.array([0.05, -0.03, 0.02])
     errors = {}
     for feed_forward in (True, False):
-        robot = Robot.load(jaco_path)
+        robot = Robot.load(jaco_path, allow_outside_limits=True)  # displaced_configuration: joint_2 below its range
         displaced_configuration(robot, 4)
         task = FrameTask(robot, "wristsite", position_gain=gain, orientation_gain=gain, hard=True,
                          axes_frame=axes_frame)
@@ -287,7 +287,7 @@ def test_humanoid_reaches_while_its_com_stays_put(humanoid_path):
     hand pose task toward a target 20 cm away, posture and damping; joint ranges kept."""
     from qpik import JointPositionLimit, JointVelocityLimit
 
-    robot = Robot.load(humanoid_path)
+    robot = Robot.load(humanoid_path, allow_outside_limits=True)  # qpos0: knees below range
     robot.update_kinematics()
     hand = FrameTask(robot, "lhand", "body", position_gain=10.0, orientation_gain=1.0, weight=[1, 1, 1, 0.1, 0.1, 0.1])
     goal = hand.target_position + [0.1, 0.1, 0.15]

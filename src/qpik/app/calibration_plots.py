@@ -12,7 +12,11 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from matplotlib.figure import Figure
+
+from ..extras import require
+
+require("matplotlib", "the calibration plots")
+from matplotlib.figure import Figure  # noqa: E402
 
 from ..robots.hexapod.calibration import Calibration, calibrate
 

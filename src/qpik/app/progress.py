@@ -2,7 +2,8 @@
 
 A bar shows only where someone can see it: on a terminal, and not with ``--quiet``.
 Piped or redirected output (CI logs, ``2> file``) stays free of carriage-return noise.
-tqdm is imported only when a bar is actually drawn.
+tqdm is imported only when a bar is actually drawn; without it (the ``cli`` extra) there
+are no bars.
 """
 
 from __future__ import annotations
@@ -12,8 +13,11 @@ from typing import Callable
 
 
 def wanted(quiet: bool = False) -> bool:
-    """Whether to draw bars: stderr is a terminal and the user did not ask for quiet."""
-    return not quiet and sys.stderr.isatty()
+    """Whether to draw bars: stderr is a terminal, the user did not ask for quiet, and tqdm
+    is installed."""
+    from ..extras import installed
+
+    return not quiet and sys.stderr.isatty() and installed("tqdm")
 
 
 class StepBars:

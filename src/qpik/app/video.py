@@ -9,8 +9,8 @@ legend and the time are printed on each frame.
 Headless machines render through EGL (GPU or Mesa) or OSMesa: MuJoCo picks the back-end
 from ``MUJOCO_GL`` when it is first imported; :func:`prefer_headless_gl` sets
 ``MUJOCO_GL=egl`` when no display is available and MuJoCo is not imported yet. ``.mp4``
-(and other ffmpeg containers) are written with imageio-ffmpeg (``pip install
-'qpik[video]'``), ``.gif`` (looping, for a README) with Pillow.
+(and other ffmpeg containers) are written with imageio-ffmpeg (``pip install -e
+".[video]"`` from a clone), ``.gif`` (looping, for a README) with Pillow.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InvalidInput, QpikError
+from ..extras import require
 from ..io import atomic_path
 
 FFMPEG_SUFFIXES = (".mp4", ".mkv", ".webm", ".avi", ".mov")
@@ -60,8 +61,8 @@ def _ffmpeg():
     try:
         import imageio_ffmpeg
     except ImportError:
-        raise VideoUnavailable("writing .mp4 needs imageio-ffmpeg: pip install 'qpik[video]' "
-                               "(or write a .gif)") from None
+        raise VideoUnavailable("writing .mp4 needs imageio-ffmpeg: pip install -e \".[video]\" from qpik's "
+                               "clone (or write a .gif)") from None
     return imageio_ffmpeg
 
 
@@ -214,6 +215,7 @@ def _to_3d(points) -> np.ndarray:
 
 
 def _overlay(frame: np.ndarray, labels: Sequence[str], colours: Sequence[str], caption: str, time: float):
+    require("PIL", "the video's captions")
     from PIL import Image, ImageDraw, ImageFont
 
     image = Image.fromarray(frame)
@@ -284,6 +286,7 @@ def render_logs(model, logs: Sequence, path: str | Path, *, labels: Sequence[str
 
 def _encode(frames: list[np.ndarray], path: Path, fps: float, colours: Sequence[str] = ()) -> None:
     if path.suffix.lower() == ".gif":
+        require("PIL", "writing a .gif")
         from PIL import Image
 
         # One palette for the whole clip (no flicker): a grey ramp for the floor, shades of

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..limits import order_limits
-from ..robot import Robot
+from ..robot import Robot, check_same_robot
 from ..solvers import make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormPause, ClosedFormStep, damped_least_squares_step, inside_limits
@@ -142,6 +142,7 @@ class HierarchicalController:
         if not (np.isfinite(regularization) and regularization > 0):  # a level may need it
             raise InvalidInput(f"regularization must be positive, got {regularization}")
         grouped = group_levels(robot, tasks, levels, "HierarchicalController")
+        check_same_robot(robot, (), limits, "HierarchicalController")  # tasks: group_levels checks them
         self.robot = robot
         self.solver = solver
         self.dt = float(dt)

@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import DivergenceError, InvalidInput
-from ..robot import Robot
+from ..robot import Robot, check_same_robot
 from ..tasks import Task
 
 
@@ -30,6 +30,7 @@ class _StackedTasks:
     def __init__(self, robot: Robot, primary: Sequence[Task]):
         if not primary:
             raise InvalidInput("the controller needs at least one primary task")
+        check_same_robot(robot, primary, (), type(self).__name__)
         self.robot = robot
         self.primary = list(primary)
         self.updated_tasks = tuple(self.primary)  # fresh after every step (rollouts read them)
@@ -69,6 +70,7 @@ class PseudoinverseController(_StackedTasks):
 
     def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Task | None = None, damping: float = 0.0):
         super().__init__(robot, primary)
+        check_same_robot(robot, [secondary] if secondary is not None else [], (), type(self).__name__)
         for task in (*self.primary, *([secondary] if secondary is not None else [])):
             task.attach(None)  # no control period here: fixes the tasks' Jacobian kind, checks no gain
         if secondary is not None and not secondary.joint_space:

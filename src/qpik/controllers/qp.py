@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit, order_limits
 from ..limits.limit import as_slice
-from ..robot import Robot
+from ..robot import Robot, check_same_robot
 from ..solvers import make_backend
 from ..tasks import Task
 from .closed_form import ClosedFormPause, ClosedFormStep, inside_box, inside_limits
@@ -80,6 +80,7 @@ class QPController:
         if not tasks:
             raise InvalidInput("a QPController needs at least one task")
         self.dt = check_dt(dt)
+        check_same_robot(robot, tasks, limits, "QPController")
         self.robot = robot
         self.tasks = list(tasks)
         for task in self.tasks:

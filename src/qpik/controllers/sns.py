@@ -91,7 +91,7 @@ from scipy.linalg import lapack
 
 from ..errors import DivergenceError, InvalidInput
 from ..limits import order_limits
-from ..robot import JointLimits, Robot
+from ..robot import JointLimits, Robot, check_same_robot
 from ..tasks import Task
 from .levels import StackedLevel, check_dt, group_levels
 
@@ -174,6 +174,7 @@ class SNSController:
                  max_acceleration=None):
         dt = check_dt(dt)
         grouped = group_levels(robot, tasks, levels, "SNSController")
+        check_same_robot(robot, (), limits, "SNSController")  # tasks: group_levels checks them
         self.robot = robot
         self.dt = float(dt)
         self.levels = [StackedLevel(robot, level, weighted=True) for level in grouped]

@@ -59,6 +59,7 @@ class JointVelocityLimit(Limit):
                                    f"({robot.nv},), got shape {vmax.shape}")
         if not np.all(vmax > 0):  # also catches NaN
             raise InvalidInput(f"velocity limits must be positive (inf for none), got {vmax}")
+        self.robot = robot
         self.max_velocity = vmax
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:

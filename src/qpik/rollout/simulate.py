@@ -59,6 +59,12 @@ def single_threaded_blas():
     """A context in which NumPy's and SciPy's BLAS run on one thread."""
     global _BLAS
     if _BLAS is None:
+        from ..extras import installed
+
+        if not installed("threadpoolctl"):  # the cli extra: without it BLAS keeps its threads
+            import contextlib
+
+            return contextlib.nullcontext()
         from threadpoolctl import ThreadpoolController
 
         _BLAS = ThreadpoolController()

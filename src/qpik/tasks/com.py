@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import InvalidInput, ModelError
 from ..robot import Robot
-from .task import Task, axis_rows, finite_vector, positive
+from .task import Task, axis_rows, feedback_gain, finite_vector, positive
 
 
 class ComTask(Task):
@@ -22,7 +22,8 @@ class ComTask(Task):
 
     Args:
         robot: the robot.
-        gain: K (1/s), a scalar or one per row.
+        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
+            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
         weight: cost weight of a soft task, a scalar or one per row.
         subtree: a body name: the CoM of that body and its descendants (default: the
             whole model, the world body's subtree).
@@ -40,7 +41,7 @@ class ComTask(Task):
 
     name = "CoM task"
 
-    def __init__(self, robot: Robot, gain=1.0, weight=1.0, subtree: str | None = None, axes: str = "xyz",
+    def __init__(self, robot: Robot, gain=None, weight=1.0, subtree: str | None = None, axes: str = "xyz",
                  hard: bool = False, lm_damping: float = 0.0):
         self.rows = axis_rows(axes)
         super().__init__(robot, len(self.rows), weight, hard)
@@ -49,7 +50,8 @@ class ComTask(Task):
         if not robot.model.body_subtreemass[self.body] > 0:
             what = "the model" if subtree is None else f"the subtree of body {subtree!r}"
             raise ModelError(f"{self.name}: {what} has no mass, so no centre of mass")
-        self.gain = positive(gain, self.dim, "CoM gain", allow_zero=True)
+        self.gain = feedback_gain(gain, self.dim, "CoM gain")
+        self._mark_dead_beat(self.gain)
         self.com = robot.data.subtree_com[self.body]  # a view, refreshed by every kinematics update
         self._jacp = np.zeros((3, robot.nv))
         self.target = self.com[self.rows].copy()
@@ -75,6 +77,11 @@ class ComTask(Task):
                                f"(gain {float(np.max(self.gain)):g} times the error) overflows")
         self.target[:] = target
         self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, "target CoM velocity")
+
+    def set_target_from_configuration(self) -> None:
+        """Desired CoM: the CoM at the robot's current configuration."""
+        self.robot.ensure_kinematics()
+        self.set_target(self.measured())
 
     def measured(self, robot: Robot | None = None) -> np.ndarray:
         """The CoM on the masked axes (a copy), on the bound robot or another of the same model

@@ -11,7 +11,10 @@ from .task import (
     Task,
     axis_rows,
     check_axes_frame,
+    feedback_gain,
     finite_vector,
+    homogeneous_transform,
+    mocap_pose,
     positive,
     rotation_error,
     rotation_matrix,
@@ -38,8 +41,10 @@ class FrameTask(Task):
         robot: the robot.
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
-        position_gain: :math:`K_p` (1/s), a scalar or one per position row.
-        orientation_gain: :math:`K_o` (1/s), a scalar or one per orientation row.
+        position_gain: :math:`K_p` (1/s), a scalar or one per position row; default
+            ``None``: dead-beat, 1/Δt of the controller the task is given to (see below).
+        orientation_gain: :math:`K_o` (1/s), a scalar or one per orientation row; default
+            ``None``: dead-beat as well.
         weight: cost weight of a soft task, a scalar or one per row.
         hard: enforce the rows as equalities in the QP.
         lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
@@ -52,12 +57,20 @@ class FrameTask(Task):
         UnknownName: no frame of that type has this name (the closest are listed).
         InvalidInput: a bad gain, weight, mask or ``axes_frame``.
 
-    The target is the frame's pose when the task is built; :meth:`set_target` moves it.
+    The target is the frame's pose when the task is built; :meth:`set_target` moves it
+    (a position and a 3x3 matrix or a w-x-y-z quaternion), as do
+    :meth:`set_target_transform` (a 4x4 homogeneous transform), :meth:`set_target_from_mocap`
+    (a mocap body's pose) and :meth:`set_target_from_configuration` (the frame's pose now).
+
+    Default gains are dead-beat, as mink's (``gain=1``): K = 1/Δt of the controller's
+    period, so K·Δt = 1 and a met task removes its (linearised) error in one step. Give a
+    gain in 1/s for a slower, smoother approach (K·Δt < 1); a law without a period
+    (:class:`~qpik.PseudoinverseController`) needs one.
     """
 
     name = "frame task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", position_gain=1.0, orientation_gain=1.0,
+    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", position_gain=None, orientation_gain=None,
                  weight=1.0, hard: bool = False, lm_damping: float = 0.0, position_axes: str = "xyz",
                  orientation_axes: str = "xyz", axes_frame: str = "world"):
         self.position_rows = axis_rows(position_axes, "position_axes")
@@ -70,10 +83,10 @@ class FrameTask(Task):
         self.frame = robot.frame(frame, frame_type)
         # Gains and the feed-forward twist live in one array each, the per-block names being
         # views: v = K e + ẋ_d is then two operations on all rows.
-        self._gain = np.concatenate([positive(position_gain, n_position, "position gain", allow_zero=True),
-                                     positive(orientation_gain, self.dim - n_position, "orientation gain",
-                                              allow_zero=True)])
+        self._gain = np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
+                                     feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")])
         self.position_gain, self.orientation_gain = self._gain[:n_position], self._gain[n_position:]
+        self._mark_dead_beat(self._gain)
         self.target_position = self.frame.position.copy()
         self.target_rotation = self.frame.rotation.copy()
         self._twist = np.zeros(6)
@@ -94,6 +107,8 @@ class FrameTask(Task):
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``.
 
+        ``rotation`` is a 3x3 rotation matrix or a unit quaternion in MuJoCo's w-x-y-z order.
+
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
         """
@@ -101,6 +116,29 @@ class FrameTask(Task):
         self.target_rotation[:] = rotation_matrix(rotation)
         self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
         self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
+
+    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
+        """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].
+
+        Raises:
+            InvalidInput: not a 4x4 homogeneous transform with a rotation block.
+        """
+        position, rotation = homogeneous_transform(transform)
+        self.set_target(position, rotation, linear_velocity, angular_velocity)
+
+    def set_target_from_mocap(self, body: str) -> None:
+        """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now.
+
+        Raises:
+            UnknownName: no body of that name.
+            InvalidInput: the body is not a mocap body.
+        """
+        self.set_target(*mocap_pose(self.robot, body))
+
+    def set_target_from_configuration(self) -> None:
+        """Desired world pose: the frame's pose at the robot's current configuration."""
+        self.robot.ensure_kinematics()
+        self.set_target(self.frame.position, self.frame.rotation)
 
     def feedback_gains(self) -> np.ndarray:
         return self._gain.copy()

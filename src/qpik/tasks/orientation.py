@@ -5,7 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from ..robot import Robot
-from .task import PoseRows, Task, axis_rows, check_axes_frame, finite_vector, positive, rotation_matrix
+from .task import (
+    PoseRows,
+    Task,
+    axis_rows,
+    check_axes_frame,
+    feedback_gain,
+    finite_vector,
+    mocap_pose,
+    positive,
+    rotation_matrix,
+)
 
 
 class OrientationTask(Task):
@@ -24,7 +34,8 @@ class OrientationTask(Task):
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
         axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row.
+        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
+            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
         weight: cost weight of a soft task, a scalar or one per row.
         hard: enforce the rows as equalities in the QP.
         lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
@@ -37,7 +48,7 @@ class OrientationTask(Task):
 
     name = "orientation task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=1.0, weight=1.0,
+    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
                  hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
         self.rows = axis_rows(axes)
         self.axes_frame = axes_frame
@@ -45,14 +56,16 @@ class OrientationTask(Task):
         super().__init__(robot, len(self.rows), weight, hard)
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
         self.frame = robot.frame(frame, frame_type)
-        self.gain = positive(gain, self.dim, "orientation gain", allow_zero=True)
+        self.gain = feedback_gain(gain, self.dim, "orientation gain")
+        self._mark_dead_beat(self.gain)
         self.target_rotation = self.frame.rotation.copy()
         self.target_angular_velocity = np.zeros(3)
         self._pose_rows = PoseRows(self.frame, robot.nv, None, self.rows, local)
         self._feedforward = np.zeros(self.dim)
 
     def set_target(self, rotation, angular_velocity=None) -> None:
-        """Desired world rotation and feed-forward angular velocity (world axes).
+        """Desired world rotation (a 3x3 matrix or a w-x-y-z unit quaternion) and
+        feed-forward angular velocity (world axes).
 
         Raises:
             InvalidInput: a matrix that is no rotation, a wrong shape, NaN or inf.
@@ -60,6 +73,20 @@ class OrientationTask(Task):
         self.target_rotation[:] = rotation_matrix(rotation)
         self.target_angular_velocity[:] = (0.0 if angular_velocity is None
                                            else finite_vector(angular_velocity, 3, "target angular velocity"))
+
+    def set_target_from_configuration(self) -> None:
+        """Desired rotation: the frame's at the robot's current configuration."""
+        self.robot.ensure_kinematics()
+        self.set_target(self.frame.rotation)
+
+    def set_target_from_mocap(self, body: str) -> None:
+        """Desired rotation: a mocap body's (``data.mocap_quat``), read now.
+
+        Raises:
+            UnknownName: no body of that name.
+            InvalidInput: the body is not a mocap body.
+        """
+        self.set_target(mocap_pose(self.robot, body)[1])
 
     def feedback_gains(self) -> np.ndarray:
         return self.gain

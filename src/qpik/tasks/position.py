@@ -5,7 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from ..robot import Robot
-from .task import PoseRows, Task, axis_rows, check_axes_frame, contiguous_rows, finite_vector, positive
+from .task import (
+    PoseRows,
+    Task,
+    axis_rows,
+    check_axes_frame,
+    contiguous_rows,
+    feedback_gain,
+    finite_vector,
+    mocap_pose,
+    positive,
+)
 
 
 class PositionTask(Task):
@@ -29,7 +39,8 @@ class PositionTask(Task):
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
         axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row.
+        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
+            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
         weight: cost weight of a soft task, a scalar or one per row.
         hard: enforce the rows as equalities in the QP.
         lm_damping: μ above.
@@ -42,7 +53,7 @@ class PositionTask(Task):
 
     name = "position task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=1.0, weight=1.0,
+    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
                  hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
         self.rows = axis_rows(axes)
         self.axes_frame = axes_frame
@@ -50,7 +61,8 @@ class PositionTask(Task):
         super().__init__(robot, len(self.rows), weight, hard)
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
         self.frame = robot.frame(frame, frame_type)
-        self.gain = positive(gain, self.dim, "position gain", allow_zero=True)
+        self.gain = feedback_gain(gain, self.dim, "position gain")
+        self._mark_dead_beat(self.gain)
         self._jacp = np.zeros((3, robot.nv))
         self._views = False
         if self.local:
@@ -85,6 +97,22 @@ class PositionTask(Task):
         """
         self.target[:] = finite_vector(position, self.target_dim, "target position")
         self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.target_dim, "target velocity")
+
+    def set_target_from_configuration(self) -> None:
+        """Desired position: the frame's position at the robot's current configuration."""
+        self.robot.ensure_kinematics()
+        self.set_target(self.measured())
+
+    def set_target_from_mocap(self, body: str) -> None:
+        """Desired position: a mocap body's (``data.mocap_pos``, the masked world axes in
+        world axes), read now.
+
+        Raises:
+            UnknownName: no body of that name.
+            InvalidInput: the body is not a mocap body.
+        """
+        position = mocap_pose(self.robot, body)[0]
+        self.set_target(position if self.local else position[self.rows])
 
     def measured(self, robot: Robot | None = None) -> np.ndarray:
         """The tracked position in the target's coordinates (a copy), on the bound robot

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import Robot
-from .task import RotationError, Task, finite_vector, positive, rotation_matrix
+from .task import RotationError, Task, feedback_gain, finite_vector, homogeneous_transform, positive, rotation_matrix
 
 
 class RelativeFrameTask(Task):
@@ -30,8 +30,9 @@ class RelativeFrameTask(Task):
         root: name of the site, body or geom whose coordinates the pose is taken in.
         frame_type: type of ``frame``: ``"site"``, ``"body"`` or ``"geom"``.
         root_type: type of ``root``.
-        position_gain: :math:`K_p` (1/s), a scalar or one per axis.
-        orientation_gain: :math:`K_o` (1/s), a scalar or one per axis.
+        position_gain: :math:`K_p` (1/s), a scalar or one per axis; default ``None``:
+            dead-beat, 1/Δt of the controller the task is given to (K·Δt = 1).
+        orientation_gain: :math:`K_o` (1/s), a scalar or one per axis; default dead-beat.
         weight: cost weight of a soft task, a scalar or one per row (6).
         hard: enforce the rows as equalities in the QP.
         lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
@@ -46,15 +47,16 @@ class RelativeFrameTask(Task):
     name = "relative frame task"
 
     def __init__(self, robot: Robot, frame: str, root: str, frame_type: str = "site", root_type: str = "site",
-                 position_gain=1.0, orientation_gain=1.0, weight=1.0, hard: bool = False, lm_damping: float = 0.0):
+                 position_gain=None, orientation_gain=None, weight=1.0, hard: bool = False, lm_damping: float = 0.0):
         super().__init__(robot, 6, weight, hard)
         self.frame = robot.frame(frame, frame_type)
         self.root = robot.frame(root, root_type)
         if (self.frame.type, self.frame.id) == (self.root.type, self.root.id):
             raise InvalidInput(f"{self.name}: frame and root are the same {frame_type} {frame!r}")
         self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
-        self.position_gain = positive(position_gain, 3, "position gain", allow_zero=True)
-        self.orientation_gain = positive(orientation_gain, 3, "orientation gain", allow_zero=True)
+        self.position_gain = feedback_gain(position_gain, 3, "position gain")
+        self.orientation_gain = feedback_gain(orientation_gain, 3, "orientation gain")
+        self._mark_dead_beat(self.position_gain, self.orientation_gain)
         nv = robot.nv
         self._jac_frame, self._jac_root = np.zeros((6, nv)), np.zeros((6, nv))
         self._moved = np.zeros((3, nv))
@@ -77,8 +79,8 @@ class RelativeFrameTask(Task):
         np.matmul(self.root.rotation.T, self.frame.rotation, out=self.rotation)
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired pose of ``frame`` in ``root`` coordinates, and its feed-forward twist
-        (root coordinates).
+        """Desired pose of ``frame`` in ``root`` coordinates (``rotation`` a 3x3 matrix or
+        a w-x-y-z unit quaternion), and its feed-forward twist (root coordinates).
 
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
@@ -87,6 +89,17 @@ class RelativeFrameTask(Task):
         self.target_rotation[:] = rotation_matrix(rotation)
         self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
         self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
+
+    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
+        """Desired pose in ``root`` coordinates as a homogeneous 4x4 transform."""
+        position, rotation = homogeneous_transform(transform)
+        self.set_target(position, rotation, linear_velocity, angular_velocity)
+
+    def set_target_from_configuration(self) -> None:
+        """Desired pose: the relative pose at the robot's current configuration."""
+        self.robot.ensure_kinematics()
+        self._relative_pose()
+        self.set_target(self.position, self.rotation)
 
     def feedback_gains(self) -> np.ndarray:
         return np.concatenate([self.position_gain, self.orientation_gain])

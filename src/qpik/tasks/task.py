@@ -67,15 +67,21 @@ def contiguous_rows(rows: np.ndarray) -> slice | None:
 def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     """``rotation`` as a float (3, 3) array after a cheap check that it is a rotation.
 
+    ``rotation`` is a 3x3 rotation matrix, or a unit quaternion (4,) in MuJoCo's
+    w-x-y-z order (converted with ``mju_quat2Mat``).
+
     Raises:
-        InvalidInput: not a finite 3x3 matrix, not orthonormal to 1e-6, or a reflection.
+        InvalidInput: not a finite 3x3 matrix, not orthonormal to 1e-6, or a reflection;
+            or a quaternion that is not finite or not of unit norm to 1e-6.
     """
     try:
         rot = np.asarray(rotation, dtype=float)
     except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be a 3x3 matrix of numbers, got {rotation!r}") from None
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {rotation!r}") from None
+    if rot.shape == (4,):
+        return quaternion_matrix(rot, what)
     if rot.shape != (3, 3):
-        raise InvalidInput(f"{what} must be a 3x3 matrix, got shape {rot.shape}")
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
     # In floats (about 1 µs; RᵀR with NumPy reductions costs 4): columns of unit length,
     # pairwise orthogonal, determinant +1.
     (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
@@ -89,6 +95,63 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
         raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
     return rot
+
+
+def quaternion_matrix(quaternion, what: str = "target quaternion") -> np.ndarray:
+    """The rotation matrix of a unit quaternion in MuJoCo's w-x-y-z order.
+
+    Raises:
+        InvalidInput: not 4 finite numbers, or a norm farther than 1e-6 from 1 (a
+            quaternion is not normalised silently: a wrong order or a typo shows here).
+    """
+    quat = finite_vector(quaternion, 4, what)
+    norm = math.sqrt(sum(x * x for x in quat.tolist()))
+    if abs(norm - 1.0) > 1e-6:
+        raise InvalidInput(f"{what} must be a unit quaternion (w, x, y, z), got norm {norm:.6g}")
+    flat = np.empty(9)
+    mujoco.mju_quat2Mat(flat, quat)
+    return flat.reshape(3, 3)
+
+
+def homogeneous_transform(transform, what: str = "target transform") -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].
+
+    Raises:
+        InvalidInput: not a finite 4x4 array, a last row other than (0, 0, 0, 1), or a
+            block R that is no rotation.
+    """
+    try:
+        matrix = np.asarray(transform, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be a 4x4 matrix of numbers, got {transform!r}") from None
+    if matrix.shape != (4, 4):
+        raise InvalidInput(f"{what} must be a 4x4 homogeneous matrix, got shape {matrix.shape}")
+    if not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InvalidInput(f"{what}: the last row of a homogeneous transform must be (0, 0, 0, 1), got {matrix[3]}")
+    return finite_vector(matrix[:3, 3], 3, f"{what}'s translation"), rotation_matrix(matrix[:3, :3], f"{what}'s rotation")
+
+
+def mocap_pose(robot: Robot, body: str) -> tuple[np.ndarray, np.ndarray]:
+    """(position, rotation matrix) of a mocap body, read from ``data.mocap_pos/quat`` (copies).
+
+    Raises:
+        UnknownName: no body of that name.
+        InvalidInput: the body is not a mocap body.
+    """
+    body_id = robot.body_id(body)
+    mocap = int(robot.model.body_mocapid[body_id])
+    if mocap < 0:
+        raise InvalidInput(f"body {body!r} is not a mocap body (mocap=\"true\"); mocap bodies: "
+                           f"{[robot.model.body(i).name for i in range(robot.model.nbody) if robot.model.body_mocapid[i] >= 0]}")
+    return robot.data.mocap_pos[mocap].copy(), quaternion_matrix(robot.data.mocap_quat[mocap], f"mocap body {body!r}'s quaternion")
+
+
+def feedback_gain(value, size: int, what: str) -> np.ndarray:
+    """A task's gain K (1/s): a scalar or one per row, finite and >= 0; ``None`` for the
+    dead-beat default, NaN until a controller gives its period (:meth:`Task.attach`)."""
+    if value is None:
+        return np.full(size, np.nan)
+    return positive(value, size, what, allow_zero=True)
 
 
 class RotationError:
@@ -215,10 +278,26 @@ class Task:
         None for a task without one (a gradient, a damping)."""
         return None
 
+    _dead_beat: tuple[np.ndarray, ...] = ()  # gain arrays left to the controller's period
+    _dead_beat_rows: tuple[np.ndarray, ...] = ()
+
+    def _mark_dead_beat(self, *gains: np.ndarray) -> None:
+        """Mark gain arrays (views the task computes with) whose NaN entries are the
+        dead-beat default: :meth:`attach` sets them to 1/Δt of the controller's period."""
+        self._dead_beat = tuple(g for g in gains if np.isnan(g).any())
+        self._dead_beat_rows = tuple(np.isnan(g) for g in self._dead_beat)
+
+    @property
+    def needs_period(self) -> bool:
+        """Whether a default (dead-beat) gain still waits for a controller's period."""
+        return any(np.isnan(g).any() for g in self._dead_beat)
+
     def attach(self, dt: float | None) -> None:
         """Called by a controller with its control period Δt (None for a law without one)
         before the first step.
 
+        A gain left at its default (``None``) becomes K = 1/Δt here, dead-beat as mink's
+        default ``gain=1``: a met task's linearised error is removed in one step.
         The error of a met task follows e_{k+1} = (1 − KΔt) e_k: it overshoots (changes
         sign every step) for KΔt > 1 and grows for KΔt > 2. The first is warned about
         (:class:`~qpik.errors.GainWarning`), the second refused.
@@ -226,10 +305,14 @@ class Task:
         Raises:
             InvalidInput: a gain with KΔt > 2.
         """
+        if dt is not None:
+            for gains, rows in zip(self._dead_beat, self._dead_beat_rows):
+                gains[rows] = 1.0 / dt
         gains = self.feedback_gains()
         if dt is None or gains is None or not len(gains):  # None: a law without a period
             return
-        worst = float(np.max(gains)) * dt
+        # 1/Δt·Δt may round to 1 + 1 ulp: the dead-beat default is not an overshoot.
+        worst = float(np.max(gains)) * dt * (1.0 - 1e-12)
         if worst > 2.0:
             raise InvalidInput(f"{self.name}: gain {float(np.max(gains)):g} 1/s with dt = {dt:g} s gives K·dt = "
                                f"{worst:.3g} > 2: the discrete error e(k+1) = (1 - K·dt) e(k) grows every step; "
