@@ -1,14 +1,15 @@
 """Step time of the strict hierarchy and SNS against the single QP and the pseudoinverse
 law, block-interleaved so that the machine's slow phases hit every controller alike.
 
-Each controller runs its own copy of the scenario. The rollouts advance together in
-blocks of ``--block`` steps: one block of each controller in turn, the order rotated
-every block, the garbage collector off. A step's time is the kinematics update plus
-``compute_velocity``, as in the rollouts (and, apart, the thread's CPU time for the same
+Each controller runs its own copy of the scenario; all advance together in blocks of
+``--block`` steps, the order rotated every block, the garbage collector off
+(:mod:`timing`). A step's time is what a user's loop writes: the task's target for the
+step (from the reference's precomputed samples), ``compute_velocity`` (which refreshes
+the kinematics), ``robot.integrate`` (and, apart, the thread's CPU time for the same
 steps). Each repeat starts fresh copies. Each row gives its median step time and its
-tail, the 99th percentile over the median, on both clocks; the ratios are
-per repeat (medians of the step times), reported as the median over the repeats with
-their spread (min to max):
+tail, the 99th percentile over the median, on both clocks; the ratios are per repeat
+(medians of the step times), reported as the median over the repeats with their spread
+(min to max):
 
 - ``sns / pinv``: SNS against the pseudoinverse law it extends;
 - ``hqp per level / qp``: the hierarchy's step time divided by its number of levels,
@@ -22,80 +23,42 @@ writes benchmarks/results/hierarchy_timing.json and .md.
 from __future__ import annotations
 
 import argparse
-import gc
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from qpik.errors import QpikError
 from qpik.io import write_json, write_text
 from qpik.scenario import build_scenario
+from timing import Contestant, interleave, scenario_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SCENARIOS = ("seed-redundant", "joint-limits", "too-fast", "three-tasks")
 KINDS = ("pinv", "sns", "qp", "qp-hard", "hqp")
 
 
-class Rollout:
-    """One controller on its own copy of a scenario, advanced a block of steps at a time
-    (kinematic mode, exactly the loop of qpik.rollout.simulate without its logging)."""
-
-    def __init__(self, scenario: str, kind: str, solver: str):
-        self.setup = build_scenario(scenario, "arm")
-        self.kind = kind
-        self.controller = self.setup.controller(kind, solver)
-        self.robot, self.reference, self.dt = self.setup.robot, self.setup.reference, self.setup.dt
-        self.steps = int(round(self.setup.duration / self.dt)) + 1
-        self.stops = self.robot.joint_limits
-        self.levels = getattr(self.controller, "level_count", 1)
-        self.times: list[float] = []  # wall clock per step
-        self.cpu_times: list[float] = []  # this thread's CPU time per step (preemption left out)
-        self.k = 0
-        self.failure = ""
-
-    def advance(self, count: int) -> None:
-        robot, controller, stops = self.robot, self.controller, self.stops
-        for _ in range(min(count, self.steps - self.k) if not self.failure else 0):
-            self.reference.apply(self.k * self.dt)
-            cpu_start = time.thread_time()
-            start = time.perf_counter()
-            robot.update_kinematics()
-            try:
-                qdot = controller.compute_velocity()
-            except QpikError as exc:  # e.g. qp-hard on too-fast: infeasible by design
-                self.failure = f"{type(exc).__name__} at t = {self.k * self.dt:.3f} s"
-                return
-            end = time.perf_counter()
-            self.cpu_times.append(time.thread_time() - cpu_start)
-            self.times.append(end - start)
-            robot.integrate(qdot, self.dt)
-            robot.q[stops.qpos_index] = np.clip(robot.q[stops.qpos_index], stops.lower, stops.upper)
-            self.k += 1
-
-
-def measure(scenario: str, solver: str, block: int) -> dict[str, dict]:
-    """One repeat: every controller the scenario offers, block-interleaved."""
+def measure(scenario: str, solver: str, block: int, repeats: int) -> dict:
+    """Every controller the scenario offers, block-interleaved; per repeat each one's
+    median and p99 on both clocks. A controller that failed (an infeasible hard task,
+    e.g. qp-hard on too-fast) is left out."""
     offered = build_scenario(scenario, "arm").controller_kinds()
-    rollouts = [Rollout(scenario, kind, solver) for kind in KINDS if kind in offered]
-    gc.collect()
-    gc.disable()
-    try:
-        for b in range(-(-rollouts[0].steps // block)):
-            shift = b % len(rollouts)
-            for rollout in rollouts[shift:] + rollouts[:shift]:
-                rollout.advance(block)
-    finally:
-        gc.enable()
-    # The first step of each sets up its solvers: left out. A controller that failed
-    # (an infeasible hard task) is left out of the table.
-    return {r.kind: {"median_us": float(np.median(r.times[1:]) * 1e6),
-                     "p99_us": float(np.percentile(r.times[1:], 99) * 1e6),
-                     "cpu_median_us": float(np.median(r.cpu_times[1:]) * 1e6),
-                     "cpu_p99_us": float(np.percentile(r.cpu_times[1:], 99) * 1e6), "levels": r.levels}
-            for r in rollouts if not r.failure}
+    kinds = [kind for kind in KINDS if kind in offered]
+    contestants = [Contestant(kind, lambda kind=kind: scenario_run("arm", scenario, kind, solver)) for kind in kinds]
+    timing = interleave(contestants, repeats=repeats, block=block, cpu=True)
+    out = {"median_us": {}, "p99_us": {}, "cpu_median_us": {}, "cpu_p99_us": {}, "levels": {}}
+    for kind in kinds:
+        result = timing.contestants[kind]
+        if any(result.failures):
+            continue
+        for name, times in (("", result.step_times), ("cpu_", result.cpu_times)):
+            out[f"{name}median_us"][kind] = [float(np.median(t) * 1e6) for t in times]
+            out[f"{name}p99_us"][kind] = [float(np.percentile(t, 99) * 1e6) for t in times]
+        out["levels"][kind] = getattr(result.last_run.controller, "level_count", 1)
+    per_repeat = [{kind: {"median_us": out["median_us"][kind][r], "levels": out["levels"][kind]}
+                   for kind in out["levels"]} for r in range(repeats)]
+    out["ratios"] = {name: [ratios(r)[name] for r in per_repeat] for name in ratios(per_repeat[0])}
+    return out
 
 
 def ratios(rows: dict[str, dict]) -> dict[str, float]:
@@ -108,7 +71,7 @@ def ratios(rows: dict[str, dict]) -> dict[str, float]:
 
 
 def to_markdown(results: dict, meta: dict) -> str:
-    lines = [f"Step time (kinematics update + controller), block-interleaved in blocks of {meta['block']} "
+    lines = [f"Step time (set_target, compute_velocity, integrate), block-interleaved in blocks of {meta['block']} "
              f"steps, order rotated each block, gc off; {meta['repeats']} repeats, solver {meta['solver']}. "
              "Medians per repeat; the tail, 99th percentile over median, on the wall clock (which counts the "
              "steps in which the scheduler ran another process, ~4 ms each on a shared machine) and on the "
@@ -137,19 +100,11 @@ def main(argv=None) -> int:
     parser.add_argument("--block", type=int, default=50)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    if args.repeats < 1 or args.block < 1:
-        parser.error("--repeats and --block must be positive")
+    if args.repeats < 3 or args.block < 1:
+        parser.error("--repeats must be at least 3 (the ratios' spread needs them) and --block positive")
     results = {}
     for scenario in [s for s in args.scenarios.split(",") if s]:
-        repeats = [measure(scenario, args.solver, args.block) for _ in range(args.repeats)]
-        kinds = list(repeats[0])
-        results[scenario] = {
-            "median_us": {k: [r[k]["median_us"] for r in repeats] for k in kinds},
-            **{field: {k: [r[k][field] for r in repeats] for k in kinds}
-               for field in ("p99_us", "cpu_median_us", "cpu_p99_us")},
-            "levels": {k: repeats[0][k]["levels"] for k in kinds},
-            "ratios": {name: [ratios(r)[name] for r in repeats] for name in ratios(repeats[0])},
-        }
+        results[scenario] = measure(scenario, args.solver, args.block, args.repeats)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
             "repeats": args.repeats, "block": args.block, "solver": args.solver}
     md = to_markdown(results, meta)

@@ -30,7 +30,11 @@ minimiser unchanged, so (see :mod:`qpik.app.peers.problem` for the derivations):
 
 Every step mink re-reads q (``Configuration.update``), the moving targets are retargeted,
 and ``mink.solve_ik`` builds the QP and hands it to qpsolvers with the tolerances qpik's
-qpsolvers back-end uses.
+qpsolvers back-end uses. That is the exact mirror of the QP, for the logged comparisons;
+its retargeting calls qpik (the task's own velocity), so it is not what a mink user
+writes. :class:`MinkRun` is: the timed mink contestant of benchmarks/third_party.py, the
+mirror's tasks and limits stepped with targets from plain arrays, ``solve_ik`` and
+``integrate_inplace``, nothing of qpik's in the step.
 """
 
 from __future__ import annotations
@@ -108,6 +112,7 @@ class MinkMirror:
         self.tasks: list = []
         self.constraints: list = []
         self._retargets: list = []
+        self.mink_task: dict[int, object] = {}  # id of a qpik task -> the mink task expressing it
         moving_ids = {id(task) for task in moving}
         for task in tasks:
             self._add_task(task, id(task) in moving_ids)
@@ -152,6 +157,7 @@ class MinkMirror:
         frame = mink.FrameTask(task.frame.name, task.frame.type, position_cost=costs[0], orientation_cost=costs[1],
                                gain=alpha)
         self._place(task, frame)
+        self.mink_task[id(task)] = frame
         if not moving:
             frame.set_target(_pose(task.target_position, task.target_rotation))
             return
@@ -180,6 +186,7 @@ class MinkMirror:
         cost = 1.0 if task.hard else np.sqrt(_one(task.weight, "position weight"))
         frame = mink.FrameTask(task.frame.name, task.frame.type, position_cost=cost, orientation_cost=0.0, gain=alpha)
         self._place(task, TaskRows(frame, np.arange(3)) if task.hard else frame)
+        self.mink_task[id(task)] = frame
         name, kind, configuration = task.frame.name, task.frame.type, self.configuration
 
         def retarget() -> None:
@@ -200,6 +207,7 @@ class MinkMirror:
         com = mink.ComTask(cost=1.0 if task.hard else np.sqrt(_one(task.weight, "CoM weight")),
                            gain=self._gain(task.gain, "CoM task"))
         self._place(task, com)
+        self.mink_task[id(task)] = com
         com.set_target(task.target + task.target_rate / gain)
         if moving:
             self._retargets.append(lambda: com.set_target(task.target + task.target_rate / gain))
@@ -243,3 +251,74 @@ class MinkMirror:
         except (mink.MinkError, ValueError) as exc:
             raise SolverError(f"mink ({self.solver}) failed: {type(exc).__name__}: {exc}") from None
         return self.qdot
+
+
+# The timed contestant --------------------------------------------------------------
+def shifted_pose(position, rotation, velocity, angular_velocity, gain: float) -> np.ndarray:
+    """mink's ``wxyz_xyz`` targets (steps x 7) of a moving pose reference given as plain
+    arrays: the pose shifted by its feed-forward twist over 1/K (p + ṗ/K, exp(ω/K) R),
+    since mink has no feed-forward input and its gain α = KΔt removes the fraction α of
+    the error per step. First-order equal to the mirror's exact target."""
+    steps = len(position)
+    out = np.empty((steps, 7))
+    out[:, 4:] = position + velocity / gain
+    body_rate = np.einsum("kji,kj->ki", rotation, angular_velocity) / gain  # Rᵀω/K: mju_quatIntegrate's frame
+    for k in range(steps):
+        mujoco.mju_mat2Quat(out[k, :4], np.ascontiguousarray(rotation[k]).reshape(9))
+        mujoco.mju_quatIntegrate(out[k, :4], body_rate[k], 1.0)
+    return out
+
+
+class MinkRun:
+    """mink on a mirrored problem, stepped as a mink user writes it (timing.Run).
+
+    Timed step: each moving task's target for step k from its precomputed plain arrays in
+    mink's types (a frame task's ``SE3`` from ``wxyz_xyz``; a position-only task's target
+    from the frame's current pose with the translation replaced; the CoM's point),
+    ``mink.solve_ik``, ``configuration.integrate_inplace`` (which updates the kinematics).
+
+    Args:
+        mirror: the :class:`MinkMirror` of the problem (built with no moving task: its
+            retargets are not used).
+        targets: per moving qpik task, the columns of its ``set_target`` arguments
+            (steps x ...): position, rotation (frame tasks), velocity, angular velocity.
+    """
+
+    failures = (mink.MinkError, ValueError)  # qpsolvers raises ValueError subclasses
+
+    def __init__(self, mirror: MinkMirror, targets: Sequence[tuple[object, list[np.ndarray]]], steps: int):
+        self.mirror, self.steps = mirror, steps
+        self.configuration = mirror.configuration
+        self._solve = dict(tasks=mirror.tasks, dt=mirror.dt, solver=mirror.solver, damping=mirror.regularization,
+                           limits=mirror.limits, constraints=mirror.constraints, **mirror._settings)
+        self._setters = [self._setter(task, columns) for task, columns in targets]
+        self.q = np.full((steps, self.configuration.model.nq), np.nan)
+
+    def _setter(self, task, columns: list[np.ndarray]):
+        target, steps = self.mirror.mink_task[id(task)], len(columns[0])
+        if isinstance(task, FrameTask):
+            zero = np.zeros((steps, 3))
+            velocity, angular = (columns[2] if len(columns) > 2 else zero), (columns[3] if len(columns) > 3 else zero)
+            poses = shifted_pose(columns[0], columns[1], velocity, angular, _one(task.feedback_gains(), "gain"))
+            return lambda k: target.set_target(mink.SE3(poses[k]))
+        gain = _one(task.gain, "gain")
+        shifted = columns[0] + (columns[1] / gain if len(columns) > 1 else 0.0)
+        if isinstance(task, ComTask):
+            return lambda k: target.set_target(shifted[k])
+        name, kind, configuration = task.frame.name, task.frame.type, self.configuration
+
+        def position_target(k: int) -> None:
+            pose = configuration.get_transform_frame_to_world(name, kind)
+            pose.wxyz_xyz[4:] = shifted[k]
+            target.set_target(pose)
+
+        return position_target
+
+    def step(self, k: int) -> None:
+        for set_target in self._setters:
+            set_target(k)
+        velocity = mink.solve_ik(self.configuration, **self._solve)
+        self.configuration.integrate_inplace(velocity, self.mirror.dt)
+
+    def after(self, k: int) -> None:
+        self.q[k] = self.configuration.q

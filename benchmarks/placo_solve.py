@@ -4,8 +4,9 @@ placo's step in ``compare_peers.py`` includes the Python glue every peer needs t
 given qpik's problem (targets retargeted, step bounds re-set, the state synced). Here the
 glue is left out of placo's side: its C++ ``KinematicsSolver.solve`` is timed, and with it
 its C++ ``RobotWrapper.update_kinematics`` (once a step: like qpik's step, which includes
-its kinematics update), while qpik's side is its whole step (kinematics update, tasks,
-limits, QP). The two run block-interleaved on their own copies of the scenario
+its kinematics update), while qpik's side is its whole step as its user writes it
+(``set_target``, ``compute_velocity`` with the kinematics refresh, tasks, limits, QP,
+``robot.integrate``). The two run block-interleaved on their own copies of the scenario
 (``timing.interleave``, gc off); per repeat, the ratios of qp's step median to placo's
 solve median and to its kinematics + solve median.
 
@@ -25,9 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from qpik.app.peers import peer_installed
-from qpik.app.runs import start_run
 from qpik.io import write_json, write_text
-from timing import Contender, interleave, ratio_cell, spread
+from timing import Contestant, interleave, ratio_cell, scenario_run, spread
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -54,19 +54,19 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
     solve_times: list[list[float]] = []
     kinematics_times: list[list[float]] = []
 
-    def placo_rollout():
-        rollout = start_run(robot, scenario, "placo", "daqp", on_failure="stop")[1]
+    def placo_run():
+        run = scenario_run(robot, scenario, "placo", "daqp")
         solve_times.append([])
         kinematics_times.append([])
-        controller = rollout.controller
+        controller = run.controller
         controller.ik = _Timed(controller.ik, "solve", solve_times[-1])
         controller.wrapper = _Timed(controller.wrapper, "update_kinematics", kinematics_times[-1])
-        return rollout
+        return run
 
-    contenders = [Contender("qp (daqp)", lambda: start_run(robot, scenario, "qp", "daqp", on_failure="stop")[1]),
-                  Contender("placo", placo_rollout)]
-    timing = interleave(contenders, repeats=repeats)
-    qp_medians = timing.contenders["qp (daqp)"].repeat_medians_us
+    contestants = [Contestant("qp (daqp)", lambda: scenario_run(robot, scenario, "qp", "daqp")),
+                   Contestant("placo", placo_run)]
+    timing = interleave(contestants, repeats=repeats)
+    qp_medians = timing.contestants["qp (daqp)"].repeat_medians_us
     solve_medians = np.array([np.median(t[1:]) * 1e6 for t in solve_times])  # the first sets placo up
     # placo's compiled work per step: its kinematics update (once a step) and its solve.
     # (one more kinematics update than solves: the set-up's check of the URDF, first)
@@ -77,12 +77,12 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
     return {"robot": robot, "scenario": scenario, "qp_step_median_us": [float(v) for v in qp_medians],
             "placo_solve_median_us": [float(v) for v in solve_medians],
             "placo_compiled_median_us": [float(v) for v in compiled_medians],
-            "placo_step_median_us": [float(v) for v in timing.contenders["placo"].repeat_medians_us],
+            "placo_step_median_us": [float(v) for v in timing.contestants["placo"].repeat_medians_us],
             "ratio": spread(ratios), "compiled_ratio": spread(compiled_ratios)}
 
 
 def to_markdown(results: list[dict], repeats: int) -> str:
-    lines = [f"qpik's whole step (kinematics update + controller) against placo's compiled `solve` alone, and "
+    lines = [f"qpik's whole step (set_target, compute_velocity, integrate) against placo's compiled `solve` alone, and "
              f"against its compiled work per step (`update_kinematics` + `solve`); block-interleaved, gc off, "
              f"{repeats} repeats (medians over the repeats' medians; the ratios' median and range).", "",
              "| robot / scenario | qp (daqp) step [µs] | placo step [µs] | placo solve [µs] | "

@@ -171,8 +171,9 @@ def _monte_carlo_table(robot: str) -> str:
 def third_party_table() -> str:
     """qpik beside mink on the third-party and generated models (benchmarks/third_party.py)."""
     data = _recorded("third_party.json")
-    lines = ["| problem | qpik [µs] | mink [µs] | qpik / mink (range) | max \\|q_qpik − q_mink\\| | qpik max error |",
-             "|---|---:|---:|---:|---:|---:|"]
+    lines = ["| problem | qpik [µs] | mink [µs] | qpik / mink (range) | the script's bound | "
+             "max \\|q_qpik − q_mink\\| | qpik max error |",
+             "|---|---:|---:|---:|---|---:|---:|"]
     for case in data["cases"]:
         rows = {row["label"]: row for row in case["timing"]["rows"]}
         ratio = case["timing"]["ratio"]
@@ -183,8 +184,11 @@ def third_party_table() -> str:
         else:
             difference = f"{case['differences']['mink']['q_max_difference']:.0e}"
             error = f"{run['max_error']:.1e} m"
+        bound = case["ratio_bound"]
+        bound = "-" if bound is None else f"≤ {bound:.2f}: {'met' if ratio['median'] <= bound else '**missed**'}"
         lines.append(f"| {case['title']} | {rows['qpik']['median_us']:.1f} | {rows['mink']['median_us']:.1f} | "
-                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) | {difference} | {error} |")
+                     f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f}) | {bound} | {difference} | "
+                     f"{error} |")
     return "\n".join(lines) + "\n"
 
 

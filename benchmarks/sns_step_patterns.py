@@ -3,8 +3,9 @@ each level saturated and by which levels were scaled, each group's median agains
 pseudoinverse law's median step, so that a ratio can be told apart into the cost of the
 levels themselves (steps where nothing saturates) and that of the saturation passes.
 
-SNS and pinv run block-interleaved as in hierarchy_timing.py (its Rollout), on the
-thread's CPU time (time.thread_time: the scheduler's slices to other processes left out).
+SNS and pinv run block-interleaved (:mod:`timing`: the step is set_target,
+compute_velocity, integrate), on the thread's CPU time (time.thread_time: the scheduler's
+slices to other processes left out); each SNS step's pattern is read after it, untimed.
 
     python benchmarks/sns_step_patterns.py                      # joint-limits, three-tasks
     python benchmarks/sns_step_patterns.py --scenarios too-fast --repeats 5
@@ -14,42 +15,49 @@ writes benchmarks/results/sns_step_patterns.json and .md.
 from __future__ import annotations
 
 import argparse
-import gc
 import sys
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from hierarchy_timing import RESULTS, Rollout
+from hierarchy_timing import RESULTS
 from qpik.io import write_json, write_text
+from timing import Contestant, interleave, scenario_run
 
 
-def measure(scenario: str, block: int) -> tuple[float, dict[tuple, list[float]]]:
-    """One repeat: pinv's median step [µs] and SNS's step times by pattern."""
-    pinv, sns = Rollout(scenario, "pinv", "daqp"), Rollout(scenario, "sns", "daqp")
-    controller, patterns = sns.controller, []
-    compute = controller.compute_velocity
+class PatternRun:
+    """SNS's run, each step's saturation pattern read after it (untimed)."""
 
-    def recorded():
-        qdot = compute()
-        patterns.append((tuple(int(n) for n in controller.saturated),
-                         tuple(bool(s < 1.0) for s in controller.task_scale)))
-        return qdot
+    def __init__(self, scenario: str):
+        self.run = scenario_run("arm", scenario, "sns", "daqp")
+        self.steps, self.failures, self.patterns = self.run.steps, self.run.failures, []
 
-    controller.compute_velocity = recorded
-    gc.collect()
-    gc.disable()
-    try:
-        for b in range(-(-pinv.steps // block)):
-            for rollout in ((pinv, sns) if b % 2 else (sns, pinv)):
-                rollout.advance(block)
-    finally:
-        gc.enable()
+    def step(self, k: int) -> None:
+        self.run.step(k)
+
+    def after(self, k: int) -> None:
+        self.run.after(k)
+        controller = self.run.controller
+        self.patterns.append((tuple(int(n) for n in controller.saturated),
+                              tuple(bool(s < 1.0) for s in controller.task_scale)))
+
+
+def measure(scenario: str, block: int, repeats: int) -> tuple[list[float], dict[tuple, list[float]]]:
+    """pinv's median step per repeat [µs, CPU] and SNS's step times by pattern, pooled."""
+    runs: list[PatternRun] = []
+
+    def sns_run() -> PatternRun:
+        runs.append(PatternRun(scenario))
+        return runs[-1]
+
+    timing = interleave([Contestant("pinv", lambda: scenario_run("arm", scenario, "pinv", "daqp")),
+                         Contestant("sns", sns_run)], repeats=repeats, block=block, cpu=True)
     groups = defaultdict(list)
-    for pattern, seconds in zip(patterns[1:], sns.cpu_times[1:]):  # the first step sets up
-        groups[pattern].append(seconds * 1e6)
-    return float(np.median(pinv.cpu_times[1:]) * 1e6), groups
+    for run, seconds in zip(runs, timing.contestants["sns"].cpu_times):
+        for pattern, value in zip(run.patterns[1:], seconds):  # the first step sets up
+            groups[pattern].append(value * 1e6)
+    return [float(np.median(t) * 1e6) for t in timing.contestants["pinv"].cpu_times], groups
 
 
 def main(argv=None) -> int:
@@ -67,12 +75,7 @@ def main(argv=None) -> int:
                           "| scenario | joints saturated per level | levels scaled | steps | median [µs] | / pinv |",
                           "|---|---|---|---:|---:|---:|"]
     for scenario in [s for s in args.scenarios.split(",") if s]:
-        pinv_medians, pooled = [], defaultdict(list)
-        for _ in range(args.repeats):
-            pinv_median, groups = measure(scenario, args.block)
-            pinv_medians.append(pinv_median)
-            for pattern, times in groups.items():
-                pooled[pattern].extend(times)
+        pinv_medians, pooled = measure(scenario, args.block, args.repeats)
         pinv_median = float(np.median(pinv_medians))
         rows = []
         for (saturated, scaled), times in sorted(pooled.items(), key=lambda item: -len(item[1])):

@@ -2,8 +2,9 @@
 
 Every controller runs the same scenario on its own copy, all advancing in turns of 50
 steps with the order rotated, the garbage collector off, ``--repeats`` times
-(:mod:`timing`). The step time covers the kinematics update and the controller's
-``compute_velocity``. Reported per controller: median and p99 of the step, whether the
+(:mod:`timing`). The timed step is what a user's loop writes: the task's target for the
+step (``set_target`` with the reference's precomputed samples), ``compute_velocity``
+(which refreshes the kinematics), ``robot.integrate``. Reported per controller: median and p99 of the step, whether the
 p99 stays within 3 medians and within the 2 ms control period, and the ratio of its
 median to the reference controller's with its range over the repeats.
 
@@ -19,9 +20,9 @@ import platform
 import sys
 from pathlib import Path
 
-from timing import P99_BOUND, Contender, interleave, ratio_cell
+from timing import P99_BOUND, Contestant, interleave, logged_run, ratio_cell, scenario_run, timed_vs_logged
 
-from qpik.app.runs import run, start_run
+from qpik.app.runs import run
 from qpik.io import write_json, write_text
 from qpik.scenario import scenarios
 from qpik.solvers import available_solvers
@@ -47,19 +48,22 @@ def label_of(controller: str, solver: str) -> str:
 
 def measure(robot: str, scenario: str, entries: list[tuple[str, str]], repeats: int = 3):
     """Interleaved step times of each (controller, solver); each row keeps the summary of
-    the controller's last rollout. Returns the rows and the :class:`timing.Timing`."""
-    contenders = [Contender(label_of(c, s), lambda c=c, s=s: start_run(robot, scenario, c, s, on_failure="stop")[1])
-                  for c, s in entries]
-    timing = interleave(contenders, repeats=repeats)
+    the controller's logged rollout (run apart, untimed) and how far the last timed run's
+    q strayed from it. Returns the rows and the :class:`timing.Timing`."""
+    contestants = [Contestant(label_of(c, s), lambda c=c, s=s: scenario_run(robot, scenario, c, s))
+                   for c, s in entries]
+    timing = interleave(contestants, repeats=repeats)
     rows = []
     for (controller, solver), row in zip(entries, timing.rows()):
-        log = timing.contenders[row["label"]].last_log
-        rows.append({"controller": controller, "solver": solver, **row, "summary": log.summary()})
+        log = logged_run(robot, scenario, controller, solver)
+        rows.append({"controller": controller, "solver": solver, **row, "summary": log.summary(),
+                     "timed_vs_logged_q": timed_vs_logged(timing.contestants[row["label"]].last_run, log)})
     return rows, timing
 
 
 def to_markdown(robot: str, scenario: str, rows: list[dict], timing, reference: str) -> str:
-    lines = [f"Per-step controller time, {robot} / {scenario} (kinematics update + controller), "
+    lines = [f"Per-step controller time, {robot} / {scenario} (timed step: set_target from the sampled "
+             "reference, compute_velocity, robot.integrate), "
              f"{rows[0]['steps']} steps each over {timing.repeats} repeats, controllers interleaved in blocks "
              f"of {timing.block} steps; ratio = median / median of `{reference}`, median over the repeats "
              "(range).", "",

@@ -1,6 +1,7 @@
 """Cost of single tasks, each side by side with the computation it replaced, in one run.
 
-Block-interleaved (A, B, A, B, ...) with the garbage collector off, medians of the blocks:
+Block-interleaved (A, B, A, B, ...) with the garbage collector off (:mod:`timing`), the
+median over every call:
 
 - Yoshikawa's gradient: the analytic one (one Jacobian, O(nv) work) against central
   differences over every dof (2 nv kinematics updates on a scratch MjData, the former
@@ -19,14 +20,12 @@ writes benchmarks/results/task_costs.json and .md.
 from __future__ import annotations
 
 import argparse
-import gc
 import importlib.util
 import json
 import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import mujoco
@@ -34,6 +33,7 @@ import numpy as np
 
 from qpik import EqualityTask, Robot, Yoshikawa
 from qpik.io import write_json, write_text
+from timing import Contestant, interleave
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -71,22 +71,27 @@ def site_loop_rows(robot: Robot, equalities, jac1, jac2, jacobian, error):
     np.subtract(jac1, jac2, out=jacobian.reshape(jac1.shape))
 
 
+class _Calls:
+    """A callable as a timing contestant: each step one call."""
+
+    failures = ()
+
+    def __init__(self, call, steps: int):
+        self.call, self.steps = call, steps
+
+    def step(self, k: int) -> None:
+        self.call()
+
+    def after(self, k: int) -> None:
+        pass
+
+
 def interleaved(calls: dict, number: int, blocks: int) -> dict:
-    """Median µs per call of each callable, over ``blocks`` interleaved blocks of ``number`` calls."""
-    times = {name: [] for name in calls}
-    gc.collect()
-    gc.disable()
-    try:
-        for _ in range(blocks):
-            for name, call in calls.items():
-                start = time.perf_counter()
-                for _ in range(number[name] if isinstance(number, dict) else number):
-                    call()
-                count = number[name] if isinstance(number, dict) else number
-                times[name].append((time.perf_counter() - start) / count * 1e6)
-    finally:
-        gc.enable()
-    return {name: float(np.median(t)) for name, t in times.items()}
+    """Median µs per call of each callable, over ``blocks`` interleaved blocks of ``number``
+    calls each (3 repeats)."""
+    contestants = [Contestant(name, lambda call=call: _Calls(call, number * blocks + 1)) for name, call in calls.items()]
+    timing = interleave(contestants, repeats=3, block=number)
+    return {row["label"]: row["median_us"] for row in timing.rows()}
 
 
 def yoshikawa_rows(blocks: int) -> list[dict]:
@@ -108,7 +113,7 @@ def yoshikawa_rows(blocks: int) -> list[dict]:
         fd_calls = max(2, 2000 // robot.nv)
         t = interleaved({"analytic": lambda: measure.gradient(analytic),
                          "central differences": lambda: central_difference_gradient(measure, scratch, jac, numeric)},
-                        {"analytic": 2000, "central differences": fd_calls}, blocks)
+                        fd_calls, blocks)
         rows.append({"measure": f"Yoshikawa gradient, {name} ({frame}, nv={robot.nv})", "new": "analytic",
                      "new_us": t["analytic"], "old": "central differences", "old_us": t["central differences"],
                      "relative_agreement": agreement})
@@ -125,7 +130,7 @@ def loop_rows(blocks: int) -> dict:
     task.update()
     agreement = float(max(np.max(np.abs(jacobian - task.jacobian)), np.max(np.abs(error - task.error))))
     t = interleaved({"equality": task.update,
-                     "sites": lambda: site_loop_rows(robot, task.equalities, jac1, jac2, jacobian, error)}, 5000, blocks)
+                     "sites": lambda: site_loop_rows(robot, task.equalities, jac1, jac2, jacobian, error)}, 200, blocks)
     return {"measure": "hexapod loop rows (6 connects, 18 x 24)", "new": "EqualityTask (mj_makeConstraint)",
             "new_us": t["equality"], "old": "2 mj_jacSite per loop", "old_us": t["sites"], "max_difference": agreement}
 

@@ -16,11 +16,26 @@ Cases (each a qpik problem and its mink mirror, :mod:`mink_mirror`):
   native convex collision on (the Jaco's MJCF turns it off; ``collision-mpr`` runs mink
   on the stock flags, where its distances come from libccd's MPR).
 
-Every contender runs its own fresh copy of the problem; all advance side by side in
-blocks of 50 steps, the order rotated, ``--repeats`` times (:mod:`timing`). Reported per
-case: median and p99 step (kinematics update + controller), the ratio qpik/mink per
-repeat (median, range), the largest difference of the two trajectories q(t), the
-tracking errors and limit violations, and whether each of the issue's bounds holds.
+Timing (:mod:`timing`): every contestant runs its own fresh copy of the problem; all
+advance side by side in blocks of 50 steps, the order rotated, ``--repeats`` times. Each
+contestant's timed step is exactly what its user writes, nothing else; the reference is
+sampled for every step beforehand into plain arrays (the arguments of each moving task's
+``set_target``), and each side converts them to its own types inside its step:
+
+- qpik: ``task.set_target(position, rotation, velocity, angular_velocity)`` (or
+  ``(position, velocity)``) for each moving task, ``controller.compute_velocity()``,
+  ``robot.integrate(qdot, dt)``;
+- mink (:class:`mink_mirror.MinkRun`): each moving task's ``set_target`` in mink's types
+  (``SE3`` of the pose shifted by the feed-forward over K, precomputed as ``wxyz_xyz``;
+  for a position-only task the frame's current pose with the translation replaced; the
+  CoM's point), ``mink.solve_ik``, ``configuration.integrate_inplace``. No qpik call.
+
+The tracking, limits and the trajectories' difference come from logged rollouts run
+apart (untimed), mink through the exact mirror of the QP (:class:`mink_mirror.MinkMirror`);
+the timed runs' own final configurations are compared too (mink's shifted target is
+first-order equal to the mirror's). Reported per case: median and p99 step, the ratio
+qpik/mink per repeat (median, range), and whether each of the script's bounds holds
+(a missed bound prints FAIL).
 
     python benchmarks/third_party.py [--repeats 5] [--cases jaco humanoid ...]
 
@@ -48,9 +63,10 @@ import collision_avoidance  # noqa: E402
 import humanoid_reach  # noqa: E402
 import jaco_circle  # noqa: E402
 from demo_support import Demo, speed_violation  # noqa: E402
-from mink_mirror import MinkMirror  # noqa: E402
-from timing import Contender, interleave, ratio_cell  # noqa: E402
+from mink_mirror import MinkMirror, MinkRun  # noqa: E402
+from timing import Contestant, interleave, ratio_cell  # noqa: E402
 
+from qpik.errors import QpikError  # noqa: E402
 from qpik import FrameTask, JointPositionLimit, JointVelocityLimit, PostureTask, Robot  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402
 from qpik.models import third_party as third_party_model  # noqa: E402
@@ -187,9 +203,75 @@ def rollout(demo: Demo, controller) -> Rollout:
                    scenario=demo.name, on_failure="stop")
 
 
-def fresh_rollout(case: Case, label: str, duration: float | None = None) -> Rollout:
-    demo = case.build(duration)
-    return rollout(demo, case.contenders[label](demo))
+# Timed contestants ------------------------------------------------------------------
+def recorded_targets(demo: Demo, steps: int) -> list[tuple[object, list[np.ndarray]]]:
+    """The reference's targets for every step as plain arrays: per task whose target it
+    moves, the columns (steps x ...) of the arguments its ``apply`` gives ``set_target``."""
+    calls: dict[int, list] = {id(task): [] for task in demo.tasks}
+    for task in demo.tasks:
+        original = task.set_target
+
+        def record(*args, _original=original, _calls=calls[id(task)], **keywords):
+            if keywords:
+                raise TypeError("the reference must give set_target positional arguments")
+            _calls.append([np.array(a, dtype=float) for a in args])
+            _original(*args)
+
+        task.set_target = record
+    try:
+        for t in np.arange(steps) * demo.dt:  # the rollout's step times, the same bits
+            demo.reference.apply(float(t))
+    finally:
+        for task in demo.tasks:
+            del task.set_target
+    return [(task, [np.array(column) for column in zip(*calls[id(task)])]) for task in demo.tasks
+            if calls[id(task)]]
+
+
+class QpikRun:
+    """A qpik controller stepped as its user writes it (timing.Run): each moving task's
+    ``set_target`` with the step's arrays, ``compute_velocity``, ``robot.integrate``."""
+
+    failures = (QpikError,)
+
+    def __init__(self, demo: Demo, controller, targets: list[tuple[object, list[np.ndarray]]], steps: int):
+        self.robot, self.controller, self.dt, self.steps = demo.robot, controller, demo.dt, steps
+        self._targets = [tuple((task.set_target, tuple(column[k] for column in columns)) for task, columns in targets)
+                         for k in range(steps)]
+        self.q = np.full((steps, demo.robot.nq), np.nan)
+
+    def step(self, k: int) -> None:
+        for set_target, arguments in self._targets[k]:
+            set_target(*arguments)
+        self.robot.integrate(self.controller.compute_velocity(), self.dt)
+
+    def after(self, k: int) -> None:
+        self.q[k] = self.robot.q
+
+
+def timed_run(case: Case, label: str):
+    """A fresh copy of the case's problem with one contestant, as a timing.Run."""
+    demo = case.build(None)
+    steps = int(round(demo.duration / demo.dt)) + 1
+    if label == "mink":
+        mirror = MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt, solver=SOLVER,
+                            regularization=demo.regularization)
+        return MinkRun(mirror, recorded_targets(demo, steps), steps)
+    controller = case.contenders[label](demo)
+    return QpikRun(demo, controller, recorded_targets(demo, steps), steps)
+
+
+def timed_differences(timing, labels: list[str], logs: dict) -> dict:
+    """The last timed runs: each contestant's largest |q| difference to qpik's timed run,
+    and to its own logged rollout (q after step k is the log's q at step k + 1)."""
+    runs = {label: timing.contestants[label].last_run for label in labels}
+    out = {}
+    for label, run in runs.items():
+        done = int(np.sum(np.isfinite(run.q[:, 0])))
+        n = min(done, len(logs[label].q) - 1)
+        out[label] = {"vs_logged_q_max": float(np.max(np.abs(run.q[:n] - logs[label].q[1:n + 1]))),
+                      "vs_qpik_timed_q_max": float(np.nanmax(np.abs(run.q[:done] - runs[labels[0]].q[:done])))}
+    return out
 
 
 # Measures ---------------------------------------------------------------------------
@@ -343,16 +425,17 @@ def equivalence(case: Case, duration: float | None = None) -> dict:
 
 
 def measure(case: Case, repeats: int) -> dict:
-    """Interleaved timing of the contenders, with the last repeat's runs compared."""
+    """Interleaved timing of the contestants (each step what its user writes), and their
+    logged rollouts (untimed) compared."""
     labels = list(case.contenders)
-    contenders = [Contender(label, lambda label=label: fresh_rollout(case, label)) for label in labels]
-    timing = interleave(contenders, repeats=repeats)
-    logs = {label: timing.contenders[label].last_log for label in labels}
-    demos = {label: case.build(None) for label in labels}  # fresh, for the models' bounds (same problem)
+    contestants = [Contestant(label, lambda label=label: timed_run(case, label)) for label in labels]
+    timing = interleave(contestants, repeats=repeats)
+    logged = equivalence(case)
+    logs = logged["logs"]
     result = {"name": case.name, "title": case.title, "ratio_bound": case.ratio_bound,
-              "runs": {label: log_metrics(case, demos[label], log) for label, log in logs.items()},
-              "differences": compare(case, logs, demos),
-              "kinematics_update_us": kinematics_cost_us(demos[labels[0]]),
+              "runs": logged["runs"], "differences": logged["differences"],
+              "timed_differences": timed_differences(timing, labels, logs),
+              "kinematics_update_us": kinematics_cost_us(case.build(None)),
               "timing": {"rows": timing.rows(), "repeats": repeats, "block": timing.block}}
     if "mink" in labels:
         result["timing"]["ratio"] = timing.ratio(labels[0], "mink")
@@ -372,21 +455,29 @@ def _value(value, digits: int = 2) -> str:
 
 def to_markdown(results: list[dict], meta: dict) -> str:
     lines = ["# qpik beside mink on third-party and generated models", "",
-             f"Solver {SOLVER}; per-step time = kinematics update + controller; contenders interleaved in blocks of "
-             f"{meta['block']} steps, {meta['repeats']} repeats; ratio = median step of qpik / of mink per repeat: "
-             "median (range). Δq = max over the run of |q_qpik(t) − q_mink(t)|. Python "
-             f"{meta['python']}, {meta['machine']}.", "",
-             "| case | qpik median [µs] | mink median [µs] | qpik / mink | bound | max Δq | final Δq | "
+             f"Solver {SOLVER}. Timed step, each as its user writes it: qpik `set_target` of each moving task "
+             "(from the reference's precomputed arrays), `compute_velocity`, `robot.integrate`; mink `set_target` "
+             "of each moving task in its own types (SE3 from precomputed wxyz_xyz), `solve_ik`, "
+             f"`configuration.integrate_inplace`. Contestants interleaved in blocks of {meta['block']} steps, "
+             f"{meta['repeats']} repeats; ratio = median step of qpik / of mink per repeat: median (range). "
+             "Δq = max over the run of |q_qpik(t) − q_mink(t)| in the logged rollouts (mink through the exact "
+             "mirror of the QP); timed Δq = the same between the timed runs (mink's feed-forward-shifted "
+             f"target is first-order equal). Python {meta['python']}, {meta['machine']}.", "",
+             "| case | qpik median [µs] | mink median [µs] | qpik / mink | bound | max Δq | final Δq | timed Δq | "
              "qpik max error [m] | kinematics update [µs] |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
         rows = {row["label"]: row for row in r["timing"]["rows"]}
         first = next(iter(rows))
         diff = r["differences"].get("mink", {})
         bound = "-" if r["ratio_bound"] is None else f"≤ {r['ratio_bound']:.2f}"
+        if r["ratio_bound"] is not None and r["timing"]["ratio"]["median"] > r["ratio_bound"]:
+            bound += " **missed**"
+        timed = r["timed_differences"]["mink"]["vs_qpik_timed_q_max"]
         lines.append(f"| {r['name']} | {rows[first]['median_us']:.1f} | {rows['mink']['median_us']:.1f} | "
                      f"{ratio_cell(r['timing']['ratio'])} | {bound} | {_value(diff.get('q_max_difference'))} | "
-                     f"{_value(diff.get('q_final_difference'))} | {_value(r['runs'][first]['max_error'])} | "
+                     f"{_value(diff.get('q_final_difference'))} | {_value(timed)} | "
+                     f"{_value(r['runs'][first]['max_error'])} | "
                      f"{r['kinematics_update_us']:.1f} |")
     for r in results:
         lines += ["", f"## {r['name']}: {r['title']}", "",
@@ -442,6 +533,9 @@ def main(argv=None) -> int:
     for name in args.cases:
         print(f"{name} ...", file=sys.stderr, flush=True)
         results.append(measure(CASES[name], args.repeats))
+        for check in results[-1]["checks"]:
+            if not check["holds"]:
+                print(f"FAIL {name}: {check['check']} = {check['value']} (bound {check['bound']:g})", file=sys.stderr)
     markdown = to_markdown(results, meta)
     print(markdown)
     write_json(args.out / "third_party.json", {"meta": meta, "cases": results})
