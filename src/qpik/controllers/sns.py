@@ -173,6 +173,9 @@ class SNSController:
                  dt: float | None = None, *, levels: Sequence[Sequence[Task]] | None = None,
                  max_acceleration=None):
         dt = check_dt(dt)
+        if robot.nv == 0:  # as the QP: nothing to solve for is a malformed problem, not a step
+            raise InvalidInput("SNSController needs a robot with at least one degree of freedom; "
+                               "this model has none")
         grouped = group_levels(robot, tasks, levels, "SNSController")
         self.robot = robot
         self.dt = float(dt)
@@ -284,7 +287,7 @@ class SNSController:
             return above, 0.0, 0, F, projector, free
         lower, upper = self._lower, self._upper
         identity = level.identity  # J = I: no decomposition needed
-        vt = None
+        vt = size = None
         if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
             X = None
             pinv, rank = (self._eye if F is None else F if projector else F.dot(F.T)), free
@@ -292,8 +295,8 @@ class SNSController:
             # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
             # singular value). Two rows in joint space or in a projector's: closed form.
             X = J if F is None else J.dot(F)
-            pinv, rank, vt = _solve(X, None if F is None else math.sqrt(float(np.vdot(J, J))),
-                                    F is None or projector)
+            size = None if F is None else math.sqrt(float(np.vdot(J, J)))
+            pinv, rank, vt = _solve(X, size, F is None or projector)
             if rank == 0:  # the levels above took every direction this task moves
                 return above, 0.0, 0, F, projector, free
             if F is not None and not projector:
@@ -367,9 +370,12 @@ class SNSController:
                 u = h / math.sqrt(norm_sq)
                 held.append(u)
                 rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
-            # The rank tolerance of these passes scales with s, the last pass's task scale,
-            # as in the code this replaced (its results kept; ‖J‖ looks intended).
-            pinv, pass_rank, _ = _solve(rows, s, F is None or projector)
+            # The rank tolerance of these passes scales with ‖J‖, never with the task scale s
+            # (which is −1 when no scale fits: a negative threshold counted zero singular
+            # values as a rank and divided by them).
+            if size is None:
+                size = math.sqrt(float(np.vdot(J, J)))
+            pinv, pass_rank, _ = _solve(rows, size, F is None or projector)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
             if F is not None and not projector:
@@ -422,7 +428,7 @@ class SNSController:
         critical = first_out if s_max < 1.0 else last_in
         if s_min > s_max or s_max < 0.0 or s_min > 1.0:
             return -1.0, critical
-        return min(s_max, 1.0), critical
+        return max(0.0, min(s_max, 1.0)), critical  # 0.0, never the −0.0 of (0 − 0)/−a
 
     def report(self) -> dict[str, np.ndarray]:
         """The last step's task scale of each level (1: met in full)."""
