@@ -98,14 +98,20 @@ from .levels import StackedLevel, check_dt, group_levels
 _gesvd = lapack.dgesvd  # products below use ndarray.dot: `@` costs twice as much at these sizes
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
+# A saturation pass whose rows keep a singular value below this fraction of ‖J‖ (a
+# condition above 100) counts as having cost the task that direction: the task is scaled
+# instead (see the module docstring, "Near a singularity").
+_PASS_RANK_TOLERANCE = 1e-2
 
 
-def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray, int, np.ndarray | None]:
+def _solve(X: np.ndarray, scale: float | None, closed: bool,
+           tolerance: float = _RANK_TOLERANCE) -> tuple[np.ndarray, int, np.ndarray | None]:
     """X⁺ (n x m), the minimum-norm solution of X y = r applied to r, X's rank, and the
     Vᵀ of its SVD when one was made (None otherwise). Singular values below
     ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (X =
     J Z or J P: a task direction the levels above nearly took is kept, as the law would
-    keep it; only rounding is cut; None: X's largest singular value). One row:
+    keep it; only rounding is cut; None: X's largest singular value); ``tolerance`` in
+    place of ``_RANK_TOLERANCE`` for the saturation passes. One row:
     xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
     (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
     (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
@@ -118,7 +124,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
         norm_sq = float(row.dot(row))
         if not math.isfinite(norm_sq):
             raise DivergenceError("SNS: a task Jacobian is not finite")
-        rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
+        rank = 1 if norm_sq > (tolerance * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
         return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
     if m == 2 and closed:
         (n1, g12), (_, g22) = X.dot(X.T).tolist()
@@ -129,7 +135,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
                 r = X[1] - c * X[0]
                 nr = float(r.dot(r))
             det, trace = n1 * nr, n1 + g22  # σ1² ≤ trace, so σ2² ≥ det/trace, σ2²/σ1² ≥ det/trace²
-            if det > 1e-4 * trace * trace and (scale is None or det > 4e-20 * scale * scale * trace):
+            if det > 1e-4 * trace * trace and (scale is None or det > 4.0 * (tolerance * scale) ** 2 * trace):
                 inverse = np.empty((2, 2))  # G⁻¹
                 inverse[1, 1] = i22 = 1.0 / nr
                 inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
@@ -139,7 +145,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
         raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-    threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
+    threshold = tolerance * (largest if scale is None else scale)
     rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
     if rank == len(s) == m:  # full row rank, the usual case
         return vt[:rank].T.dot(u.T / s[:, None]), rank, vt
@@ -375,7 +381,7 @@ class SNSController:
             # values as a rank and divided by them).
             if size is None:
                 size = math.sqrt(float(np.vdot(J, J)))
-            pinv, pass_rank, _ = _solve(rows, size, F is None or projector)
+            pinv, pass_rank, _ = _solve(rows, size, F is None or projector, _PASS_RANK_TOLERANCE)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
             if F is not None and not projector:
