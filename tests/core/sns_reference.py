@@ -1,5 +1,7 @@
 """SNS as it was at commit a61460b (before the saturation loop was made cheaper), kept
-verbatim apart from this docstring, its imports and its class name, for
+verbatim apart from this docstring, its imports, its class name and the rank rule of
+the saturation passes (marked "pass rank": ‖J‖ and a tolerance of 1e-2, as the package
+decides since a pass's rank no longer follows the task scale), for
 tests/core/test_sns_equivalence.py only: the package's SNSController must give the same
 joint velocities, task scales and saturation counts, step by step. Not part of the
 package; see qpik.controllers.sns for the algorithm."""
@@ -36,7 +38,8 @@ class _Solve:
 
     __slots__ = ("pinv", "rank", "_basis", "_matrix", "_vt", "_null")
 
-    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float | None = 1.0):
+    def __init__(self, matrix: np.ndarray | None, basis: np.ndarray | None, nv: int, scale: float | None = 1.0,
+                 tolerance: float = _RANK_TOLERANCE):
         self._basis, self._matrix, self._vt, self._null = basis, matrix, None, None
         if matrix is None:  # J = I: x = F (I F)^# r = F Fᵀ r, and nothing of F is left
             self.rank = nv if basis is None else basis.shape[1]
@@ -53,7 +56,7 @@ class _Solve:
             norm_sq = float(row @ row)
             if not math.isfinite(norm_sq):
                 raise DivergenceError("SNS: a task Jacobian is not finite")
-            self.rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
+            self.rank = 1 if norm_sq > (tolerance * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
             pinv = (row / norm_sq if self.rank else 0.0 * row)[:, None]
             self.pinv = pinv if basis is None else basis @ pinv
             return
@@ -61,7 +64,7 @@ class _Solve:
         largest = float(s[0])
         if info != 0 or not math.isfinite(largest):
             raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-        threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
+        threshold = tolerance * (largest if scale is None else scale)
         rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
         self.rank, self._vt = rank, vt
         if rank == len(s) == m:  # full row rank, the usual case
@@ -241,9 +244,8 @@ class ReferenceSNSController:
                     break
                 shifted = above + hold.pinv @ (np.array(targets) - above[saturated])
                 free = hold.null
-            if scale is None and not identity:
-                scale = math.sqrt(float(np.vdot(J, J)))
-            solve = _Solve(None if identity else J @ free, free, nv, scale)
+            pass_size = math.sqrt(float(np.vdot(J, J)))  # pass rank
+            solve = _Solve(None if identity else J @ free, free, nv, pass_size, 1e-2)
             if solve.rank < task.rank:  # the saturations cost the task a direction: scale it
                 break
             qdot = shifted + solve.pinv @ (v - J @ shifted)

@@ -70,8 +70,10 @@ def _max_scale(J, v, lb, ub):
 def test_one_task_saturates_keeps_its_direction_and_scales(speed):
     """Single-task SNS under a tight speed box: inside the box, J q̇ = s v in the task's own
     direction, and s never above the largest scale a linear program finds. Basic SNS is not
-    always optimal (the T-RO paper's Opt-SNS is): here it reaches the LP's optimum in all
-    but one of 40 cases, 1.7 % short there."""
+    always optimal (the T-RO paper's Opt-SNS is), and it gives up a saturation pass whose
+    rows have a condition above 100 (against chatter near singularities): here it reaches
+    the LP's optimum in 32 to 40 of 40 cases (by speed), at most 1.7 % short elsewhere
+    (before that rule: all but one, 1.7 % short there)."""
     shortfalls = []
     for q in _configurations(40, seed=4):
         robot = _arm_at(q)
@@ -85,7 +87,7 @@ def test_one_task_saturates_keeps_its_direction_and_scales(speed):
         assert s <= best + 1e-9
         shortfalls.append((best - s) / best)
     assert max(shortfalls) <= 0.02
-    assert np.mean(np.array(shortfalls) > 1e-9) <= 0.05
+    assert np.mean(np.array(shortfalls) > 1e-9) <= 0.25
 
 
 def test_a_saturated_joint_is_compensated_by_the_others():
@@ -222,3 +224,40 @@ def test_scaling_takes_b_as_q_minus_a_or_zero():
     assert sns._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
     assert sns._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
     assert sns._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8
+
+
+def test_reversal_fraction_counts_sign_changes_above_the_speed_on_both_sides():
+    from qpik.rollout.log import reversal_fraction
+    qdot = np.array([[2.0, 0.0], [-2.0, 0.5], [-3.0, -0.5], [0.5, 4.0], [-0.9, -4.0]])
+    # steps 1 (joint 0: 2 → −2) and 4 (joint 1: 4 → −4); not 3 (−3 → 0.5) nor joint 1 at 0.5
+    assert reversal_fraction(qdot) == pytest.approx(2 / 4)
+    assert reversal_fraction(qdot[:1]) == 0.0
+
+
+def test_unreachable_target_without_chatter():
+    """Beyond the reach, the position task's passes with the ram held at its bound turn
+    nearly singular; SNS used to take them, scale the task to ~1e-4 and spend the joints'
+    full speed holding the saturated ones at their bounds: θ1–θ3 reversed at ±8 rad/s on
+    half of all steps (every step after t = 2 s). A pass conditioned worse than 100 now
+    counts as losing that direction: no joint reverses above 1 rad/s, the limits hold, and
+    the arm comes to rest short of the boundary (the task keeps its direction; the soft
+    QP slides along the boundary to the closest point instead)."""
+    setup, log = run("arm", "unreachable", "sns")
+    summary = log.summary()
+    assert summary["reversal_fraction"] < 0.05
+    assert summary["limit_violation_max"] == 0.0
+    speeds = np.abs(log.qdot)
+    assert np.all(speeds <= setup.robot.velocity_limits + 1e-12)
+    assert np.max(speeds[-500:]) <= 0.1  # at rest for the last second
+    qp = run("arm", "unreachable", "qp")[1].summary()
+    assert qp["final_error"] <= summary["final_error"] <= 0.5  # 0.39 m the closest point
+
+
+def test_three_tasks_rollout_has_no_reversals_and_keeps_its_levels():
+    """three-tasks saturates on most steps (levels 1 and 2 scaled or left out): its
+    commands never reverse a joint above 1 rad/s, the limits hold, and the path (level 0)
+    is tracked as before."""
+    summary = run("arm", "three-tasks", "sns")[1].summary()
+    assert summary["reversal_fraction"] == 0.0
+    assert summary["limit_violation_max"] == 0.0
+    assert summary["max_error"] <= 2e-6

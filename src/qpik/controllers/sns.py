@@ -71,13 +71,19 @@ one task and a joint-space secondary (:math:`J = I`) it is the null-space law
 Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
 squares, as the QP weighs them). ``hard`` plays no role: priority decides.
 
+**Near a singularity.** A saturation pass whose rows J W keep a singular value below
+1e-2 ‖J‖ (a condition above 100) counts as having cost the task that direction, like an
+exact rank loss: the task is scaled on the passes before it. Such a pass would execute a
+tiny share of the task (scale ~1e-4 beyond the reach) while the saturated joints' bounds
+drive the others at full speed, reversing step after step (docs/controllers.md).
+
 Two consequences worth knowing. A task that already uses every direction left to it
 (a joint-space task such as the σ gradient below a position task) cannot lose a joint
 without losing a direction, so it is scaled at once, never redistributed. And the scale
 of this basic algorithm is the best among the passes it tries, not always the largest
 scale any joint velocity allows (the T-RO paper's optimal variant solves for that): on 40
-random arm states under a tight speed box it reached a linear program's optimum in 39,
-1.7 % short in the last (tests/core/test_sns.py).
+random arm states under a tight speed box it reaches a linear program's optimum in 32 to
+40 (by the box), at most 1.7 % short in the others (tests/core/test_sns.py).
 """
 
 from __future__ import annotations
@@ -98,14 +104,20 @@ from .levels import StackedLevel, check_dt, group_levels
 _gesvd = lapack.dgesvd  # products below use ndarray.dot: `@` costs twice as much at these sizes
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
+# A saturation pass whose rows keep a singular value below this fraction of ‖J‖ (a
+# condition above 100) counts as having cost the task that direction: the task is scaled
+# instead (see the module docstring, "Near a singularity").
+_PASS_RANK_TOLERANCE = 1e-2
 
 
-def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray, int, np.ndarray | None]:
+def _solve(X: np.ndarray, scale: float | None, closed: bool,
+           tolerance: float = _RANK_TOLERANCE) -> tuple[np.ndarray, int, np.ndarray | None]:
     """X⁺ (n x m), the minimum-norm solution of X y = r applied to r, X's rank, and the
     Vᵀ of its SVD when one was made (None otherwise). Singular values below
     ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (X =
     J Z or J P: a task direction the levels above nearly took is kept, as the law would
-    keep it; only rounding is cut; None: X's largest singular value). One row:
+    keep it; only rounding is cut; None: X's largest singular value); ``tolerance`` in
+    place of ``_RANK_TOLERANCE`` for the saturation passes. One row:
     xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
     (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
     (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
@@ -118,7 +130,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
         norm_sq = float(row.dot(row))
         if not math.isfinite(norm_sq):
             raise DivergenceError("SNS: a task Jacobian is not finite")
-        rank = 1 if norm_sq > (_RANK_TOLERANCE * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
+        rank = 1 if norm_sq > (tolerance * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
         return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
     if m == 2 and closed:
         (n1, g12), (_, g22) = X.dot(X.T).tolist()
@@ -129,7 +141,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
                 r = X[1] - c * X[0]
                 nr = float(r.dot(r))
             det, trace = n1 * nr, n1 + g22  # σ1² ≤ trace, so σ2² ≥ det/trace, σ2²/σ1² ≥ det/trace²
-            if det > 1e-4 * trace * trace and (scale is None or det > 4e-20 * scale * scale * trace):
+            if det > 1e-4 * trace * trace and (scale is None or det > 4.0 * (tolerance * scale) ** 2 * trace):
                 inverse = np.empty((2, 2))  # G⁻¹
                 inverse[1, 1] = i22 = 1.0 / nr
                 inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
@@ -139,7 +151,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool) -> tuple[np.ndarray
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
         raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
-    threshold = _RANK_TOLERANCE * (largest if scale is None else scale)
+    threshold = tolerance * (largest if scale is None else scale)
     rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
     if rank == len(s) == m:  # full row rank, the usual case
         return vt[:rank].T.dot(u.T / s[:, None]), rank, vt
@@ -173,6 +185,9 @@ class SNSController:
                  dt: float | None = None, *, levels: Sequence[Sequence[Task]] | None = None,
                  max_acceleration=None):
         dt = check_dt(dt)
+        if robot.nv == 0:  # as the QP: nothing to solve for is a malformed problem, not a step
+            raise InvalidInput("SNSController needs a robot with at least one degree of freedom; "
+                               "this model has none")
         grouped = group_levels(robot, tasks, levels, "SNSController")
         check_same_robot(robot, (), limits, "SNSController")  # tasks: group_levels checks them
         self.robot = robot
@@ -285,7 +300,7 @@ class SNSController:
             return above, 0.0, 0, F, projector, free
         lower, upper = self._lower, self._upper
         identity = level.identity  # J = I: no decomposition needed
-        vt = None
+        vt = size = None
         if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
             X = None
             pinv, rank = (self._eye if F is None else F if projector else F.dot(F.T)), free
@@ -293,8 +308,8 @@ class SNSController:
             # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
             # singular value). Two rows in joint space or in a projector's: closed form.
             X = J if F is None else J.dot(F)
-            pinv, rank, vt = _solve(X, None if F is None else math.sqrt(float(np.vdot(J, J))),
-                                    F is None or projector)
+            size = None if F is None else math.sqrt(float(np.vdot(J, J)))
+            pinv, rank, vt = _solve(X, size, F is None or projector)
             if rank == 0:  # the levels above took every direction this task moves
                 return above, 0.0, 0, F, projector, free
             if F is not None and not projector:
@@ -368,9 +383,12 @@ class SNSController:
                 u = h / math.sqrt(norm_sq)
                 held.append(u)
                 rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
-            # The rank tolerance of these passes scales with s, the last pass's task scale,
-            # as in the code this replaced (its results kept; ‖J‖ looks intended).
-            pinv, pass_rank, _ = _solve(rows, s, F is None or projector)
+            # The rank tolerance of these passes scales with ‖J‖, never with the task scale s
+            # (which is −1 when no scale fits: a negative threshold counted zero singular
+            # values as a rank and divided by them).
+            if size is None:
+                size = math.sqrt(float(np.vdot(J, J)))
+            pinv, pass_rank, _ = _solve(rows, size, F is None or projector, _PASS_RANK_TOLERANCE)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
             if F is not None and not projector:
@@ -423,7 +441,7 @@ class SNSController:
         critical = first_out if s_max < 1.0 else last_in
         if s_min > s_max or s_max < 0.0 or s_min > 1.0:
             return -1.0, critical
-        return min(s_max, 1.0), critical
+        return max(0.0, min(s_max, 1.0)), critical  # 0.0, never the −0.0 of (0 − 0)/−a
 
     def report(self) -> dict[str, np.ndarray]:
         """The last step's task scale of each level (1: met in full)."""

@@ -14,6 +14,21 @@ from ..io import write_json, write_npz
 _LOWER_IS_WORSE = ("task_scale",)
 
 
+# A joint "reverses" on a step when its commanded velocity changes sign with at least this
+# magnitude (rad/s or m/s) on both sides: chatter, not a joint turning round smoothly.
+REVERSAL_SPEED = 1.0
+
+
+def reversal_fraction(qdot: np.ndarray, speed: float = REVERSAL_SPEED) -> float:
+    """The fraction of steps (after the first) on which any joint's velocity changes sign
+    with magnitude above ``speed`` before and after."""
+    if len(qdot) < 2:
+        return 0.0
+    before, after = qdot[:-1], qdot[1:]
+    flips = (before * after < 0.0) & (np.abs(before) > speed) & (np.abs(after) > speed)
+    return float(np.mean(flips.any(axis=1)))
+
+
 @dataclass
 class RolloutLog:
     """Time series of one rollout; ``summary()`` gives the metrics of ``summary.json``.
@@ -79,6 +94,7 @@ class RolloutLog:
             "limit_violation_max": float(np.max(self.limit_violation)),
             "peak_joint_speed": float(np.max(np.abs(self.qdot if self.speed_dofs is None
                                                      else self.qdot[:, self.speed_dofs]))),
+            "reversal_fraction": reversal_fraction(self.qdot),
             "step_time_median_us": float(np.median(st)),
             "step_time_p99_us": float(np.percentile(st, 99)),
             "q_final": [float(v) for v in self.q[-1]],
