@@ -66,6 +66,11 @@ BAD_INPUTS = [
     (["run", "robot9", "--scenario", "seed-primary"], "unknown robot"),
     (["run", "arm", "--scenario", "seed-primary", "--solver", "nosolver"], "solver"),
     (["run", "arm", "--scenario", "seed-primary", "--controller", "magic"], "unknown controller"),
+    # The list names every controller the command takes, the peers included.
+    (["run", "arm", "--scenario", "seed-primary", "--controller", "magic"], "pinv, jt, mink, placo"),
+    (["run", "hexapod", "--scenario", "hexapod-circle", "--controller", "jt"], "sns, pinv, mink, placo"),
+    (["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp,osqp,daqp"],
+     "solvers listed more than once: daqp"),
     (["run", "arm", "--scenario", "seed-primary", "--mode", "dream"], "invalid choice"),
     (["run", "/nonexistent/arm.xml", "--scenario", "seed-primary"], "not found"),
     (["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp,bogus"], "solver"),
@@ -203,6 +208,24 @@ def test_output_goes_into_an_existing_folder_whole(tmp_path, capsys):
     (out / "notes.txt").write_text("kept")
     assert main(["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["log.npz", "notes.txt", "summary.json"]
+
+
+CALIBRATE_BAD_INPUTS = [
+    (["--seed", "-1", "--noise-um", "1"], "seed must be an integer ≥ 0"),
+    # Noise so large the fit's candidate geometries cannot reach the poses: said as such,
+    # not as the geometry's own check ("leg lengths must be positive") or an unreachable pose.
+    (["--noise-um", "1e30", "--seed", "1"], "noise σ = 1e+30 µm is too large for the stroke model"),
+    (["--noise-um", "1.5e5"], "noise σ = 150000 µm is too large for the stroke model"),
+    (["--noise-um", "-3"], "finite standard deviation"),
+]
+
+
+@pytest.mark.parametrize("argv,fragment", CALIBRATE_BAD_INPUTS)
+def test_bad_calibrate_input_is_one_line_and_exit_code_2(argv, fragment, tmp_path, capsys):
+    assert main(["calibrate", *argv, "--quiet", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and fragment in err, err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_options_that_do_not_apply_to_calibrate_are_errors(tmp_path, capsys):
