@@ -202,12 +202,39 @@ def test_out_in_an_unwritable_folder_is_refused_before_any_work(tmp_path, capsys
     assert len(err.strip().splitlines()) == 1 and "cannot write" in err, err
 
 
-def test_output_goes_into_an_existing_folder_whole(tmp_path, capsys):
+PINV_RUN = ["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--quiet"]
+
+
+def test_output_replaces_an_earlier_output_folder_whole(tmp_path, capsys):
+    """A second command into the same --out leaves its files only: the first run's figures
+    do not survive beside the second one's summary (run, compare and calibrate alike)."""
     out = tmp_path / "existing"
+    out.mkdir()  # an empty folder is taken
+    assert main([*PINV_RUN, "--plot", "--out", str(out)]) == 0
+    assert "error.png" in {p.name for p in out.iterdir()}
+    assert main([*PINV_RUN, "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["log.npz", "summary.json"]
+    assert main(["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp", "--quiet",
+                 "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json"]
+    assert main(["calibrate", "--quiet", "--plot", "--out", str(out)]) == 0
+    assert main(["calibrate", "--quiet", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"]  # nothing staged or set aside is left
+
+
+def test_output_into_a_folder_qpik_did_not_write_is_refused(tmp_path, capsys):
+    """Replacing whole a folder that is not an earlier output (``--out .``, a folder of
+    notes) would delete what the user keeps there: refused before any work."""
+    out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("kept")
-    assert main(["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["log.npz", "notes.txt", "summary.json"]
+    for argv in (PINV_RUN, ["calibrate", "--quiet"]):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "an existing folder qpik did not write" in err, err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"] and (out / "notes.txt").read_text() == "kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
 
 
 CALIBRATE_BAD_INPUTS = [
@@ -269,6 +296,52 @@ def test_ctrl_c_stops_compare_within_a_solve_and_leaves_nothing(tmp_path):
     assert proc.returncode == 130, (proc.returncode, stdout, stderr)
     assert "interrupted" in stderr and "Traceback" not in stderr and "Solver interrupted" not in stdout + stderr
     assert list(tmp_path.iterdir()) == []  # no X, no compare.json, summary, figure, staging
+
+
+def _start_and_signal(argv, folder: Path, ready, signum) -> tuple[int, str, str]:
+    """Start ``qpik argv``, wait until ``ready(staging folder)`` holds, send ``signum``."""
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "qpik", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "MPLBACKEND": "Agg"}, preexec_fn=_default_sigint)
+    while not any(p.name.startswith(".qpik-partial-") and ready(p) for p in folder.iterdir()):
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signum)
+    stdout, stderr = proc.communicate(timeout=120)
+    return proc.returncode, stdout, stderr
+
+
+def test_sigterm_stops_compare_like_ctrl_c_and_keeps_the_earlier_output(tmp_path):
+    """SIGTERM (kill, a scheduler) during an OSQP solve: exit 143, one line, no staging
+    folder, and the earlier output in --out left as it was (it is replaced only at the end)."""
+    out = tmp_path / "X"
+    out.mkdir()
+    (out / "compare.json").write_text("{}")
+    code, stdout, stderr = _start_and_signal(
+        ["compare", "hexapod", "--scenario", "hexapod-circle", "--solvers", "osqp,daqp", "--out", str(out), "--plot"],
+        tmp_path, lambda staging: True, signal.SIGTERM)
+    assert code == 143, (code, stdout, stderr)
+    assert stderr.strip() == "qpik: terminated; nothing written", stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X"]
+    assert [p.name for p in out.iterdir()] == ["compare.json"] and (out / "compare.json").read_text() == "{}"
+
+
+def test_sigterm_while_rendering_the_video_leaves_no_half_video(tmp_path):
+    """SIGTERM once the run is logged (its summary staged) and the video is being made:
+    neither the video (staged beside its final path) nor the output folder is left."""
+    pytest.importorskip("imageio_ffmpeg", reason="the [video] extra (imageio-ffmpeg) is not installed")
+    probe = subprocess.run([sys.executable, "-c", "from qpik.app.video import prefer_headless_gl, probe_gl\n"
+                            "prefer_headless_gl()\nprobe_gl()"], capture_output=True, text=True)
+    if probe.returncode != 0:  # MuJoCo picks its GL back-end at import: probed in a fresh interpreter
+        pytest.skip(f"no OpenGL back-end here: {probe.stderr.strip().splitlines()[-1:]}")
+    code, stdout, stderr = _start_and_signal(
+        ["run", "arm", "--scenario", "seed-primary", "--controller", "pinv", "--quiet",
+         "--video", str(tmp_path / "clip.mp4"), "--out", str(tmp_path / "o")],
+        tmp_path, lambda staging: (staging / "summary.json").exists(), signal.SIGTERM)
+    assert code == 143 and "Traceback" not in stderr, (code, stdout, stderr)
+    assert list(tmp_path.iterdir()) == []  # no clip.mp4, no .clip.mp4.* being written, no staging
 
 
 OSQP_LOOP = """
