@@ -381,3 +381,19 @@ def test_interrupt_guard_stops_a_loop_of_osqp_solves():
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, (stdout, stderr)
     assert stdout.strip().endswith("False"), stdout  # no solve saw the SIGINT
+
+
+def test_physics_table_says_what_the_level_columns_measure_beside_max_err(tmp_path, capsys):
+    """In physics mode "L0 path" (the controller's commanded configuration) and "max err"
+    (the simulated robot) differ by the servos' lag; the table says which is which, and it
+    is true: L0 is the kinematic run's error (the controller integrates its own command)."""
+    argv = ["run", "arm", "--scenario", "seed-redundant", "--quiet"]
+    assert main([*argv, "--mode", "physics", "--out", str(tmp_path / "p")]) == 0
+    out = capsys.readouterr().out
+    assert "note: L0 path, L1 sigma: each priority level's error on the controller's own model" in out
+    assert main([*argv, "--out", str(tmp_path / "k")]) == 0
+    assert "note: L0" not in capsys.readouterr().out  # kinematic: one robot, nothing to tell apart
+    physics, kinematic = (json.loads((tmp_path / m / "summary.json").read_text()) for m in "pk")
+    # The same integration of the same commands: equal to rounding (1e-9 relative of a 5e-6 m error).
+    assert np.isclose(physics["level_error_max"][0], kinematic["max_error"], rtol=1e-9, atol=0)
+    assert physics["max_error"] > 100 * physics["level_error_max"][0]

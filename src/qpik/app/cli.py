@@ -195,6 +195,11 @@ def _start_output(args, default: str):
     return out
 
 
+def _print_note(note: str | None) -> None:
+    if note is not None:
+        print(note)
+
+
 def cmd_scenarios(args) -> int:
     from ..scenario import scenarios
 
@@ -207,7 +212,7 @@ def cmd_scenarios(args) -> int:
 
 def cmd_run(args) -> int:
     from ..errors import InvalidInput
-    from .runs import QP_KINDS, format_table, run, run_label
+    from .runs import QP_KINDS, format_table, level_note, run, run_label
 
     if args.solver is not None and args.controller not in QP_KINDS:
         raise InvalidInput(f"--solver applies to {' and '.join(QP_KINDS)} only; controller "
@@ -220,6 +225,7 @@ def cmd_run(args) -> int:
                          progress=bars.callback(label))
         bars.close()
         print(format_table([log.summary()]))
+        _print_note(level_note([log.summary()], args.mode))
         log.save(out.staging)
         title = f"{setup.robot_name} / {args.scenario} / {args.controller} ({args.mode})"
         if args.plot:
@@ -232,7 +238,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .runs import compare, format_table, write_compare
+    from .runs import compare, format_table, level_note, write_compare
 
     out = _start_output(args, f"out/compare-{args.scenario}-{args.mode}")
     with out, _bars(args) as bars:
@@ -245,6 +251,7 @@ def cmd_compare(args) -> int:
         print(format_table(summaries))
         for note in notes:
             print(note)
+        _print_note(level_note(summaries, args.mode))
         write_compare(out.staging, setup.robot_name, args.scenario, summaries, args.mode)
         if args.plot:
             _plot(setup, logs, out.staging, title)

@@ -201,3 +201,15 @@ def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Seq
     path = Path(out_dir) / "compare.json"
     write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": list(summaries)})
     return path
+
+
+def level_note(summaries: Sequence[dict], mode: str) -> str | None:
+    """What the level columns measure beside ``max err``, where the two differ (physics mode):
+    a line to print under the table, or None."""
+    levelled = next((s for s in summaries if s.get("level_names")), None)
+    if levelled is None or mode != "physics":
+        return None
+    columns = ", ".join(f"L{i} {name}" for i, name in enumerate(levelled["level_names"]))
+    return (f"note: {columns}: each priority level's error on the controller's own model, at the "
+            "configuration it commands; max err and final err: the simulated robot, which the servos "
+            "move after the command (the gap is their lag)")
