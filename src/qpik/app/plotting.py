@@ -38,7 +38,7 @@ from .runs import run_label  # noqa: E402
 EXTRA_LABELS = {
     "orientation_error": ("orientation error", "rad"),
     "constraint_violation": ("loop-closure residual", "m"),
-    "path_deviation": ("distance from the straight path segment", "m"),
+    "path_deviation": ("distance off the path", "m"),
 }
 # A run whose peak exceeds the others' by this factor gets the axis clipped.
 OFF_SCALE_FACTOR = 4.0
@@ -49,9 +49,10 @@ def _label(log: RolloutLog) -> str:
 
 
 def _style(log: RolloutLog) -> dict:
-    """The controller's colour, the solver's line style; the first (qp) a little thicker."""
+    """The controller's colour, the solver's line style; qp thick, so that where the runs
+    drawn after it coincide its colour still shows along their edges."""
     return {"color": controller_colour(log.controller), "linestyle": solver_linestyle(log.solver),
-            "linewidth": 1.8 if log.controller == "qp" else 1.3}
+            "linewidth": 2.8 if log.controller == "qp" else 1.3}
 
 
 def _legend(fig, logs: Sequence[RolloutLog], extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
