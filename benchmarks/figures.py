@@ -23,6 +23,7 @@ from qpik.app.video import prefer_headless_gl
 prefer_headless_gl()  # before MuJoCo is imported
 
 from qpik.app.calibration_plots import plot_calibration  # noqa: E402
+from qpik.app.palette import CONTROLLER_COLOURS  # noqa: E402
 from qpik.app.plotting import plot_logs  # noqa: E402
 from qpik.app.progress import StepBars, iterate, wanted  # noqa: E402
 from qpik.app.runs import compare  # noqa: E402
@@ -39,8 +40,51 @@ CAPTIONS = {
     "velocities.png": "commanded joint velocities (an off-scale run is clipped, its peak written)",
     "error.png": "tracking error, log scale",
     "manipulability.png": "manipulability measure",
-    "extras.png": "orientation error and loop-closure residual",
+    "extras.png": "the scenario's extra series (orientation error and loop-closure residual on the hexapod, "
+                  "distance off the straight path on too-fast), log scale",
+    "levels.png": "each priority level's error (log scale) and, for SNS, each level's task scale",
 }
+# What each scenario's figures show (read off them; the numbers are the figures' own scale).
+SCENARIO_NOTES = {
+    "seed-primary": "Every controller tracks the straight path to about 1e-6 m except the Jacobian "
+                    "transpose (brown), which lags by millimetres; most runs coincide, the legend lists them.",
+    "seed-redundant": "The σ task drives the manipulability from 0 to 1 while the path is tracked to about "
+                      "1e-6 m; the Jacobian transpose (brown) has no null-space task and stays near 0.1.",
+    "joint-limits": "The QP (blue, under hqp and the peers drawn over it) and SNS (green) stay inside the "
+                    "limits (grey lines), the pseudoinverse law (red) goes about "
+                    "0.6 rad past both and reaches σ = 1; inside the limits σ ends lower (QP about 0.7, SNS 0.4).",
+    "unreachable": "The target leaves the 3 m reach at about t = 2 s: qp-hard (cyan) stops there (its hard "
+                   "task is infeasible), the soft QP and the peers stop at the nearest reachable point, the "
+                   "pseudoinverse law (red) drives d4 past its 1 m end (its velocity off scale), SNS (green) "
+                   "chatters between the joint speed limits.",
+    "too-fast": "The segment in 0.5 s asks for more than the speed limits: the QP (blue) and the peers "
+                "saturate the joint speeds and catch up at 0.5 s, SNS (green) scales its task down (task scale "
+                "near 0) and finishes at 0.6 s, qp-hard (cyan) stops at once (infeasible); extras.png: the "
+                "distance off the straight path.",
+    "three-tasks": "Path, then φ, then σ, with θ2, θ3 in [−1, 1] rad: qp-hard (cyan) and hqp (purple) keep "
+                   "the path to about 1e-6 m and give up φ where the limits forbid it; the weighted QP (blue) "
+                   "and mink (orange), which weigh the path against φ, move alike and leave the path by up to "
+                   "5 cm; the pseudoinverse law (red) keeps φ by leaving the limits; SNS (green) chatters "
+                   "around t = 2 s. placo is not in this scenario.",
+    "hexapod-circle": "Every controller tracks the 3 cm circle and the 3° tilt to about 1e-6 m; the loop-closure "
+                      "residual of the QP family drifts to about 1e-8 m, the inverse-Jacobian law (red), which "
+                      "closes the loops from the strokes every step, stays at rounding.",
+    "hexapod-stroke-limits": "Strokes would pass the 0.35 m end: the QP (blue) and the peers keep every "
+                             "stroke inside and stop the platform short of the target once one is at its end; "
+                             "the inverse-Jacobian law (red) commands strokes past it (thin lines: where the "
+                             "stops cut them), jams and tilts the platform (this row is chaotic: how far it "
+                             "tilts depends on the machine's floating point).",
+    "hexapod-position-only": "Position only: the free rotations let the manipulability rise from 0.06 to about "
+                             "0.09; every controller tracks the circle to about 1e-6 m.",
+}
+ANIMATION_NOTES = {
+    "joint-limits": "the QP (blue; hqp, mink and placo move with it) and SNS (green) keep θ2, θ3 inside "
+                    "[−1, 1] rad, the pseudoinverse law (red) does not, the Jacobian transpose (brown) lags",
+    "hexapod-stroke-limits": "the QP (blue; hqp, mink and placo move with it) and SNS (green) stop the "
+                             "strokes inside their travel, the inverse-Jacobian law (red) jams and tilts the platform",
+}
+COLOUR_NAMES = {"#1f77b4": "blue", "#17becf": "cyan", "#9467bd": "purple", "#2ca02c": "green", "#d62728": "red",
+                "#8c564b": "brown", "#ff7f0e": "orange", "#e377c2": "pink"}
 
 
 def main(argv=None) -> int:
@@ -52,7 +96,10 @@ def main(argv=None) -> int:
     page = ["# Figure gallery", "",
             "Regenerated by `python benchmarks/figures.py` (the figures of `qpik compare ... --solvers daqp "
             "--plot` for every scenario, the calibration figure, the animations). Runs that move alike "
-            "draw on top of each other: the legend lists them all.", ""]
+            "draw on top of each other: the legend lists them all.", "",
+            "Colours, the same in every figure and animation: "
+            + ", ".join(f"{kind} {COLOUR_NAMES[colour]}" for kind, colour in CONTROLLER_COLOURS.items())
+            + "; the line style is the QP solver's; grey is a reference (limits, desired path).", ""]
     page += ["## Animations", ""]
     known = scenarios()
     with StepBars(show, unit="frame") as bars:
@@ -61,7 +108,8 @@ def main(argv=None) -> int:
             path = args.out / f"{name}.gif"
             render_comparison(setup.robot.model, logs, path, caption=f"{setup.robot_name} / {name}", fps=12.5,
                               width=480, height=360, progress=bars.callback(f"{name}.gif"))
-            page += [f"`{name}`: every controller as a coloured ghost, the desired path in grey.", "",
+            page += [f"`{name}`: every controller as a ghost in its colour, the desired path in grey: "
+                     f"{ANIMATION_NOTES[name]}.", "",
                      f"![{name}]({path.name})", ""]
     for name, info in iterate(list(known.items()), desc="figures", enabled=show, unit="scenario"):
         setup, logs, _ = compare(info.robot, name, ["daqp"])
@@ -69,7 +117,7 @@ def main(argv=None) -> int:
         if folder.exists():
             shutil.rmtree(folder)
         files = plot_logs(logs, setup.plot_joints, folder, f"{setup.robot_name} / {name} (kinematic)")
-        page += [f"## {name} ({info.robot})", "", info.description, ""]
+        page += [f"## {name} ({info.robot})", "", f"{info.description}. {SCENARIO_NOTES[name]}", ""]
         for file in files:
             page += [f"- {CAPTIONS.get(file.name, file.name)}:", "", f"  ![{name} {file.stem}]({name}/{file.name})", ""]
     result = calibrate("gauss-newton", 30, noise_um=1.0, repeats=50)

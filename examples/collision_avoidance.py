@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from demo_support import Demo, add_mocap_target, check_duration, parser, quaternion_to_matrix, report, \
+from demo_support import Demo, add_mocap_target, check_arguments, parser, quaternion_to_matrix, report, \
     view  # noqa: E402
 
 from qpik import CollisionAvoidanceLimit, FrameTask, JointPositionLimit, JointVelocityLimit, Robot, \
@@ -137,7 +137,7 @@ def summarize(demo: Demo, log) -> list[tuple[str, float, str]]:
 def main(argv=None) -> int:
     args_parser = parser(__doc__.splitlines()[0], DURATION)
     args = args_parser.parse_args(argv)
-    check_duration(args_parser, args.duration)
+    check_arguments(args_parser, args)
     demo = build(args.duration, viewer=args.viewer)
     if args.viewer:
         pose = demo.follow

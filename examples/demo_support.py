@@ -23,6 +23,7 @@ import numpy as np
 
 from qpik import QPController, Robot, RolloutLog, simulate
 from qpik.rollout import Reference
+from qpik.solvers import available_solvers
 
 MOCAP = "target"  # name of the draggable mocap body the viewer adds
 
@@ -67,9 +68,16 @@ class Demo:
                         robot_name=self.robot.name, scenario=self.name)
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """A usage error is one line on stderr and exit code 2, as with ``qpik``."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def parser(description: str, duration: float) -> argparse.ArgumentParser:
     """The examples' command line: --duration, --solver, --viewer."""
-    out = argparse.ArgumentParser(description=description)
+    out = _OneLineParser(description=description)
     out.add_argument("--duration", type=float, default=duration,
                      help=f"seconds to run (default {duration:g}, the whole scripted motion; a shorter run stops "
                           "part way, a longer one holds the end)")
@@ -79,9 +87,12 @@ def parser(description: str, duration: float) -> argparse.ArgumentParser:
     return out
 
 
-def check_duration(parser_: argparse.ArgumentParser, duration: float) -> None:
-    if not (np.isfinite(duration) and duration > 0):
-        parser_.error(f"--duration must be a positive number of seconds, got {duration}")
+def check_arguments(parser_: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The values argparse cannot check alone: a positive duration, an installed solver."""
+    if not (np.isfinite(args.duration) and args.duration > 0):
+        parser_.error(f"--duration must be a positive number of seconds, got {args.duration}")
+    if args.solver not in available_solvers():
+        parser_.error(f"--solver {args.solver!r}: not an installed QP solver; use one of {', '.join(available_solvers())}")
 
 
 def add_mocap_target(spec: mujoco.MjSpec, position, quaternion=(1.0, 0.0, 0.0, 0.0), pose: bool = True) -> None:

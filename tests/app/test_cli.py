@@ -66,6 +66,11 @@ BAD_INPUTS = [
     (["run", "robot9", "--scenario", "seed-primary"], "unknown robot"),
     (["run", "arm", "--scenario", "seed-primary", "--solver", "nosolver"], "solver"),
     (["run", "arm", "--scenario", "seed-primary", "--controller", "magic"], "unknown controller"),
+    # The list names every controller the command takes, the peers included.
+    (["run", "arm", "--scenario", "seed-primary", "--controller", "magic"], "pinv, jt, mink, placo"),
+    (["run", "hexapod", "--scenario", "hexapod-circle", "--controller", "jt"], "sns, pinv, mink, placo"),
+    (["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp,osqp,daqp"],
+     "solvers listed more than once: daqp"),
     (["run", "arm", "--scenario", "seed-primary", "--mode", "dream"], "invalid choice"),
     (["run", "/nonexistent/arm.xml", "--scenario", "seed-primary"], "not found"),
     (["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp,bogus"], "solver"),
@@ -197,12 +202,57 @@ def test_out_in_an_unwritable_folder_is_refused_before_any_work(tmp_path, capsys
     assert len(err.strip().splitlines()) == 1 and "cannot write" in err, err
 
 
-def test_output_goes_into_an_existing_folder_whole(tmp_path, capsys):
+PINV_RUN = ["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--quiet"]
+
+
+def test_output_replaces_an_earlier_output_folder_whole(tmp_path, capsys):
+    """A second command into the same --out leaves its files only: the first run's figures
+    do not survive beside the second one's summary (run, compare and calibrate alike)."""
     out = tmp_path / "existing"
+    out.mkdir()  # an empty folder is taken
+    assert main([*PINV_RUN, "--plot", "--out", str(out)]) == 0
+    assert "error.png" in {p.name for p in out.iterdir()}
+    assert main([*PINV_RUN, "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["log.npz", "summary.json"]
+    assert main(["compare", "arm", "--scenario", "seed-primary", "--solvers", "daqp", "--quiet",
+                 "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json"]
+    assert main(["calibrate", "--quiet", "--plot", "--out", str(out)]) == 0
+    assert main(["calibrate", "--quiet", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"]  # nothing staged or set aside is left
+
+
+def test_output_into_a_folder_qpik_did_not_write_is_refused(tmp_path, capsys):
+    """Replacing whole a folder that is not an earlier output (``--out .``, a folder of
+    notes) would delete what the user keeps there: refused before any work."""
+    out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("kept")
-    assert main(["run", "arm", "--controller", "pinv", "--scenario", "seed-primary", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["log.npz", "notes.txt", "summary.json"]
+    for argv in (PINV_RUN, ["calibrate", "--quiet"]):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "an existing folder qpik did not write" in err, err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"] and (out / "notes.txt").read_text() == "kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+
+
+CALIBRATE_BAD_INPUTS = [
+    (["--seed", "-1", "--noise-um", "1"], "seed must be an integer ≥ 0"),
+    # Noise so large the fit's candidate geometries cannot reach the poses: said as such,
+    # not as the geometry's own check ("leg lengths must be positive") or an unreachable pose.
+    (["--noise-um", "1e30", "--seed", "1"], "noise σ = 1e+30 µm is too large for the stroke model"),
+    (["--noise-um", "1.5e5"], "noise σ = 150000 µm is too large for the stroke model"),
+    (["--noise-um", "-3"], "finite standard deviation"),
+]
+
+
+@pytest.mark.parametrize("argv,fragment", CALIBRATE_BAD_INPUTS)
+def test_bad_calibrate_input_is_one_line_and_exit_code_2(argv, fragment, tmp_path, capsys):
+    assert main(["calibrate", *argv, "--quiet", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and fragment in err, err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_options_that_do_not_apply_to_calibrate_are_errors(tmp_path, capsys):
@@ -248,6 +298,52 @@ def test_ctrl_c_stops_compare_within_a_solve_and_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []  # no X, no compare.json, summary, figure, staging
 
 
+def _start_and_signal(argv, folder: Path, ready, signum) -> tuple[int, str, str]:
+    """Start ``qpik argv``, wait until ``ready(staging folder)`` holds, send ``signum``."""
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "qpik", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "MPLBACKEND": "Agg"}, preexec_fn=_default_sigint)
+    while not any(p.name.startswith(".qpik-partial-") and ready(p) for p in folder.iterdir()):
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signum)
+    stdout, stderr = proc.communicate(timeout=120)
+    return proc.returncode, stdout, stderr
+
+
+def test_sigterm_stops_compare_like_ctrl_c_and_keeps_the_earlier_output(tmp_path):
+    """SIGTERM (kill, a scheduler) during an OSQP solve: exit 143, one line, no staging
+    folder, and the earlier output in --out left as it was (it is replaced only at the end)."""
+    out = tmp_path / "X"
+    out.mkdir()
+    (out / "compare.json").write_text("{}")
+    code, stdout, stderr = _start_and_signal(
+        ["compare", "hexapod", "--scenario", "hexapod-circle", "--solvers", "osqp,daqp", "--out", str(out), "--plot"],
+        tmp_path, lambda staging: True, signal.SIGTERM)
+    assert code == 143, (code, stdout, stderr)
+    assert stderr.strip() == "qpik: terminated; nothing written", stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X"]
+    assert [p.name for p in out.iterdir()] == ["compare.json"] and (out / "compare.json").read_text() == "{}"
+
+
+def test_sigterm_while_rendering_the_video_leaves_no_half_video(tmp_path):
+    """SIGTERM once the run is logged (its summary staged) and the video is being made:
+    neither the video (staged beside its final path) nor the output folder is left."""
+    pytest.importorskip("imageio_ffmpeg", reason="the [video] extra (imageio-ffmpeg) is not installed")
+    probe = subprocess.run([sys.executable, "-c", "from qpik.app.video import prefer_headless_gl, probe_gl\n"
+                            "prefer_headless_gl()\nprobe_gl()"], capture_output=True, text=True)
+    if probe.returncode != 0:  # MuJoCo picks its GL back-end at import: probed in a fresh interpreter
+        pytest.skip(f"no OpenGL back-end here: {probe.stderr.strip().splitlines()[-1:]}")
+    code, stdout, stderr = _start_and_signal(
+        ["run", "arm", "--scenario", "seed-primary", "--controller", "pinv", "--quiet",
+         "--video", str(tmp_path / "clip.mp4"), "--out", str(tmp_path / "o")],
+        tmp_path, lambda staging: (staging / "summary.json").exists(), signal.SIGTERM)
+    assert code == 143 and "Traceback" not in stderr, (code, stdout, stderr)
+    assert list(tmp_path.iterdir()) == []  # no clip.mp4, no .clip.mp4.* being written, no staging
+
+
 OSQP_LOOP = """
 import sys
 from qpik.app.interrupt import InterruptGuard
@@ -285,3 +381,19 @@ def test_interrupt_guard_stops_a_loop_of_osqp_solves():
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, (stdout, stderr)
     assert stdout.strip().endswith("False"), stdout  # no solve saw the SIGINT
+
+
+def test_physics_table_says_what_the_level_columns_measure_beside_max_err(tmp_path, capsys):
+    """In physics mode "L0 path" (the controller's commanded configuration) and "max err"
+    (the simulated robot) differ by the servos' lag; the table says which is which, and it
+    is true: L0 is the kinematic run's error (the controller integrates its own command)."""
+    argv = ["run", "arm", "--scenario", "seed-redundant", "--quiet"]
+    assert main([*argv, "--mode", "physics", "--out", str(tmp_path / "p")]) == 0
+    out = capsys.readouterr().out
+    assert "note: L0 path, L1 sigma: each priority level's error on the controller's own model" in out
+    assert main([*argv, "--out", str(tmp_path / "k")]) == 0
+    assert "note: L0" not in capsys.readouterr().out  # kinematic: one robot, nothing to tell apart
+    physics, kinematic = (json.loads((tmp_path / m / "summary.json").read_text()) for m in "pk")
+    # The same integration of the same commands: equal to rounding (1e-9 relative of a 5e-6 m error).
+    assert np.isclose(physics["level_error_max"][0], kinematic["max_error"], rtol=1e-9, atol=0)
+    assert physics["max_error"] > 100 * physics["level_error_max"][0]

@@ -78,6 +78,17 @@ def test_viewer_without_a_display_is_one_line():
 def test_bad_duration_is_a_usage_error():
     done = run_example("humanoid_reach", "--duration", "-1")
     assert done.returncode == 2 and "--duration must be a positive number of seconds" in done.stderr
+    assert done.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize("name", ["jaco_circle", "humanoid_reach", "collision_avoidance"])
+def test_unknown_solver_is_one_line_before_any_work(name):
+    """A solver name qpsolvers does not have: one line and exit 2 (it was a traceback from
+    the controller's constructor)."""
+    done = run_example(name, "--solver", "nosuch")
+    assert (done.returncode, done.stdout) == (2, ""), done.stderr
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert "--solver 'nosuch': not an installed QP solver; use one of daqp" in done.stderr
 
 
 class StandInViewer:

@@ -77,3 +77,36 @@ def test_every_axis_has_a_unit_and_the_legend_is_off_the_axes(tmp_path):
     plt.close("all")
     assert [p.name for p in plot_logs([log], setup.plot_joints, tmp_path, "t")][0] == "path.png"
     assert not plt.get_fignums()  # plot_logs closes what it draws
+
+
+def test_readme_command_figures_keep_the_legend_inside_and_one_colour_per_controller():
+    """The README's first command (`qpik compare arm --scenario seed-redundant --plot`, every
+    solver and peer: 13 runs): each legend lies inside the saved canvas (it was cut on both
+    sides of error.png and manipulability.png), and each run is drawn in its controller's
+    colour, the solver setting the line style."""
+    from matplotlib.colors import to_hex
+
+    from qpik.app.palette import CONTROLLER_COLOURS, controller_colour, solver_linestyle
+    from qpik.app.runs import compare
+
+    setup, logs, _ = compare("arm", "seed-redundant")
+    figures = make_figures(logs, setup.plot_joints, "arm / seed-redundant (kinematic)")
+    for name, fig in figures.items():
+        fig.canvas.draw()
+        legend, canvas = fig.legends[0].get_window_extent(), fig.bbox
+        assert canvas.x0 <= legend.x0 and legend.x1 <= canvas.x1 and canvas.y0 <= legend.y0, name
+    lines = figures["error.png"].axes[0].get_lines()
+    assert [to_hex(line.get_color()) for line in lines] == [controller_colour(log.controller) for log in logs]
+    # No two runs alike: the same controller with another solver has another line style.
+    assert len({(log.controller, repr(solver_linestyle(log.solver))) for log in logs}) == len(logs)
+    assert len(set(CONTROLLER_COLOURS.values())) == len(CONTROLLER_COLOURS)
+    plt.close("all")
+
+
+def test_controller_colours_are_saturated_never_the_limit_grey():
+    from matplotlib.colors import rgb_to_hsv, to_rgb
+
+    from qpik.app.palette import CONTROLLER_COLOURS, OTHER_COLOUR
+
+    for colour in (*CONTROLLER_COLOURS.values(), OTHER_COLOUR):
+        assert rgb_to_hsv(to_rgb(colour))[1] > 0.4, colour

@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from qpik.app.video import CYCLE
+from qpik.app.palette import CONTROLLER_COLOURS
 
 PROBE = "from qpik.app.video import prefer_headless_gl, probe_gl\nprefer_headless_gl()\nprobe_gl()\n"
 
@@ -46,10 +46,11 @@ import numpy as np
 from qpik.app.video import prefer_headless_gl
 prefer_headless_gl()
 from qpik.app.runs import run
-from qpik.app.video import CYCLE, GhostScene
+from qpik.app.palette import CONTROLLER_COLOURS
+from qpik.app.video import GhostScene
 logs = [run("arm", "joint-limits", c, "daqp")[1] for c in ("qp", "pinv")]
 from qpik.robot import load_model
-scene = GhostScene(load_model("arm"), CYCLE[:2], logs[0].x_des)
+scene = GhostScene(load_model("arm"), [CONTROLLER_COLOURS["qp"], CONTROLLER_COLOURS["pinv"]], logs[0].x_des)
 scene.frame_camera([logs[0].q[0], logs[0].q[-1], logs[1].q[-1]], planar=True)
 out = []
 for k in (0, 1250, 2500):
@@ -65,17 +66,18 @@ def test_headless_frames_are_not_blank_and_show_both_runs(tmp_path):
     done = subprocess.run([sys.executable, "-c", FRAMES, str(path)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     frames = np.load(path)
+    qp_colour, pinv_colour = CONTROLLER_COLOURS["qp"], CONTROLLER_COLOURS["pinv"]
     assert frames.shape == (3, 480, 640, 3) and frames.dtype == np.uint8
     for frame in frames:
         assert frame.std() > 20  # not one flat colour
     # At t = 0 both arms are at q0: the second (pinv) is drawn over the first.
-    assert _hue_mask(frames[0], CYCLE[1]).sum() > 300
+    assert _hue_mask(frames[0], pinv_colour).sum() > 300
     for frame in frames[1:]:
-        assert _hue_mask(frame, CYCLE[0]).sum() > 300 and _hue_mask(frame, CYCLE[1]).sum() > 300
+        assert _hue_mask(frame, qp_colour).sum() > 300 and _hue_mask(frame, pinv_colour).sum() > 300
     # At the end the pseudoinverse law's arm is 0.6 rad past the limits the QP keeps: its
     # pixels are elsewhere.
     end = frames[-1]
-    qp_pixels, pinv_pixels = (np.argwhere(_hue_mask(end, c)).mean(axis=0) for c in CYCLE[:2])
+    qp_pixels, pinv_pixels = (np.argwhere(_hue_mask(end, c)).mean(axis=0) for c in (qp_colour, pinv_colour))
     assert np.linalg.norm(qp_pixels - pinv_pixels) > 20
 
 
@@ -95,12 +97,10 @@ def test_compare_video_is_playable_and_tells_qp_from_pinv(tmp_path):
     frames = [np.frombuffer(f, np.uint8).reshape(height, width, 3) for f in reader]
     assert (width, height) == (640, 480) and abs(meta["fps"] - 25) < 1e-6
     assert len(frames) == 126  # 5 s at 25 frames/s, t = 0 included
-    # Runs in compare.json's order (qp (daqp), hqp, sns, pinv, jt, mink (daqp), placo); those
-    # that move alike share the first one's ghost, each colour the run's in the figures'
-    # cycle: qp is the first colour, pinv its own.
-    runs = [r["controller"] for r in json.loads((tmp_path / "out" / "compare.json").read_text())["runs"]]
+    # Runs that move alike share the first one's ghost, in its controller's colour (the
+    # colour of its curves in the figures): qp blue, pinv red.
     last = frames[-1][height // 4:]  # below the legend
-    qp_pixels, pinv_pixels = (_hue_mask(last, CYCLE[runs.index(kind) % len(CYCLE)]) for kind in ("qp", "pinv"))
+    qp_pixels, pinv_pixels = (_hue_mask(last, CONTROLLER_COLOURS[kind]) for kind in ("qp", "pinv"))
     assert qp_pixels.sum() > 300 and pinv_pixels.sum() > 300
     assert np.linalg.norm(np.argwhere(qp_pixels).mean(axis=0) - np.argwhere(pinv_pixels).mean(axis=0)) > 20
 

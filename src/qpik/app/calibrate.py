@@ -49,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "neither (seed poses, no noise)")
     p.add_argument("--repeats", type=int, default=1,
                    help="noise realisations for the Monte-Carlo spread (same poses); needs --noise-um > 0")
-    p.add_argument("--out", type=Path, default=Path(DEFAULT_OUT), help="output folder")
+    p.add_argument("--out", type=Path, default=Path(DEFAULT_OUT), help="output folder, replaced whole if it holds an earlier output")
     p.add_argument("--plot", action="store_true",
                    help="write calibration.png (imposed vs estimated, error vs number of poses)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")

@@ -10,7 +10,8 @@
 
 Contract: bad input gives one line on stderr and exit code 2, never a traceback, and
 nothing written; the output folder is checked before any work. Ctrl-C stops the command
-within a step (exit code 130) and leaves nothing of its output behind: every file is
+within a step (exit code 130; SIGTERM the same, exit code 143) and leaves nothing of its
+output behind (an earlier output it was to replace stays as it was): every file is
 assembled in a hidden folder next to the target and moved into place at the end
 (:mod:`qpik.app.output`, :mod:`qpik.app.interrupt`). Runs show a progress bar on stderr
 when it is a terminal (``--quiet`` hides it).
@@ -30,6 +31,7 @@ from typing import Callable, Sequence
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 MODES = ("kinematic", "physics")  # qpik.rollout.MODES, without importing the rollout at start-up
 
 
@@ -112,7 +114,8 @@ def _robot_and_scenario(p: argparse.ArgumentParser, scenario_listing: str) -> No
 
 def _outputs(p: argparse.ArgumentParser, out_default: str) -> None:
     p.add_argument("--mode", choices=MODES, default="kinematic", help=MODE_HELP)
-    p.add_argument("--out", metavar="DIR", help=f"output folder (default: {out_default})")
+    p.add_argument("--out", metavar="DIR", help=f"output folder, replaced whole if it holds an earlier output "
+                                                f"(default: {out_default})")
     p.add_argument("--plot", action="store_true", help="also write PNG figures")
     p.add_argument("--video", metavar="FILE", type=Path,
                    help="also write a video of the rollout (.mp4 or .gif; headless: MUJOCO_GL=egl)")
@@ -192,6 +195,11 @@ def _start_output(args, default: str):
     return out
 
 
+def _print_note(note: str | None) -> None:
+    if note is not None:
+        print(note)
+
+
 def cmd_scenarios(args) -> int:
     from ..scenario import scenarios
 
@@ -204,7 +212,7 @@ def cmd_scenarios(args) -> int:
 
 def cmd_run(args) -> int:
     from ..errors import InvalidInput
-    from .runs import QP_KINDS, format_table, run, run_label
+    from .runs import QP_KINDS, format_table, level_note, run, run_label
 
     if args.solver is not None and args.controller not in QP_KINDS:
         raise InvalidInput(f"--solver applies to {' and '.join(QP_KINDS)} only; controller "
@@ -217,6 +225,7 @@ def cmd_run(args) -> int:
                          progress=bars.callback(label))
         bars.close()
         print(format_table([log.summary()]))
+        _print_note(level_note([log.summary()], args.mode))
         log.save(out.staging)
         title = f"{setup.robot_name} / {args.scenario} / {args.controller} ({args.mode})"
         if args.plot:
@@ -229,7 +238,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .runs import compare, format_table, write_compare
+    from .runs import compare, format_table, level_note, write_compare
 
     out = _start_output(args, f"out/compare-{args.scenario}-{args.mode}")
     with out, _bars(args) as bars:
@@ -242,6 +251,7 @@ def cmd_compare(args) -> int:
         print(format_table(summaries))
         for note in notes:
             print(note)
+        _print_note(level_note(summaries, args.mode))
         write_compare(out.staging, setup.robot_name, args.scenario, summaries, args.mode)
         if args.plot:
             _plot(setup, logs, out.staging, title)
@@ -277,7 +287,7 @@ EXTRA_COMMANDS: list[Callable] = []
 
 def main(argv: Sequence[str] | None = None) -> int:
     from ..errors import QpikError
-    from .interrupt import InterruptGuard
+    from .interrupt import InterruptGuard, Terminated
 
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -296,9 +306,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except QpikError as exc:
         print(f"qpik: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("qpik: interrupted; nothing written", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"qpik: {'terminated' if terminated else 'interrupted'}; nothing written", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except BrokenPipeError:  # e.g. `qpik compare ... | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1

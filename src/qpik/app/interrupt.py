@@ -11,6 +11,10 @@ a watcher thread takes it synchronously with ``sigwait`` and raises ``KeyboardIn
 in the main thread (``_thread.interrupt_main``), which Python delivers at the next
 bytecode boundary: after the current solve or step returns, within microseconds.
 
+SIGTERM (``kill``, a job scheduler, a container stopping) is taken the same way and
+raised as :class:`Terminated`, a ``KeyboardInterrupt``, so the same clean-up runs; the
+command then exits with 143 (128 + SIGTERM) instead of 130.
+
 Inside :meth:`InterruptGuard.shielded` (moving finished files into place, removing a
 partial output) a Ctrl-C is held back until the block ends, so the output is all or none.
 
@@ -31,11 +35,19 @@ import threading
 from contextlib import contextmanager
 from typing import Iterator
 
-_SIGINT = {signal.SIGINT}
+_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so every clean-up path runs."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
 
 
 class InterruptGuard:
-    """Route SIGINT through a watcher thread for the lifetime of a ``with`` block."""
+    """Route SIGINT and SIGTERM through a watcher thread for the lifetime of a ``with`` block."""
 
     def __init__(self):
         self.interrupted = False
@@ -43,16 +55,19 @@ class InterruptGuard:
                         and threading.current_thread() is threading.main_thread())
         self._lock = threading.Lock()
         self._shield_depth = 0
-        self._pending = False
+        self._pending: int | None = None  # the signal held back by a shield
         self._closing = False
         self._watcher: threading.Thread | None = None
         self._previous_mask = None
+        self._previous_term_handler = None
 
     def __enter__(self) -> InterruptGuard:
         if self._active:
             # Block before the thread starts: it inherits the mask, and so does every
             # thread started later (tqdm's monitor, solver pools).
-            self._previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGINT)
+            self._previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+            # Only interrupt_main(SIGTERM) calls it: SIGTERM itself is blocked everywhere.
+            self._previous_term_handler = signal.signal(signal.SIGTERM, _raise_terminated)
             self._watcher = threading.Thread(target=self._watch, name="qpik-sigint", daemon=True)
             self._watcher.start()
         return self
@@ -66,25 +81,26 @@ class InterruptGuard:
         self._watcher.join()
         # A Ctrl-C that arrived after the watcher stopped is still pending: drop it, the
         # command is over.
-        while signal.SIGINT in signal.sigpending():
-            signal.sigwait(_SIGINT)
+        while _SIGNALS & signal.sigpending():
+            signal.sigwait(_SIGNALS)
+        signal.signal(signal.SIGTERM, self._previous_term_handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, self._previous_mask)
 
     def _watch(self) -> None:
         while True:
-            signal.sigwait(_SIGINT)
+            signum = signal.sigwait(_SIGNALS)
             with self._lock:
                 if self._closing:
                     return
                 self.interrupted = True
                 if self._shield_depth:
-                    self._pending = True
+                    self._pending = signum
                     continue
-                _thread.interrupt_main(signal.SIGINT)  # under the lock: never after __exit__
+                _thread.interrupt_main(signum)  # under the lock: never after __exit__
 
     @contextmanager
     def shielded(self) -> Iterator[None]:
-        """Hold a Ctrl-C back until the block is done, then raise it."""
+        """Hold a Ctrl-C (or SIGTERM) back until the block is done, then raise it."""
         with self._lock:
             self._shield_depth += 1
         try:
@@ -92,8 +108,8 @@ class InterruptGuard:
         finally:
             with self._lock:
                 self._shield_depth -= 1
-                raise_now = self._pending and self._shield_depth == 0
-                if raise_now:
-                    self._pending = False
-            if raise_now:
-                raise KeyboardInterrupt
+                held = self._pending if self._shield_depth == 0 else None
+                if held is not None:
+                    self._pending = None
+            if held is not None:
+                raise Terminated if held == signal.SIGTERM else KeyboardInterrupt

@@ -5,9 +5,14 @@ video). They are assembled in a hidden staging folder beside the target and move
 place only when every one is complete; an error or a Ctrl-C removes the staging folder,
 so the target never holds half of a command's output.
 
-The target is checked before any work: a path that names an existing file, or a folder
-that cannot be written, is refused at once (the staging folder is created right away,
-which is the real test of writability, also for root and read-only mounts).
+An existing target is replaced whole, so no file of an earlier run survives beside the
+new ones; only an empty folder or one qpik wrote (it holds one of ``OUTPUT_MARKERS``) is
+replaced, any other folder is refused (``--out .`` must not empty the working folder).
+
+The target is checked before any work: a path that names an existing file, a folder
+qpik did not write, or a folder that cannot be written, is refused at once (the staging
+folder is created right away, which is the real test of writability, also for root and
+read-only mounts).
 """
 
 from __future__ import annotations
@@ -21,6 +26,9 @@ from pathlib import Path
 from ..errors import InvalidInput
 
 _STAGING_PREFIX = ".qpik-partial-"
+_REPLACED_PREFIX = ".qpik-replaced-"
+# The summary each command writes: a folder holding one is a qpik output folder.
+OUTPUT_MARKERS = ("summary.json", "compare.json", "calibration.json")
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -28,6 +36,12 @@ def _nearest_existing(path: Path) -> Path:
         if candidate.exists():
             return candidate
     return Path(".")  # unreachable for a relative path: "." exists
+
+
+def _replaceable(folder: Path) -> bool:
+    """An empty folder, or one an earlier qpik command wrote."""
+    entries = {p.name for p in folder.iterdir()}
+    return not entries or any(marker in entries for marker in OUTPUT_MARKERS)
 
 
 def _umask() -> int:
@@ -64,7 +78,12 @@ class OutputFolder:
         self._files: dict[Path, Path] = {}  # final path -> staged path, for files outside the folder
         if self.target.exists() and not self.target.is_dir():
             raise InvalidInput(f"--out {self.target}: is an existing file, not a folder")
-        anchor = _nearest_existing(self.target.absolute())
+        if self.target.is_dir() and not _replaceable(self.target):
+            raise InvalidInput(f"--out {self.target}: an existing folder qpik did not write (no "
+                               f"{', '.join(OUTPUT_MARKERS)}), which it would replace whole; "
+                               "give a new or empty folder")
+        # Staged beside the target (never inside it: an existing target is moved aside whole).
+        anchor = _nearest_existing(self.target.absolute().parent)
         if not anchor.is_dir():
             raise InvalidInput(f"--out {self.target}: {anchor} is a file, not a folder")
         try:
@@ -113,18 +132,19 @@ class OutputFolder:
                     outside.append(final)
             self._files.clear()
             names = sorted(p.name for p in self.staging.iterdir())
-            if self.target.is_dir():  # an existing folder: its other files stay
-                for name in names:
-                    os.replace(self.staging / name, self.target / name)
-                self.staging.rmdir()
-            else:
-                self.target.parent.mkdir(parents=True, exist_ok=True)
-                os.chmod(self.staging, _folder_mode())  # mkdtemp made it private (0700)
-                try:
-                    os.rename(self.staging, self.target)
-                except OSError:  # another file system between anchor and target
-                    shutil.move(str(self.staging), str(self.target))
+            replaced = None
+            if self.target.is_dir():  # an earlier output: moved aside whole, removed after
+                replaced = Path(tempfile.mkdtemp(prefix=_REPLACED_PREFIX, dir=self.target.parent))
+                os.rename(self.target, replaced / self.target.name)
+            self.target.parent.mkdir(parents=True, exist_ok=True)
+            os.chmod(self.staging, _folder_mode())  # mkdtemp made it private (0700)
+            try:
+                os.rename(self.staging, self.target)
+            except OSError:  # another file system between anchor and target
+                shutil.move(str(self.staging), str(self.target))
             self.staging = None
+            if replaced is not None:
+                shutil.rmtree(replaced, ignore_errors=True)
         return [self.target / name for name in names] + outside
 
     def discard(self) -> None:

@@ -12,7 +12,9 @@
 - ``manipulability.png``; ``extras.png`` for the extra series (orientation error, loop
   residual) when the logs have them.
 
-Every axis has its unit; the legend sits outside the axes, under the plots.
+Every axis has its unit; the legend sits under the plots, inside the figure (as many
+columns as fit its width). Each controller has one colour in every figure and video, its
+QP solver the line style (:mod:`qpik.app.palette`).
 """
 
 from __future__ import annotations
@@ -30,12 +32,14 @@ import numpy as np  # noqa: E402
 from ..io import save_figure  # noqa: E402
 from ..rollout import RolloutLog  # noqa: E402
 from ..scenario import JointPlotSpec  # noqa: E402
+from .palette import LIMIT_GREY, controller_colour, solver_linestyle  # noqa: E402
 from .runs import run_label  # noqa: E402
 
 # Extra series: label and unit.
 EXTRA_LABELS = {
     "orientation_error": ("orientation error", "rad"),
     "constraint_violation": ("loop-closure residual", "m"),
+    "path_deviation": ("distance off the path", "m"),
 }
 # A run whose peak exceeds the others' by this factor gets the axis clipped.
 OFF_SCALE_FACTOR = 4.0
@@ -45,20 +49,29 @@ def _label(log: RolloutLog) -> str:
     return run_label(log.controller, log.solver)
 
 
-def _style(i: int) -> dict:
-    return {"color": f"C{i % 10}", "linestyle": ["-", "--", "-.", ":"][i % 4], "linewidth": 1.8 if i == 0 else 1.3}
+def _style(log: RolloutLog) -> dict:
+    """The controller's colour, the solver's line style; qp thick, so that where the runs
+    drawn after it coincide its colour still shows along their edges."""
+    return {"color": controller_colour(log.controller), "linestyle": solver_linestyle(log.solver),
+            "linewidth": 2.8 if log.controller == "qp" else 1.3}
 
 
 def _legend(fig, logs: Sequence[RolloutLog], extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
-    """One legend for the whole figure, below the axes (never over the data)."""
-    handles = [plt.Line2D([], [], **_style(i)) for i in range(len(logs))]
+    """One legend for the whole figure, below the axes (never over the data), in as many
+    columns as fit the figure's width (at most ``ncol``)."""
+    handles = [plt.Line2D([], [], **_style(log)) for log in logs]
     labels = [_label(log) + ("" if log.completed else f" (stopped at t = {log.t[-1]:.2f} s)") for log in logs]
     for style, text in extra:
         handles.append(plt.Line2D([], [], **style))
         labels.append(text)
-    if ncol is None:
-        ncol = len(labels) if len(labels) <= 5 else (len(labels) + 1) // 2
-    fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=8, frameon=False)
+    columns = min(ncol or len(labels), len(labels))
+    renderer = fig.canvas.get_renderer()
+    while True:
+        legend = fig.legend(handles, labels, loc="outside lower center", ncol=columns, fontsize=8, frameon=False)
+        if columns == 1 or legend.get_window_extent(renderer).width <= 0.98 * fig.bbox.width:
+            return
+        legend.remove()
+        columns -= 1
 
 
 def _grid(n: int, height: float = 2.4):
@@ -136,8 +149,8 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     ax.plot(ref.x_des[:, 0], ref.x_des[:, 1], color="k", linewidth=4, alpha=0.2)
     ax.plot(*ref.x_des[0, :2], "o", color="k", markersize=12, markerfacecolor="none")  # around a closed path's end
     ax.plot(*ref.x_des[-1, :2], "s", color="k", markersize=7, markerfacecolor="none")
-    for i, log in enumerate(logs):
-        style = _style(i)
+    for log in logs:
+        style = _style(log)
         ax.plot(log.x[:, 0], log.x[:, 1], **style)
         ax.plot(*log.x[-1, :2], "x", color=style["color"], markersize=8, markeredgewidth=1.8)
     ax.set_xlabel("x [m]")
@@ -156,8 +169,8 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     cut_any = False
     for j, ax in enumerate(axes[: len(joints.names)]):
         qi = joints.qpos_index[j]
-        for i, log in enumerate(logs):
-            style = _style(i)
+        for log in logs:
+            style = _style(log)
             reached = log.q[:, qi]
             if log.q_commanded is None:
                 ax.plot(log.t, reached, **style)
@@ -168,11 +181,11 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
                 cut_any = True
                 ax.plot(log.t, reached, color=style["color"], linewidth=0.8, alpha=0.8)
         for bound in (b for b in (joints.lower[j], joints.upper[j]) if np.isfinite(b)):
-            # grey, not a controller colour: the controllers' cycle includes red dotted
-            ax.axhline(bound, color="0.4", linewidth=1.0, linestyle=(0, (1, 1)))
+            # grey: no controller is grey (qpik.app.palette)
+            ax.axhline(bound, color=LIMIT_GREY, linewidth=1.0, linestyle=(0, (1, 1)))
         ax.set_ylabel(f"{joints.names[j]} [{joints.units[j]}]")
         ax.grid(alpha=0.3)
-    extra = [({"color": "0.4", "linewidth": 1.0, "linestyle": (0, (1, 1))}, "limit")]
+    extra = [({"color": LIMIT_GREY, "linewidth": 1.0, "linestyle": (0, (1, 1))}, "limit")]
     if cut_any:
         extra.append(({"color": "0.3", "linewidth": 0.8}, "thin: reached (the end stop cut the command)"))
     axes[0].set_title("commanded position q ⊕ q̇Δt", fontsize=9, loc="left")
@@ -184,7 +197,7 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
         series = []
         for i, log in enumerate(logs):
             y = log.qdot[:, joints.dof_index[j]]
-            ax.plot(log.t, y, **_style(i))
+            ax.plot(log.t, y, **_style(log))
             series.append((log.t, y, _label(log), i))
         _clip_outliers(ax, series, unit)
         ax.set_ylabel(f"{joints.names[j]} [{unit}]")
@@ -193,8 +206,8 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     finish(fig, "velocities.png")
 
     fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
-    for i, log in enumerate(logs):
-        ax.semilogy(log.t, _positive(log.error), **_style(i))
+    for log in logs:
+        ax.semilogy(log.t, _positive(log.error), **_style(log))
     _log_limits(ax, [log.error for log in logs])
     ax.set_xlabel("t [s]")
     ax.set_ylabel("position error ‖x_d − x‖ [m]")
@@ -202,8 +215,8 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     finish(fig, "error.png")
 
     fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
-    for i, log in enumerate(logs):
-        ax.plot(log.t, log.manipulability, **_style(i))
+    for log in logs:
+        ax.plot(log.t, log.manipulability, **_style(log))
     ax.set_xlabel("t [s]")
     ax.set_ylabel("manipulability [-]")
     ax.set_title(ref.manipulability_measure, fontsize=9, loc="left")
@@ -214,14 +227,14 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     if extra_names:
         fig, axes = _grid(len(extra_names), height=3.0)
         for ax, name in zip(axes, extra_names):
-            label, unit = EXTRA_LABELS.get(name, (name.replace("_", " "), "-"))
+            label, unit = EXTRA_LABELS.get(name, (name.replace("_", " "), None))
             values = []
-            for i, log in enumerate(logs):
+            for log in logs:
                 if name in log.extras:
-                    ax.semilogy(log.t, _positive(log.extras[name]), **_style(i))
+                    ax.semilogy(log.t, _positive(log.extras[name]), **_style(log))
                     values.append(log.extras[name])
             _log_limits(ax, values)
-            ax.set_ylabel(f"{label} [{unit}]")
+            ax.set_ylabel(label if unit is None else f"{label} [{unit}]")  # no unit claimed for an unknown series
             ax.grid(alpha=0.3, which="both")
         finish(fig, "extras.png")
     levels = _level_figure(logs)
@@ -242,8 +255,8 @@ def _level_figure(logs: Sequence[RolloutLog]):
     fig, axes = _grid(len(names) + (1 if scaled else 0))
     for k, (ax, name, unit) in enumerate(zip(axes, names, units)):
         series = [log.level_error[:, k] for _, log in levelled]
-        for (i, log), values in zip(levelled, series):
-            ax.semilogy(log.t, _positive(values), **_style(i))
+        for (_, log), values in zip(levelled, series):
+            ax.semilogy(log.t, _positive(values), **_style(log))
         _log_limits(ax, series)
         ax.set_ylabel(f"level {k}: {name} [{unit}]")
         ax.grid(alpha=0.3, which="both")
@@ -252,7 +265,7 @@ def _level_figure(logs: Sequence[RolloutLog]):
         for i, log in scaled:
             scale = np.atleast_2d(log.report["task_scale"].T).T
             for k in range(min(scale.shape[1], len(names))):  # the levels drawn above (not a last damping level)
-                style = dict(_style(i), linestyle=["-", "--", "-.", ":"][k % 4])
+                style = dict(_style(log), linestyle=["-", "--", "-.", ":"][k % 4])
                 ax.plot(log.t, scale[:, k], **style)
         ax.set_ylabel("task scale s [-] (level 0 solid)")
         ax.set_ylim(-0.05, 1.05)

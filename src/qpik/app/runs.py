@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..errors import InvalidInput
+from ..errors import InvalidInput, UnknownName
 from ..io import write_json
 from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from ..rollout import MODES, Rollout, RolloutLog
@@ -40,6 +40,9 @@ def start_run(robot: str | None = None, scenario: str | None = None, controller:
         raise InvalidInput(f"this setup of {setup.scenario!r} was already run: its robot and "
                            "references are at that run's final state. Build a fresh setup per run "
                            "(call the scenario's or arm_setup()'s constructor again)")
+    known = [*setup.controller_kinds(), *PEERS]
+    if controller not in known:
+        raise UnknownName(f"unknown controller {controller!r} for {setup.scenario}; choose from {', '.join(known)}")
     setup.rolled_out = True
     ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
     rollout = Rollout(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
@@ -95,8 +98,14 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
     kept with ``completed = False`` and the reason, so the table can say why.
     ``progress(label, k, steps)`` is called after each step of each run.
     Returns the last setup, the logs and notes (e.g. skipped peers).
+
+    Raises:
+        InvalidInput: a solver listed twice. UnknownName: an unknown robot, scenario or solver.
     """
     solvers = list(solvers) if solvers else available_solvers()
+    repeated = sorted({s for s in solvers if solvers.count(s) > 1})
+    if repeated:  # each would run (and show) twice, the same run
+        raise InvalidInput(f"solvers listed more than once: {', '.join(repeated)}")
     for solver in solvers:
         check_solver(solver)
     logs, notes = [], []
@@ -192,3 +201,15 @@ def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Seq
     path = Path(out_dir) / "compare.json"
     write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": list(summaries)})
     return path
+
+
+def level_note(summaries: Sequence[dict], mode: str) -> str | None:
+    """What the level columns measure beside ``max err``, where the two differ (physics mode):
+    a line to print under the table, or None."""
+    levelled = next((s for s in summaries if s.get("level_names")), None)
+    if levelled is None or mode != "physics":
+        return None
+    columns = ", ".join(f"L{i} {name}" for i, name in enumerate(levelled["level_names"]))
+    return (f"note: {columns}: each priority level's error on the controller's own model, at the "
+            "configuration it commands; max err and final err: the simulated robot, which the servos "
+            "move after the command (the gap is their lag)")

@@ -1,7 +1,7 @@
 """Videos of rollouts: MuJoCo's offscreen renderer, several runs as coloured ghosts in one scene.
 
-Each run of a comparison is drawn in the colour its curves have in the figures (the
-matplotlib cycle, by position in the comparison), all in one scene and one camera, so
+Each run of a comparison is drawn in its controller's colour, the colour of its curves in
+the figures (:mod:`qpik.app.palette`), all in one scene and one camera, so
 where they part is where the controllers differ. The desired path is drawn as a grey
 tube and the current target as a small dark sphere (user geoms of the ``MjvScene``). A
 legend and the time are printed on each frame.
@@ -25,12 +25,10 @@ import numpy as np
 from ..errors import InvalidInput, QpikError
 from ..extras import require
 from ..io import atomic_path
+from .palette import controller_colour, lighten
 
 FFMPEG_SUFFIXES = (".mp4", ".mkv", ".webm", ".avi", ".mov")
 SUFFIXES = FFMPEG_SUFFIXES + (".gif",)
-# matplotlib's default colour cycle ("tab10"): run i has the colour of its curves in the figures.
-CYCLE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
-         "#bcbd22", "#17becf")
 
 
 class VideoUnavailable(QpikError, RuntimeError):
@@ -335,8 +333,9 @@ def coincident_groups(logs: Sequence, tol: float = 1e-3) -> list[list[int]]:
 def render_comparison(model, logs: Sequence, path: str | Path, *, caption: str = "", fps: float = 25.0,
                       width: int = 640, height: int = 480, progress: Callable[[int, int], None] | None = None) -> Path:
     """:func:`render_logs` for a comparison: runs that move alike (within 1 mm / 1 mrad over the
-    whole rollout) are one ghost with a joint label; each ghost has the colour of its first
-    run's curves in the figures."""
+    whole rollout) are one ghost with a joint label; each ghost has its first run's
+    controller colour (as in the figures), lighter for a second ghost of that controller
+    (another solver that moved differently)."""
     from .runs import run_label
 
     groups = coincident_groups(logs)
@@ -346,6 +345,8 @@ def render_comparison(model, logs: Sequence, path: str | Path, *, caption: str =
         stopped = [i for i in group if not getattr(logs[i], "completed", True)]
         text = " = ".join(names) if len(names) <= 3 else f"{' = '.join(names[:2])} = {len(names) - 2} more"
         labels.append(text + (f" (stopped at t = {logs[group[0]].t[-1]:.2f} s)" if stopped else ""))
-        colours.append(CYCLE[group[0] % len(CYCLE)])
+        controller = logs[group[0]].controller
+        earlier = sum(logs[g[0]].controller == controller for g in groups[:len(colours)])
+        colours.append(lighten(controller_colour(controller), min(0.6, 0.3 * earlier)))
     return render_logs(model, [logs[g[0]] for g in groups], path, labels=labels, colours=colours, caption=caption,
                        fps=fps, width=width, height=height, progress=progress)

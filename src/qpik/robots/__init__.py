@@ -1,14 +1,15 @@
-"""The bundled robots: each one a folder with its MJCF scene, its kinematics and its
-named scenarios. Adding a robot = one folder + one line in ``BUNDLED``."""
+"""The bundled robots: each one a folder with its kinematics and its named scenarios,
+and an MJCF scene in the top-level ``scenes/`` folder (installed as ``qpik.scenes``).
+Adding a robot = one folder, one scene + one line in ``BUNDLED``."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-_HERE = Path(__file__).resolve().parent
+from ..scenes import SCENES_DIR
 
 # Robot name -> (MJCF scene, module whose import registers the robot's scenarios).
 BUNDLED: dict[str, tuple[Path, str]] = {
-    "arm": (_HERE / "arm" / "arm.xml", "qpik.robots.arm.scenarios"),
-    "hexapod": (_HERE / "hexapod" / "hexapod.xml", "qpik.robots.hexapod.scenarios"),
+    "arm": (SCENES_DIR / "arm.xml", "qpik.robots.arm.scenarios"),
+    "hexapod": (SCENES_DIR / "hexapod.xml", "qpik.robots.hexapod.scenarios"),
 }

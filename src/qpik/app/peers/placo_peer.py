@@ -1,7 +1,7 @@
 r"""placo on qpik's scenarios: its KinematicsSolver on a URDF of the same robot.
 
 placo (pinocchio + its own QP layer, eiquadprog) reads URDF. The arm has one kept next to
-its MJCF (``robots/arm/arm.urdf``); any other model gets one generated from its compiled
+its MJCF (``scenes/arm.urdf``); any other model gets one generated from its compiled
 MjModel (:func:`qpik.app.peers.urdf.mjcf_to_urdf`: same frames, axes, ranges; the hexapod's
 platform on a ``floating`` joint, its legs open at the spherical joints). At construction
 the tracked frame's pose is checked against MuJoCo's site. placo's variable is the step

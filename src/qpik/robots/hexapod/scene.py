@@ -1,6 +1,6 @@
 r"""The hexapod's MuJoCo scene, generated from :class:`~qpik.robots.hexapod.kinematics.HexapodGeometry`.
 
-``hexapod.xml`` (beside this module) is the output of :func:`hexapod_mjcf` on the default geometry;
+``scenes/hexapod.xml`` (the package ``qpik.scenes``) is the output of :func:`hexapod_mjcf` on the default geometry;
 rewrite it with ``python -m qpik.robots.hexapod.scene`` after changing the geometry.
 
 Model structure (names are API):
@@ -35,9 +35,10 @@ import mujoco
 import numpy as np
 
 from ...errors import ModelError
+from ...scenes import SCENES_DIR
 from .kinematics import N_LEGS, Hexapod, HexapodGeometry
 
-SCENE_PATH = Path(__file__).resolve().parent / "hexapod.xml"
+SCENE_PATH = SCENES_DIR / "hexapod.xml"
 SLIDER_VELOCITY_LIMIT = 0.5  # m/s, the slider drives' rated speed
 # The passive joints' speeds, bounded so that no command drives the chain at a speed its
 # linearised loop closures cannot follow: at 5 rad/s a 0.2 m leg's chord misses its arc

@@ -427,12 +427,17 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
         progress: called as ``progress(r, repeats)`` after each noise realisation's fit.
 
     Raises:
-        InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError.
+        InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError (also when the
+        noise is so large that the fit leaves the geometries that reach the poses).
     """
     if not (np.isfinite(noise_um) and noise_um >= 0):
         raise InvalidInput(f"noise must be a finite standard deviation ≥ 0 µm, got {noise_um}")
     if repeats < 1:
         raise InvalidInput(f"repeats must be at least 1, got {repeats}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InvalidInput(f"seed must be an integer ≥ 0 (numpy's SeedSequence), got {seed!r}")
+    if method not in METHODS:
+        raise InvalidInput(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
     params = params if isinstance(params, ParameterSet) else ParameterSet.parse(params)
     nominal = HexapodGeometry.default() if nominal is None else nominal
     imposed = params.imposed() if imposed is None else np.asarray(imposed, dtype=float)
@@ -448,7 +453,12 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
     fits = []
     for r, stream in enumerate(noise_streams, 1):
         noise = sigma * np.random.default_rng(stream).standard_normal(exact.shape)
-        fits.append(fit(model, exact + noise, method, ident.free))
+        try:
+            fits.append(fit(model, exact + noise, method, ident.free))
+        except (InvalidInput, UnreachablePose):  # raised by a candidate geometry, not the user's
+            raise ConvergenceError(
+                f"noise σ = {noise_um:g} µm is too large for the stroke model: the fit of noise draw {r} "
+                "went through geometries that cannot reach the poses (legs too short or negative)") from None
         if progress is not None:
             progress(r, repeats)
     cov_std = np.full(params.size, np.nan)
