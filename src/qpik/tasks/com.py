@@ -71,8 +71,9 @@ class ComTask(Task):
                 feedback K·e would overflow.
         """
         target = finite_vector(position, self.dim, "target CoM")
-        # e = target − CoM and K·e must stay finite (an overflow there would warn every step).
-        if not (np.abs(target) <= np.finfo(float).max / (2.0 * np.maximum(self.gain, 1.0))).all():
+        # e = target − CoM and K·e must stay finite (an overflow there would warn every step);
+        # fmax: a dead-beat gain is NaN until a controller gives its period.
+        if not (np.abs(target) <= np.finfo(float).max / (2.0 * np.fmax(self.gain, 1.0))).all():
             raise InvalidInput(f"{self.name}: target CoM {target} is so far away that the feedback "
                                f"(gain {float(np.max(self.gain)):g} times the error) overflows")
         self.target[:] = target
