@@ -5,6 +5,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 import re  # noqa: E402
 
@@ -12,6 +13,7 @@ from qpik.app.plotting import _clip_outliers, _log_limits, make_figures, plot_lo
 from qpik.app.runs import run  # noqa: E402
 
 
+@pytest.mark.fp_sensitive
 def test_the_log_keeps_the_commanded_configuration_the_stops_cut():
     setup, log = run("hexapod", "hexapod-stroke-limits", "pinv")
     strokes = np.array(setup.plot_joints.qpos_index)
@@ -20,10 +22,16 @@ def test_the_log_keeps_the_commanded_configuration_the_stops_cut():
     # Scalar joints integrate as q + q̇Δt: the commanded strokes follow from the log's q and q̇.
     np.testing.assert_allclose(commanded, reached[:-1] + log.dt * log.qdot[:-1, dofs], atol=1e-15)
     assert np.all(np.isnan(log.q_commanded[-1]))
-    # The inverse-Jacobian law asks for strokes far past the 0.35 m end of travel; the stops
-    # (and the jammed mechanism) keep the reached strokes inside.
-    assert commanded.max() > 0.35 + 0.1 and reached.max() <= 0.35 + 1e-12
+    # The inverse-Jacobian law asks for strokes past the 0.35 m end of travel; the stops
+    # (and the jammed mechanism) keep the reached strokes inside. How far past is chaotic
+    # (it jams, and what follows depends on rounding: 0.06-0.15 m across OpenBLAS kernels),
+    # so the test asks only that it crosses by more than a centimetre.
+    assert commanded.max() > 0.35 + 0.01 and reached.max() <= 0.35 + 1e-12
     assert log.summary()["limit_violation_max"] == np.max(commanded - 0.35)
+    # The QP on the same scenario never commands a stroke past the stop (1e-12: rounding
+    # of q + q̇Δt at |q| < 1).
+    _, qp = run("hexapod", "hexapod-stroke-limits", "qp")
+    assert np.max(qp.q_commanded[:-1, strokes]) <= 0.35 + 1e-12 and qp.summary()["limit_violation_max"] <= 1e-12
 
 
 def test_an_off_scale_run_is_clipped_and_its_peak_written():

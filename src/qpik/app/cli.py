@@ -9,9 +9,11 @@
     qpik --version
 
 Contract: bad input gives one line on stderr and exit code 2, never a traceback, and
-nothing written; the output folder is checked before any work. Ctrl-C stops the command
-within a step (exit code 130; SIGTERM the same, exit code 143) and leaves nothing of its
-output behind (an earlier output it was to replace stays as it was): every file is
+nothing written; the output folder is checked before any work. A run whose controller
+fails after its first step (an infeasible QP, a divergence) writes the steps before,
+marked partial, and exits with code 1. Ctrl-C stops the command within a step (exit code
+130; SIGTERM the same, exit code 143) and leaves nothing of its output behind (an earlier
+output it was to replace stays as it was): every file is
 assembled in a hidden folder next to the target and moved into place at the end
 (:mod:`qpik.app.output`, :mod:`qpik.app.interrupt`). Runs show a progress bar on stderr
 when it is a terminal (``--quiet`` hides it).
@@ -32,6 +34,7 @@ from typing import Callable, Sequence
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143  # 128 + SIGTERM
+EXIT_STOPPED = 1  # `qpik run`: the controller failed mid-run; the partial log is written
 MODES = ("kinematic", "physics")  # qpik.rollout.MODES, without importing the rollout at start-up
 
 
@@ -221,7 +224,7 @@ def cmd_run(args) -> int:
     out = _start_output(args, f"out/run-{args.scenario}-{args.controller}-{args.mode}")
     with out, _bars(args) as bars:
         label = run_label(args.controller, solver if args.controller in QP_KINDS else "none")
-        setup, log = run(args.robot, args.scenario, args.controller, solver, args.mode,
+        setup, log = run(args.robot, args.scenario, args.controller, solver, args.mode, on_failure="stop",
                          progress=bars.callback(label))
         bars.close()
         print(format_table([log.summary()]))
@@ -234,6 +237,9 @@ def cmd_run(args) -> int:
             _video(setup, [log], out, args, title)
         written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
+    if not log.completed:  # the steps before the stop are written, marked partial
+        print(f"qpik: the run {log.summary()['status']}; its log is partial: {log.failure}", file=sys.stderr)
+        return EXIT_STOPPED
     return 0
 
 

@@ -11,6 +11,7 @@ from ..errors import InvalidInput, UnknownName
 from ..io import write_json
 from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from ..rollout import MODES, Rollout, RolloutLog
+from ..rollout.log import run_status
 from ..scenario import Setup, build_scenario, check_solver
 from ..solvers import available_solvers
 
@@ -174,17 +175,23 @@ def format_table(summaries: Sequence[dict], extra: Sequence[tuple[str, str, str]
                             ("completion_time", "done at [s]", "{:.3f}")):
         if any(key in s for s in summaries):
             columns.append((key, label, fmt))
+    # Each row says whether its run went to the end: a stopped run's numbers cover only
+    # the steps before it stopped.
+    columns.append(("status", "run", "{}"))
     rows = [[label for _, label, _ in columns]]
     for s in summaries:
+        s = {**s, "status": run_status(s)}
         rows.append([("never" if s[key] is None else fmt.format(s[key])) if key in s else "-"
                      for key, _, fmt in columns])
     widths = [max(len(r[i]) for r in rows) for i in range(len(columns))]
-    lines = ["  ".join(cell.rjust(w) if i > 1 else cell.ljust(w) for i, (cell, w) in enumerate(zip(r, widths)))
-             for r in rows]
+    text = {0, 1, len(columns) - 1}  # left-aligned: controller, solver, run
+    lines = ["  ".join(cell.ljust(w) if i in text else cell.rjust(w) for i, (cell, w) in enumerate(zip(r, widths)))
+             .rstrip() for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     for s in summaries:
         if not s.get("completed", True):
-            lines.append(f"note: {s['controller']} ({s['solver']}) stopped early: {s.get('failure', '')}")
+            lines.append(f"note: {run_label(s['controller'], s['solver'])} {run_status(s)} (its numbers cover "
+                         f"the steps before): {s.get('failure', '')}")
     return "\n".join(lines)
 
 

@@ -13,6 +13,20 @@ from ..io import write_json, write_npz
 # Report series where small is bad (a task slowed down): summarised by their minimum.
 _LOWER_IS_WORSE = ("task_scale",)
 
+# How a stopped run's row names its cause, by the error that stopped it.
+_STOP_CAUSES = {"InfeasibleProblem": "infeasible", "SolverError": "solver failed",
+                "DivergenceError": "diverged"}
+
+
+def run_status(summary: dict) -> str:
+    """``complete``, or where and why the run stopped: ``stopped at 0.056 s: infeasible``
+    (the cell a table gives a run, from its summary)."""
+    if summary.get("completed", True):
+        return "complete"
+    cause = _STOP_CAUSES.get(summary.get("failure_kind", ""), "failed")
+    when = summary.get("stopped_at")
+    return f"stopped at {when:.3f} s: {cause}" if when is not None else f"stopped: {cause}"
+
 
 # A joint "reverses" on a step when its commanded velocity changes sign with at least this
 # magnitude (rad/s or m/s) on both sides: chatter, not a joint turning round smoothly.
@@ -58,6 +72,10 @@ class RolloutLog:
     speed_dofs: np.ndarray | None = None  # dofs whose speed peak_joint_speed reports (None: all)
     completed: bool = True
     failure: str = ""
+    # A run that stopped early: the time of the step that failed and the error's type.
+    # Its log holds the steps before it (a partial log, marked so in summary and npz).
+    stopped_at: float | None = None
+    failure_kind: str = ""
     # Per-level errors of a task hierarchy (steps x levels), measured for any controller.
     level_error: np.ndarray | None = None
     level_names: tuple[str, ...] = ()
@@ -117,7 +135,9 @@ class RolloutLog:
                 out[f"{name}_max"] = [float(v) for v in peak] if np.ndim(peak) else float(peak)
         out.update(self.summary_extras)
         if not self.completed:
-            out["failure"] = self.failure
+            out.update(failure=self.failure, failure_kind=self.failure_kind, stopped_at=self.stopped_at,
+                       partial=True)
+        out["status"] = run_status(out)
         return out
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -130,10 +150,14 @@ class RolloutLog:
         if self.level_error is not None:
             data["level_error"] = self.level_error
         data.update(self.report)
+        # The log says itself whether it is whole: a stopped run's is partial.
+        data["completed"] = np.array(self.completed)
+        data["stopped_at"] = np.array(np.nan if self.stopped_at is None else self.stopped_at)
         return data
 
     def save(self, out_dir: str | Path) -> None:
-        """Write ``summary.json`` and ``log.npz`` (each whole, or not at all)."""
+        """Write ``summary.json`` and ``log.npz`` (each whole, or not at all); a stopped
+        run's are marked partial (``completed`` false, ``stopped_at`` its time)."""
         out_dir = Path(out_dir)
         write_npz(out_dir / "log.npz", **self.arrays())
         write_json(out_dir / "summary.json", self.summary())

@@ -184,6 +184,8 @@ class Rollout:
         self._source_reference = reference
         self.done = 0  # steps logged
         self.failure = ""
+        self.stopped_at: float | None = None  # the time of the step that failed
+        self.failure_kind = ""  # the failure's error type, e.g. InfeasibleProblem
         self.finished = False
 
     def advance(self, count: int | None = None) -> int:
@@ -217,7 +219,7 @@ class Rollout:
                 qdot = controller.compute_velocity()
             except (DivergenceError, InfeasibleProblem, SolverError) as exc:
                 when = f"at t = {times[k]:.3f} s"
-                self._fail(type(exc), f"{when}: {exc}", f"{type(exc).__name__} {when}: {exc}")
+                self._fail(type(exc), f"{when}: {exc}", times[k], f"{type(exc).__name__} {when}: {exc}")
                 break
             time_log[k] = clock() - begin
             if self._level_error is not None:
@@ -236,7 +238,7 @@ class Rollout:
             # A NaN velocity is the controller diverging, not a bad argument to integrate.
             if not math.isfinite(mujoco.mju_sum(qdot_log[k])):
                 message = f"at t = {times[k]:.3f} s: the controller returned a non-finite velocity"
-                if self._fail(DivergenceError, message):
+                if self._fail(DivergenceError, message, times[k]):
                     break
             robot.integrate(qdot_log[k], dt)  # the logged copy: contiguous and writable
             q_cmd[k] = q
@@ -253,7 +255,7 @@ class Rollout:
                 failure = physics.step(q, qdot)
             if not failure and not math.isfinite(mujoco.mju_sum(q)):
                 failure = "the controller drove the configuration to non-finite values"
-            if failure and self._fail(DivergenceError, f"at t = {times[k]:.3f} s: {failure}"):
+            if failure and self._fail(DivergenceError, f"at t = {times[k]:.3f} s: {failure}", times[k]):
                 break
             if self.progress is not None:
                 self.progress(k + 1, self.steps)
@@ -265,11 +267,12 @@ class Rollout:
         (a NaN row where no command was made: the last step, a failed one)."""
         return self._q_commanded[: self.done]
 
-    def _fail(self, error: type, message: str, reason: str | None = None) -> bool:
-        """Raise ``error(message)`` or, with ``on_failure="stop"``, end the rollout."""
+    def _fail(self, error: type, message: str, t: float, reason: str | None = None) -> bool:
+        """Raise ``error(message)`` or, with ``on_failure="stop"``, end the rollout at time ``t``."""
         if self.on_failure == "raise":
             raise error(message) from None
         self.failure = reason or message
+        self.stopped_at, self.failure_kind = float(t), error.__name__
         self.finished = True
         return True
 
@@ -308,6 +311,8 @@ class Rollout:
             speed_dofs=meta["speed_dofs"],
             completed=not self.failure,
             failure=self.failure,
+            stopped_at=self.stopped_at,
+            failure_kind=self.failure_kind,
             commanded_violation=commanded,
             q_commanded=self._q_commanded[:n],
             level_error=None if self._level_error is None else self._level_error[:n],
