@@ -54,7 +54,7 @@ KERNELS = ("Haswell", "SkylakeX", "Zen", "Sandybridge")
 # The summary keys the table prints, with their format (the manipulability cell has two).
 _METRICS = (("max_error", ".2e"), ("final_error", ".2e"), ("orientation_error_max", ".1e"),
             ("constraint_violation_max", ".1e"), ("limit_violation_max", ".2e"), ("peak_joint_speed", ".3g"),
-            ("manipulability_mean", ".4f"), ("manipulability_final", ".4f"))
+            ("reversal_fraction", ".3f"), ("manipulability_mean", ".4f"), ("manipulability_final", ".4f"))
 
 
 def _fmt(value, spec: str) -> str:
@@ -137,8 +137,8 @@ def _cells(runs: list[dict]) -> list[str]:
 def to_markdown(rows: list[dict], chaotic: dict | None = None) -> str:
     """The table; the CHAOTIC rows from ``chaotic`` (the record of record_chaotic) when given."""
     lines = ["| scenario | mode | controller | max error [m] | final error [m] | orientation error [rad] | "
-             "loop residual [m] | limit violation | peak speed | manipulability (mean / final) | run |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "loop residual [m] | limit violation | peak speed | reversals | manipulability (mean / final) | run |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for s in rows:
         ctrl = s["controller"] if s["solver"] == "none" else f"{s['controller']} ({s['solver']})"
         runs = [s]

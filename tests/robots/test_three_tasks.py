@@ -34,7 +34,7 @@ def summaries(logs):
 
 def test_hqp_keeps_the_path_exact_and_the_limits(summaries):
     hqp = summaries["hqp"]
-    assert hqp["level_names"] == ["path", "phi", "sigma"] and hqp["level_units"] == ["m", "rad", "rad/s"]
+    assert hqp["level_names"] == ["path", "phi", "sigma"] and hqp["level_units"] == ["m", "rad", "rad/s, m/s"]
     assert hqp["level_error_max"][0] <= 1e-6
     assert hqp["limit_violation_max"] == 0.0
     assert hqp["level_error_max"][1] > 0.3  # φ is infeasible part of the time ...

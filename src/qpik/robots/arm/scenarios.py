@@ -133,7 +133,8 @@ def arm_setup(
     if secondary is not None:
         secondary.priority = 1
         hierarchy.append(secondary)
-        levels.append(Level("sigma", (secondary,), "rad/s", measure="residual"))
+        # the residual of q̇ − k0∇σ: θ1–θ3 in rad/s, the ram d4 in m/s
+        levels.append(Level("sigma", (secondary,), "rad/s, m/s", measure="residual"))
     return Setup(
         scenario=scenario,
         robot_name="arm",
@@ -356,6 +357,6 @@ def three_tasks(scene: str = "arm") -> Setup:
                 "phi_amplitude": PHI_AMPLITUDE, "ranges": JOINT_LIMITS_RANGES},
         hierarchy=tasks,
         level_errors=LevelErrors([Level("path", (position,), "m"), Level("phi", (phi,), "rad"),
-                                  Level("sigma", (posture,), "rad/s", measure="residual")]),
+                                  Level("sigma", (posture,), "rad/s, m/s", measure="residual")]),
         variants={"qp-hard": _hard_variant(robot, tasks, [position], limits)},
     )
