@@ -97,7 +97,7 @@ def test_hqp_gets_phi_as_close_as_the_limits_allow_every_step():
 
 
 @pytest.mark.parametrize("scenario,columns", [
-    ("three-tasks", ["L0 path [m]", "L1 phi [rad]", "L2 sigma [rad/s]", "task scale min"]),
+    ("three-tasks", ["L0 path [m]", "L1 phi [rad]", "L2 sigma [rad/s, m/s]", "task scale min"]),
     ("too-fast", ["off path [m]", "done at [s]", "task scale min"]),
 ])
 def test_compare_shows_the_hierarchy_columns(scenario, columns):
