@@ -46,11 +46,17 @@ _EXPORTS = {
     "RelativeFrameTask": "qpik.tasks",
     "ComTask": "qpik.tasks",
     "EqualityTask": "qpik.tasks",
+    "LookAtTask": "qpik.tasks",
+    "AxisAlignTask": "qpik.tasks",
+    "DofFreezingTask": "qpik.tasks",
+    "KineticEnergyRegularizationTask": "qpik.tasks",
     # limits
     "Limit": "qpik.limits",
     "CollisionAvoidanceLimit": "qpik.limits",
     "JointPositionLimit": "qpik.limits",
     "JointVelocityLimit": "qpik.limits",
+    "FloatingBaseVelocityLimit": "qpik.limits",
+    "AccelerationLimit": "qpik.limits",
     # controllers and solvers
     "QPController": "qpik.controllers",
     "HierarchicalController": "qpik.controllers",
@@ -109,17 +115,28 @@ if TYPE_CHECKING:  # static type checkers see the real imports
         UnknownName,
         UnreachablePose,
     )
-    from .limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit, Limit
+    from .limits import (
+        AccelerationLimit,
+        CollisionAvoidanceLimit,
+        FloatingBaseVelocityLimit,
+        JointPositionLimit,
+        JointVelocityLimit,
+        Limit,
+    )
     from .robot import Frame, JointLimits, Robot, load_model
     from .rollout import PositionReference, RolloutLog, simulate
     from .scenario import Setup, build_scenario, scenarios
     from .solvers import available_solvers
     from .tasks import (
+        AxisAlignTask,
         ComTask,
         DampingTask,
+        DofFreezingTask,
         EqualityTask,
         FrameTask,
         JointSpaceTask,
+        KineticEnergyRegularizationTask,
+        LookAtTask,
         ManipulabilityMeasure,
         ManipulabilityTask,
         OrientationTask,

@@ -35,7 +35,7 @@ class _StackedTasks:
         self.primary = list(primary)
         self.updated_tasks = tuple(self.primary)  # fresh after every step (rollouts read them)
         for task in self.primary:
-            if getattr(task, "needs_period", False):
+            if task.needs_period:
                 raise InvalidInput(f"{task.name}: its default gain is 1/dt of a QP controller's period; this "
                                    "law has none: give the task a gain (1/s)")
         m = sum(t.dim for t in self.primary)

@@ -294,7 +294,7 @@ class Case:
             primary = [t for t in self.tasks if not t.joint_space]
             secondary = next((t for t in self.tasks if t.joint_space), None)
             for task in primary:
-                if getattr(task, "needs_period", False):
+                if task.needs_period:
                     task.gain = 0.5 / DT  # the law has no period of its own
             if not primary:
                 primary, secondary = [secondary], None

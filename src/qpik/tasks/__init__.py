@@ -1,9 +1,13 @@
 """Tasks: one concept per module, all sharing the :class:`~qpik.tasks.task.Task` interface."""
 
+from .axis_align import AxisAlignTask
 from .com import ComTask
 from .damping import DampingTask
+from .dof_freezing import DofFreezingTask
 from .equality import EqualityTask
 from .frame import FrameTask
+from .kinetic_energy import KineticEnergyRegularizationTask
+from .look_at import LookAtTask
 from .manipulability import ManipulabilityMeasure, ManipulabilityTask, SigmaProxy, Yoshikawa
 from .orientation import OrientationTask
 from .position import PositionTask
@@ -12,11 +16,15 @@ from .relative_frame import RelativeFrameTask
 from .task import JointSpaceTask, Task, rotation_error
 
 __all__ = [
+    "AxisAlignTask",
     "ComTask",
     "DampingTask",
+    "DofFreezingTask",
     "EqualityTask",
     "FrameTask",
     "JointSpaceTask",
+    "KineticEnergyRegularizationTask",
+    "LookAtTask",
     "ManipulabilityMeasure",
     "ManipulabilityTask",
     "OrientationTask",

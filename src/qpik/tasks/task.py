@@ -229,30 +229,153 @@ def positive_scalar(value, what: str, allow_zero: bool = False) -> float:
     return float(positive(value, 1, what, allow_zero)[0])
 
 
+def _row_count(dim, name: str) -> int:
+    """A task's row count: an integer >= 1 (InvalidInput otherwise)."""
+    if isinstance(dim, (bool, np.bool_)) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        raise InvalidInput(f"{name} needs its row count dim, an integer >= 1 (a class attribute or dim=...), "
+                           f"got {dim!r}")
+    return int(dim)
+
+
+def _checked_rows(value, shape: tuple, name: str, method: str) -> np.ndarray:
+    """What a user task's method returned, as finite floats of the promised shape."""
+    try:
+        rows = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name}.{method} must return numbers, got {value!r}") from None
+    if rows.shape != shape:
+        raise InvalidInput(f"{name}.{method} must return shape {shape}, got {rows.shape}")
+    if not math.isfinite(float(rows.sum())):
+        raise InvalidInput(f"{name}.{method} returned NaN or inf")
+    return rows
+
+
 class Task:
-    """Base class: ``dim`` rows of :math:`J\\dot q \\approx v` with a weight.
+    r"""Base class: ``dim`` rows of :math:`J\dot q \approx v` with a weight.
+
+    A task is written as in mink, with two methods and its row count::
+
+        class TipHeight(qpik.Task):
+            dim = 1
+            def compute_error(self, robot):     # (dim,): e = x_d − x
+                return np.array([self.target[0] - robot.data.site_xpos[site, 2]])
+            def compute_jacobian(self, robot):  # (dim, nv): J = ∂x/∂q
+                ...
+        task = TipHeight(robot, gain=20.0, weight=1.0, hard=False, priority=0)
+
+    The base class then owns the rest: each step it writes ``error`` and ``jacobian``
+    from the two methods and :math:`v = \dot x_d + K e` (the feed-forward
+    :math:`\dot x_d`, ``target_rate``, zero unless set), the gains K (checked
+    against the controller's period: :meth:`attach`), the weights, ``hard``,
+    ``priority`` and ``lm_damping``. Such a task runs in every controller.
+
+    The built-in tasks override :meth:`update` instead (a faster in-place path, same
+    arrays); :meth:`compute_error` and :meth:`compute_jacobian` then evaluate that path.
 
     Args:
         robot: the robot whose kinematics the task reads.
-        dim: number of task rows.
-        weight: cost weight of a soft task (scalar or one per row).
+        dim: number of task rows (default: the class attribute ``dim``).
+        weight: cost weight of a soft task (scalar or one per row); a zero weight
+            leaves a row out of the cost (a mask).
         hard: enforce the task as an equality constraint in the QP.
+        gain: K (1/s), a scalar or one per row, >= 0; default ``None``: dead-beat,
+            1/Δt of the controller the task is given to (mink's ``gain=1``).
+        priority: level in a strict hierarchy (0 the highest).
+        lm_damping: adaptive Levenberg–Marquardt weight μ of a soft task (see
+            :mod:`qpik.tasks.task`).
 
-    Subclasses fill ``jacobian``, ``target_velocity`` and ``error`` in :meth:`update`.
+    Raises:
+        InvalidInput: no row count, a bad weight, gain, priority or ``lm_damping``, or a
+            subclass that defines neither :meth:`update` nor both compute methods.
     """
 
     name = "task"
+    dim: int | None = None  # a subclass written with compute_error/compute_jacobian sets it
     lm_damping = 0.0
+    target: np.ndarray | None = None  # x_d, for a task that tracks one (set_target)
     _priority = 0  # a class default, so every subclass has one without a constructor argument
+    _gains: np.ndarray | None = None  # K when the base class owns it (feedback_gains)
 
-    def __init__(self, robot: Robot, dim: int, weight=1.0, hard: bool = False):
+    def __init__(self, robot: Robot, dim: int | None = None, weight=1.0, hard: bool = False, *, gain=None,
+                 priority: int = 0, lm_damping: float = 0.0):
+        if type(self).name == Task.name:  # a user's subclass: messages name its class
+            self.name = type(self).__name__
         self.robot = robot
-        self.dim = dim
+        self.dim = _row_count(type(self).dim if dim is None else dim, self.name)
         self.hard = bool(hard)
-        self.weight = positive(weight, dim, f"{self.name} weight", allow_zero=True)
+        self.weight = positive(weight, self.dim, f"{self.name} weight", allow_zero=True)
+        self.priority = priority
+        if lm_damping:
+            self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
         self._allocate_jacobian()
-        self.target_velocity = np.zeros(dim)
-        self.error = np.zeros(dim)
+        self.target_velocity = np.zeros(self.dim)
+        self.error = np.zeros(self.dim)
+        generic = self._computes_rows()
+        if generic or gain is not None:
+            self.gain = feedback_gain(gain, self.dim, f"{self.name} gain")
+            self._gains = self.gain
+            self._mark_dead_beat(self.gain)
+        self.target_rate = np.zeros(self.dim)  # ẋ_d (a built-in task may replace it)
+
+    def _computes_rows(self) -> bool:
+        """Whether the rows come from compute_error/compute_jacobian (no own ``update``)."""
+        cls = type(self)
+        if cls.update is not Task.update:
+            return False
+        missing = [m for m in ("compute_error", "compute_jacobian") if getattr(cls, m) is getattr(Task, m)]
+        if missing:
+            raise InvalidInput(f"{self.name} must define {' and '.join(m + '(robot)' for m in missing)} "
+                               "(or an update() filling jacobian, target_velocity and error)")
+        return True
+
+    def compute_error(self, robot: Robot) -> np.ndarray:
+        """The error e = x_d − x (dim,) on ``robot``: a subclass defines it (a built-in
+        task evaluates its own ``update`` on its robot)."""
+        self._update_own(robot)
+        return self.error.copy()
+
+    def compute_jacobian(self, robot: Robot) -> np.ndarray:
+        """The Jacobian J = ∂x/∂q (dim, nv) on ``robot``: a subclass defines it (a
+        built-in task evaluates its own ``update`` on its robot)."""
+        self._update_own(robot)
+        return np.array(self.jacobian, dtype=float)
+
+    def _update_own(self, robot: Robot) -> None:
+        if robot is not self.robot:
+            raise InvalidInput(f"{self.name} evaluates its error and Jacobian on the robot it was built with")
+        robot.ensure_kinematics()
+        self.update()
+
+    @property
+    def target_dim(self) -> int:
+        """Length of a target (``set_target``): ``dim`` unless a task says otherwise."""
+        return self.dim
+
+    def set_target(self, target, velocity=None) -> None:
+        """Desired x_d (``target``, target_dim) and feed-forward ẋ_d (``target_rate``,
+        zero by default), for a task whose ``compute_error`` reads ``self.target``.
+
+        Raises:
+            InvalidInput: a wrong length, NaN or inf.
+        """
+        value = finite_vector(target, self.target_dim, f"{self.name} target")
+        if self.target is None:
+            self.target = value.copy()
+        else:
+            self.target[:] = value
+        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, f"{self.name} target velocity")
+
+    def measured(self, robot: Robot | None = None) -> np.ndarray:
+        """The tracked x = x_d − e (a copy) on the bound robot or another of the same
+        model (after its kinematics update): what a rollout's reference records.
+
+        Raises:
+            InvalidInput: the task has no target (``set_target``) to measure from.
+        """
+        if self.target is None:
+            raise InvalidInput(f"{self.name} has no target to measure against: set_target(...) first, "
+                               "or define measured(robot)")
+        return self.target - self.compute_error(robot or self.robot)
 
     def _allocate_jacobian(self) -> None:
         self.jacobian = np.zeros((self.dim, self.robot.nv))
@@ -272,11 +395,6 @@ class Task:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
             raise InvalidInput(f"{self.name} priority must be an integer >= 0 (0 the highest), got {value!r}")
         self._priority = int(value)
-
-    def feedback_gains(self) -> np.ndarray | None:
-        """The gains K (1/s) of the task's error feedback v = ẋ_d + K e, one per row, or
-        None for a task without one (a gradient, a damping)."""
-        return None
 
     _dead_beat: tuple[np.ndarray, ...] = ()  # gain arrays left to the controller's period
     _dead_beat_rows: tuple[np.ndarray, ...] = ()
@@ -322,9 +440,27 @@ class Task:
                           f"{worst:.3g} > 1: the error overshoots, changing sign every step; "
                           f"K <= {1.0 / dt:g} 1/s converges without overshoot", GainWarning, stacklevel=3)
 
+    def feedback_gains(self) -> np.ndarray | None:
+        """The gains K (1/s) of the task's error feedback v = ẋ_d + K e, one per row (the
+        base class's ``gain``), or None for a task without one (a gradient, a damping)."""
+        return self._gains
+
     def update(self) -> None:
-        """Refresh ``jacobian``, ``target_velocity`` and ``error`` from the robot's kinematics."""
-        raise NotImplementedError
+        """Refresh ``jacobian``, ``target_velocity`` and ``error`` from the robot's
+        kinematics (current: a controller updates them first)."""
+        jacobian = self.compute_jacobian(self.robot)
+        self.jacobian[...] = _checked_rows(jacobian, (self.dim, self.robot.nv), self.name, "compute_jacobian")
+        self.update_target_velocity()
+
+    def update_target_velocity(self) -> None:
+        """``error`` and v = ẋ_d + K e only (what a law without the Jacobian needs)."""
+        if not self._computes_rows():  # a task with its own update and no cheaper path
+            self.update()
+            return
+        error = self.compute_error(self.robot)
+        self.error[...] = _checked_rows(error, (self.dim,), self.name, "compute_error")
+        np.multiply(self.gain, self.error, out=self.target_velocity)
+        self.target_velocity += self.target_rate
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, hard={self.hard})"
