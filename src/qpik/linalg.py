@@ -44,33 +44,27 @@ def _numpy_dposv(a, b, lower=0, overwrite_a=0, overwrite_b=0):
         factor = np.linalg.cholesky(symmetric)
     except np.linalg.LinAlgError:
         return symmetric, np.array(b, dtype=float), 1
-    x = np.linalg.solve(factor.T, np.linalg.solve(factor, b))
-    return (factor if lower else factor.T), x, 0
+    return (factor if lower else factor.T), np.linalg.solve(symmetric, b), 0
 
 
 def _numpy_dgesv(a, b, overwrite_a=0, overwrite_b=0):
-    """LAPACK's dgesv: the LU factors (partial pivoting, numpy row operations), then x
-    from them."""
+    """LAPACK's dgesv: the LU factors by partial pivoting in NumPy row operations (NumPy
+    exposes no LU), x by numpy.linalg.solve (LAPACK's dgesv inside NumPy: the same
+    pivoting, so the same x)."""
     lu = np.array(a, dtype=float)
     n = lu.shape[0]
     piv = np.arange(n, dtype=np.int32)
-    x = np.array(b, dtype=float)
     for k in range(n):
-        pivot = k + int(np.argmax(np.abs(lu[k:, k])))
+        pivot = k + int(np.abs(lu[k:, k]).argmax())
         piv[k] = pivot
         if pivot != k:
             lu[[k, pivot]] = lu[[pivot, k]]
-            x[[k, pivot]] = x[[pivot, k]]
         if lu[k, k] == 0.0:
-            return lu, piv, x, k + 1
-        lu[k + 1:, k] /= lu[k, k]
-        lu[k + 1:, k + 1:] -= np.outer(lu[k + 1:, k], lu[k, k + 1:])
-    for k in range(n):  # forward: L y = P b
-        x[k + 1:] -= lu[k + 1:, k] * x[k]
-    for k in reversed(range(n)):  # back: U x = y
-        x[k] /= lu[k, k]
-        x[:k] -= lu[:k, k] * x[k]
-    return lu, piv, x, 0
+            return lu, piv, np.array(b, dtype=float), k + 1
+        below = lu[k + 1:, k]
+        below /= lu[k, k]
+        lu[k + 1:, k + 1:] -= below[:, None] * lu[k, k + 1:]
+    return lu, piv, np.linalg.solve(a, b), 0
 
 
 def _numpy_dgesvd(a, compute_uv=1, full_matrices=1, overwrite_a=0):
