@@ -21,8 +21,10 @@ def test_the_log_keeps_the_commanded_configuration_the_stops_cut():
     np.testing.assert_allclose(commanded, reached[:-1] + log.dt * log.qdot[:-1, dofs], atol=1e-15)
     assert np.all(np.isnan(log.q_commanded[-1]))
     # The inverse-Jacobian law asks for strokes far past the 0.35 m end of travel; the stops
-    # (and the jammed mechanism) keep the reached strokes inside.
-    assert commanded.max() > 0.35 + 0.1 and reached.max() <= 0.35 + 1e-12
+    # (and the jammed mechanism) keep the reached strokes inside. How far past depends on
+    # which assembly the jammed mechanism falls into, which rounding decides: 0.41 to 0.50 m
+    # across OpenBLAS kernels (OPENBLAS_CORETYPE=Haswell, SkylakeX, Sandybridge).
+    assert commanded.max() > 0.35 + 0.05 and reached.max() <= 0.35 + 1e-12
     assert log.summary()["limit_violation_max"] == np.max(commanded - 0.35)
 
 
