@@ -168,3 +168,26 @@ def test_steps_agree_along_a_rollout(numpy_and_scipy, scenario, kind):
     assert calls, "the NumPy path was never called"
     assert worst <= ROUNDING
 
+
+
+@pytest.mark.parametrize("choice, printed", [("numpy", "numpy"), ("scipy", "scipy"), ("", "scipy")])
+def test_the_environment_chooses_the_backend(choice, printed):
+    done = subprocess.run([sys.executable, "-c", "from qpik import linalg; print(linalg.BACKEND)"],
+                          capture_output=True, text=True, env={**_environment(), "QPIK_LINALG": choice})
+    assert done.returncode == 0 and done.stdout.strip() == printed, done.stderr
+
+
+def test_an_unknown_backend_is_refused():
+    from qpik.errors import InvalidInput
+
+    with pytest.raises(InvalidInput, match="unknown linear algebra back-end 'lapack'"):
+        linalg.use("lapack")
+    done = subprocess.run([sys.executable, "-c", "import qpik.linalg"], capture_output=True, text=True,
+                          env={**_environment(), "QPIK_LINALG": "lapack"})
+    assert done.returncode != 0 and "InvalidInput" in done.stderr
+
+
+def _environment():
+    import os
+
+    return {key: value for key, value in os.environ.items() if key != "QPIK_LINALG"}
