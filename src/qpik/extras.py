@@ -1,6 +1,7 @@
 """Optional dependencies: what ``import qpik`` does not need, and the extra that brings each.
 
-``import qpik`` and a QP step need mujoco, numpy, scipy and daqp only. The rest is
+``import qpik`` and a QP step need mujoco, numpy and daqp only (SciPy, when installed,
+makes the closed-form step's small solves faster: :mod:`qpik.linalg`). The rest is
 imported where it is used, through :func:`require`, which names the extra to install
 from a clone (qpik is not on a package index): ``pip install -e ".[plots]"``.
 """
@@ -14,6 +15,7 @@ from .errors import MissingExtra
 
 # module -> (pip distribution, the extra that brings it)
 EXTRAS = {
+    "scipy": ("scipy", "fast"),  # calibration names its own extra (require's extra=)
     "matplotlib": ("matplotlib", "plots"),
     "PIL": ("pillow", "video"),
     "imageio_ffmpeg": ("imageio-ffmpeg", "video"),
@@ -30,24 +32,31 @@ EXTRAS = {
 }
 
 
-def install_hint(module: str) -> str:
-    """The command that installs ``module``'s extra from qpik's clone."""
-    distribution, extra = EXTRAS[module]
+def install_hint(module: str, extra: str | None = None) -> str:
+    """The command that installs ``module``'s extra (or ``extra``) from qpik's clone."""
+    distribution, default = EXTRAS[module]
+    extra = extra or default
     return f'pip install -e ".[{extra}]" from qpik\'s clone (or pip install {distribution})'
 
 
 def installed(module: str) -> bool:
     """Whether an optional module can be imported (without importing it)."""
-    return importlib.util.find_spec(module) is not None
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ImportError:  # an import hook that refuses it
+        return False
 
 
-def require(module: str, purpose: str):
+def require(module: str, purpose: str, extra: str | None = None):
     """Import an optional module, or raise :class:`~qpik.errors.MissingExtra` naming its extra.
 
     Args:
         module: the import name (a key of :data:`EXTRAS`).
         purpose: what needs it, for the message (e.g. ``"--plot"``).
+        extra: the extra to name, where it is not the module's usual one (e.g. SciPy for
+            ``qpik calibrate``: ``"calibration"``).
     """
     if not installed(module):
-        raise MissingExtra(f"{purpose} needs {EXTRAS[module][0]}, which is not installed: {install_hint(module)}")
+        raise MissingExtra(f"{purpose} needs {EXTRAS[module][0]}, which is not installed: "
+                           f"{install_hint(module, extra)}")
     return importlib.import_module(module)

@@ -160,9 +160,14 @@ def check_options(args: argparse.Namespace, poses) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..robots.hexapod.calibration import calibrate  # scipy only when the command runs
+    from ..extras import require
+    from ..robots.hexapod.calibration import calibrate
     from .output import OutputFolder
     from .progress import StepBars, wanted
+
+    require("scipy", "qpik calibrate", extra="calibration")  # before any work, as --plot's matplotlib
+    if args.plot:
+        require("matplotlib", "qpik calibrate --plot")
 
     poses = load_poses(args.pose_file) if args.pose_file else parse_poses_option(args.poses)
     check_options(args, poses)

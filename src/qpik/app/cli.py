@@ -182,9 +182,13 @@ def _video(setup, logs, out, args, caption: str) -> None:
 
 
 def _start_output(args, default: str):
-    """The output folder (and video file), checked before any work."""
+    """The output folder (and video file), checked before any work, as are the extras
+    that ``--plot`` and ``--video`` need."""
+    from ..extras import require
     from .output import OutputFolder
 
+    if getattr(args, "plot", False):
+        require("matplotlib", "--plot")
     out = OutputFolder(args.out or default, args.interrupt_guard)
     if getattr(args, "video", None) is not None:
         from .video import check_video_path, probe_gl

@@ -52,6 +52,7 @@ def check_video_path(path: str | Path) -> Path:
         raise InvalidInput(f"--video {path}: is a folder, expected a file name")
     if path.suffix.lower() in FFMPEG_SUFFIXES:
         _ffmpeg()
+    require("PIL", "--video (its captions)")
     return path
 
 

@@ -18,9 +18,9 @@ returns it and calls the solver only on steps where a limit would bind. With a c
 diagonal Hessian (hard tasks plus joint-space soft tasks: posture, damping, gradients)
 one product gives both S and :math:`A H^{-1} c`; otherwise one Cholesky solve with H
 gives :math:`H^{-1}[A^T\ c]`. S (symmetric positive definite when the hard rows are
-independent) is solved by LAPACK's Cholesky (``dposv``): a step whose S is not positive
-definite, or is so ill-conditioned that its solution would be meaningless, is left to
-the solver. When the hard rows are as many as the dofs (the hexapod's pose task and loop
+independent) is solved by LAPACK's Cholesky (``dposv``, from :mod:`qpik.linalg`): a step
+whose S is not positive definite, or is so ill-conditioned that its solution would be
+meaningless, is left to the solver. When the hard rows are as many as the dofs (the hexapod's pose task and loop
 closures) the feasible set is the single point :math:`A^{-1}b`: one LU solve.
 """
 
@@ -29,8 +29,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import lapack
-
+from .. import linalg
 from ..solvers.base import equalities_met, equalities_met_in_floats
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
@@ -131,7 +130,7 @@ class ClosedFormStep:
         """
         meq = self.meq
         if meq == len(b) and meq == Ac.shape[1]:  # as many independent rows as dofs: x = A⁻¹b
-            lu, _, x, info = lapack.dgesv(Ac[:meq], b)
+            lu, _, x, info = linalg.dgesv(Ac[:meq], b)
             if info != 0:
                 return None
             pivots = np.abs(lu.diagonal()).tolist()
@@ -143,7 +142,7 @@ class ClosedFormStep:
         elif self._dinv is not None:
             scaled = Ac * self._dinv  # rows: A H⁻¹, cᵀ H⁻¹
         else:
-            factor, scaled_t, info = lapack.dposv(H, Ac.T)  # H⁻¹ [Aᵀ c] in one LAPACK call
+            factor, scaled_t, info = linalg.dposv(H, Ac.T)  # H⁻¹ [Aᵀ c] in one LAPACK call
             if info != 0:
                 return None
             scaled = scaled_t.T
@@ -159,7 +158,7 @@ class ClosedFormStep:
         # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
         rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
         rhs += b
-        factor, z, info = lapack.dposv(M[:meq, :meq], rhs, overwrite_b=1)
+        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
         if info != 0:
             return None
         pivots = factor.diagonal().tolist()
@@ -219,7 +218,7 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
         x = np.dot(z, R)
     else:
         K.reshape(-1)[:: m + 1][:soft_rows] += 1.0
-        factor, z, info = lapack.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
+        factor, z, info = linalg.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
         if info != 0:
             return None
         pivots = factor.diagonal().tolist()

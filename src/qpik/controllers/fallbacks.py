@@ -10,25 +10,31 @@
   direction, and the minimiser stays the same vertex up to 1e-9 relative;
 - a solver failure gets a second try with a little damping (exact solvers) and then the
   exact solvers DAQP and quadprog;
-- a solver's "infeasible", and any failure that no fallback overcomes, is checked by an
-  independent LP (:func:`has_feasible_point`): only a problem with no feasible point
-  raises :class:`~qpik.errors.InfeasibleProblem`; a feasible one is solved again with
-  the cost capped harder, or ends in a :class:`~qpik.errors.SolverError` that says so.
+- a solver's "infeasible", and any failure that no fallback overcomes, is checked by a
+  phase-1 problem that has no cost to misjudge (:func:`has_feasible_point`): only a
+  problem with no feasible point raises :class:`~qpik.errors.InfeasibleProblem`; a
+  feasible one is solved again with the cost capped harder, or ends in a
+  :class:`~qpik.errors.SolverError` that says so.
 """
 
 from __future__ import annotations
 
+from ctypes import c_int
+
 import numpy as np
-from scipy.optimize import linprog
 
 from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..solvers import available_solvers, make_backend
+from ..solvers.base import ITERATION_LIMIT, TIME_LIMIT
 from .labels import task_label
 
 # On solver steps, c is scaled down to at most this times H's diagonal (see tame).
 COST_SCALE_CAP = 1e9
 # Exact solvers a failing step falls back to, in this order.
 FALLBACK_SOLVERS = ("daqp", "quadprog")
+# has_feasible_point: how far (relative to 1 + |b|) a point may miss an equality and
+# still count as meeting it; the LP that decided before had the same tolerance (HiGHS's).
+FEASIBILITY_TOLERANCE = 1e-7
 
 
 def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
@@ -53,17 +59,30 @@ def check_finite_velocities(tasks, c: np.ndarray, b: np.ndarray) -> None:
 
 def has_feasible_point(backend) -> bool:
     """Whether the back-end's constraints (A x = b, G x <= h, lb <= x <= ub, as written)
-    admit a point, by an LP (HiGHS, its feasibility tolerance 1e-7): a check that shares
-    nothing with the QP solvers it judges."""
+    admit a point, decided by the phase-1 problem min ½‖x‖² under them, solved by DAQP.
+
+    The problem has no cost vector and an identity Hessian: nothing of the badly scaled
+    cost that can make a solver misjudge the step, and a dual active-set method proves
+    infeasibility (an unbounded dual ray) rather than running out of iterations. The
+    equalities enter as rows b ± ``FEASIBILITY_TOLERANCE`` (1 + |b|): dependent hard rows
+    (more rows than dofs, two tasks on one frame) are then rows like any other for the
+    active set, not an overdetermined set DAQP refuses to start from. Only DAQP's
+    "primal infeasible" says no; a numerical failure is not a proof of it.
+    """
+    import daqp
+
     lb, ub = backend.lb, backend.ub
     if (lb > ub).any():
         return False
-    finite = np.isfinite(backend.h)
-    result = linprog(np.zeros(backend.nv),
-                     A_ub=backend.G[finite] if finite.any() else None, b_ub=backend.h[finite] if finite.any() else None,
-                     A_eq=backend.A if backend.meq else None, b_eq=backend.b if backend.meq else None,
-                     bounds=np.column_stack([lb, ub]), method="highs")
-    return result.status != 2  # 2: infeasible; a numerical failure is not a proof of it
+    nv, meq = backend.nv, backend.meq
+    margin = FEASIBILITY_TOLERANCE * (1.0 + np.abs(backend.b))
+    rows = np.vstack([backend.A, backend.G]) if meq else np.array(backend.G, dtype=float)
+    upper = np.concatenate([ub, backend.b + margin, backend.h])
+    lower = np.concatenate([lb, backend.b - margin, np.full(len(backend.h), -np.inf)])
+    _, _, exitflag, _ = daqp.solve(np.eye(nv), np.zeros(nv), np.ascontiguousarray(rows, dtype=float),
+                                   upper, lower, np.zeros(len(upper), dtype=c_int),
+                                   iter_limit=ITERATION_LIMIT, time_limit=TIME_LIMIT)
+    return exitflag != -1  # -1: primal infeasible
 
 
 class GuardedSolve:
@@ -84,7 +103,7 @@ class GuardedSolve:
         """The checked minimiser.
 
         Raises:
-            InfeasibleProblem: no point meets the constraints (the LP agrees), or the box
+            InfeasibleProblem: no point meets the constraints (the phase-1 problem agrees), or the box
                 is empty (``variable`` set).
             SolverError: a feasible problem that no solver could solve.
         """
@@ -128,7 +147,7 @@ class GuardedSolve:
             return x
         also = f" (also with {', and with '.join(tried)})" if tried else ""
         if not has_feasible_point(self.backend):
-            raise InfeasibleProblem(f"{failure}{also}, and an LP finds no point that meets the constraints") from None
+            raise InfeasibleProblem(f"{failure}{also}, and no point meets the constraints (a phase-1 problem proves it)") from None
         raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
                           "(weight 1e-6 or more), lower the task gains or try another solver") from None
 
@@ -155,7 +174,7 @@ class GuardedSolve:
                 self.fallbacks += 1
                 return x
         raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
-                          "point (an LP finds one) and no exact solver found the minimiser: the cost is badly "
+                          "point (a phase-1 problem finds one) and no exact solver found the minimiser: the cost is badly "
                           "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
                           "or a DampingTask")
 

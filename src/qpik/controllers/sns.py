@@ -93,15 +93,15 @@ from typing import Sequence
 import math
 
 import numpy as np
-from scipy.linalg import lapack
 
+from .. import linalg
 from ..errors import DivergenceError, InvalidInput
 from ..limits import order_limits
 from ..robot import JointLimits, Robot, check_same_robot
 from ..tasks import Task
 from .levels import StackedLevel, check_dt, group_levels
 
-_gesvd = lapack.dgesvd  # products below use ndarray.dot: `@` costs twice as much at these sizes
+# Products below use ndarray.dot: `@` costs twice as much at these sizes.
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 # A saturation pass whose rows keep a singular value below this fraction of ‖J‖ (a
@@ -147,7 +147,7 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool,
                 inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
                 inverse[0, 0] = 1.0 / n1 - c * i12
                 return X.T.dot(inverse), 2, None
-    u, s, vt, info = _gesvd(X)
+    u, s, vt, info = linalg.dgesvd(X)
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
         raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
@@ -408,7 +408,7 @@ class SNSController:
             if projector:
                 return qdot, scale, len(saturated), F - task_pinv.dot(task_X), True, free - rank
         if task_vt is None:  # one row: decompose now
-            task_vt = _gesvd(task_X)[2]
+            task_vt = linalg.dgesvd(task_X)[2]
         null = task_vt[rank:].T
         return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
 

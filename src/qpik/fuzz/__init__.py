@@ -5,9 +5,13 @@ seed, rolls it out and classifies every returned step, :mod:`qpik.fuzz.checks` h
 independent checks (hard rows, limits, an LP for feasibility) and :mod:`qpik.fuzz.sweep`
 runs cases in chunks of worker processes with a hang detector and a determinism repeat.
 The benchmark ``benchmarks/fuzz_any_robot.py`` runs the full sweep; the test suite a
-short one. Needs scipy (a dependency) and, for the third-party models, the ``models``
-extra.
+short one. Needs SciPy (its LP is the independent reference; the ``test`` extra) and,
+for the third-party models, the ``models`` extra.
 """
+
+from ..extras import require
+
+require("scipy", "qpik.fuzz (its LP is the independent feasibility reference)", extra="test")
 
 from .cases import CLASSES, DEFECTS, run_case
 

@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ...errors import ConvergenceError, DivergenceError
 from .kinematics import N_LEGS, Hexapod
+from .rotations import matrices_from_rotvecs
 from .scene import assembly_qpos
 from ...robot import Robot
 from ...rollout.references import Reference, ReferenceRun
@@ -39,8 +39,8 @@ from ...trajectories import sample_many
 CHARACTERISTIC_LENGTH = 0.1  # m, the platform radius: makes rotations commensurate
 _GRADIENT_STEP = 1e-5  # rad
 # exp(+h e_k), exp(−h e_k) for k = x, y, z: the central differences' rotations (6, 3, 3).
-_SMALL_ROTATIONS = Rotation.from_rotvec(np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]
-                                        * _GRADIENT_STEP).as_matrix()
+_SMALL_ROTATIONS = matrices_from_rotvecs(np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]
+                                         * _GRADIENT_STEP)
 
 
 class HexapodModel:

@@ -29,9 +29,9 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ...errors import ConvergenceError, InvalidInput, UnreachablePose
+from .rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix, rpy_from_matrix
 
 N_LEGS = 6
 SIDES = ("above", "below")  # assembly sides of the slider plane
@@ -68,12 +68,12 @@ class Assembly(tuple):
 def rotation_from_rpy(rpy_deg) -> np.ndarray:
     """R = Rz(θz) Ry(θy) Rx(θx) from ``[θx, θy, θz]`` in degrees (fixed-axes x, y, z)."""
     rpy = _finite(rpy_deg, (3,), "rpy_deg")
-    return Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
+    return matrix_from_rpy(np.radians(rpy))
 
 
 def rpy_from_rotation(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotation_from_rpy`: ``[θx, θy, θz]`` in degrees."""
-    return Rotation.from_matrix(_rotation(R)).as_euler("xyz", degrees=True)
+    return np.degrees(rpy_from_matrix(_rotation(R)))
 
 
 def _finite(value, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -356,7 +356,7 @@ class Hexapod:
             for sign in (-1.0, 1.0):
                 step = np.zeros(6)
                 step[k] = sign * (NEAR_START_SHIFT_M if k < 3 else np.radians(NEAR_START_TILT_DEG))
-                starts.append((p0 + step[:3], Rotation.from_rotvec(step[3:]).as_matrix() @ R0))
+                starts.append((p0 + step[:3], matrix_from_rotvec(step[3:]) @ R0))
         best, best_distance = None, np.inf
         for p_start, R_start in starts:
             found = self._damped_newton(q, p_start, R_start, tol)
@@ -366,7 +366,7 @@ class Hexapod:
             L, S, P = self.legs(q, p, R)
             if np.any(self.geometry.leg_side * (S[:, 0] - P[:, 0]) <= 0):
                 continue
-            angle = np.linalg.norm(Rotation.from_matrix(R0.T @ R).as_rotvec())
+            angle = np.linalg.norm(rotvec_from_matrix(R0.T @ R))
             distance = np.linalg.norm(p - p0) + CHARACTERISTIC_LENGTH_M * angle
             if distance < best_distance:
                 best, best_distance = (p, R), distance
@@ -401,7 +401,7 @@ class Hexapod:
                 except np.linalg.LinAlgError:
                     return None
                 p_try = p + dx[:3]
-                R_try = Rotation.from_rotvec(dx[3:]).as_matrix() @ R
+                R_try = matrix_from_rotvec(dx[3:]) @ R
                 L_try, n_try, r_try = residual(p_try, R_try)
                 if r_try @ r_try < r @ r:
                     p, R, L, n, r = p_try, R_try, L_try, n_try, r_try
@@ -430,7 +430,7 @@ class Hexapod:
             except np.linalg.LinAlgError:
                 raise ConvergenceError(f"forward kinematics: singular constraint Jacobian at {where}") from None
             p = p + dx[:3]
-            R = Rotation.from_rotvec(dx[3:]).as_matrix() @ R
+            R = matrix_from_rotvec(dx[3:]) @ R
         raise ConvergenceError(f"forward kinematics did not converge at {where} within {max_iter} "
                                f"Newton iterations (strokes {q.tolist()}: no assembly nearby?)")
 

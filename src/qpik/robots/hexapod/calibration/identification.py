@@ -29,7 +29,9 @@ model :math:`δq = J(0)\,θ` (for legs, J stacks the diagonal blocks
 :math:`θ \leftarrow θ + J(θ)^+ (q^{meas} - q(θ))` with the Jacobian at the current
 estimate, undamped (the residual is tiny and the model nearly linear, so the pure
 Gauss–Newton step converges quadratically); ``lm`` is MINPACK's Levenberg–Marquardt
-through :func:`scipy.optimize.least_squares`.
+through :func:`scipy.optimize.least_squares`. SciPy (the ``calibration`` extra) is
+imported when :func:`calibrate` starts or a :class:`StrokeModel` is built: a
+:class:`~qpik.errors.MissingExtra` before any work where it is not installed.
 
 Identifiability (the SVD of the Jacobian in :func:`identifiability`; see the tests):
 
@@ -54,10 +56,9 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy.linalg import block_diag
-from scipy.optimize import least_squares
 
 from ....errors import ConvergenceError, InvalidInput, UnreachablePose
+from ....extras import require
 from ..kinematics import N_LEGS, Hexapod, HexapodGeometry, rotation_from_rpy
 
 UM = 1e-6  # metres per micrometre; the solvers work in µm so tolerances are meaningful
@@ -174,6 +175,7 @@ class StrokeModel:
     """Predicted strokes q(θ) at fixed poses for one parameter set about a nominal geometry."""
 
     def __init__(self, nominal: HexapodGeometry, params: ParameterSet, poses: np.ndarray):
+        require("scipy", "the hexapod calibration", extra="calibration")
         self.nominal, self.params = nominal, params
         self.poses = validate_poses(poses)
         self.rotations = [rotation_from_rpy(p[3:]) for p in self.poses]
@@ -196,6 +198,8 @@ class StrokeModel:
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """∂q/∂θ (6N × P), rows pose-major (pose k, leg i → row 6k + i); see module doc."""
+        from scipy.linalg import block_diag
+
         hexapod = Hexapod(self.params.geometry(self.nominal, theta))
         g = hexapod.geometry
         blocks = []
@@ -320,6 +324,8 @@ def fit(model: StrokeModel, measured: np.ndarray, method: str, free: np.ndarray,
             raise ConvergenceError(f"Gauss-Newton did not converge in {max_iter} iterations")
         evaluations = iterations
     else:
+        from scipy.optimize import least_squares
+
         sol = least_squares(residual, x, jac=jac, method="lm", xtol=LM_TOL, ftol=LM_TOL, gtol=LM_TOL)
         if sol.status <= 0:
             raise ConvergenceError(f"Levenberg-Marquardt failed: {sol.message}")
@@ -428,8 +434,10 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
 
     Raises:
         InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError (also when the
-        noise is so large that the fit leaves the geometries that reach the poses).
+        noise is so large that the fit leaves the geometries that reach the poses),
+        MissingExtra (SciPy not installed: the ``calibration`` extra).
     """
+    require("scipy", "the hexapod calibration", extra="calibration")
     if not (np.isfinite(noise_um) and noise_um >= 0):
         raise InvalidInput(f"noise must be a finite standard deviation ≥ 0 µm, got {noise_um}")
     if repeats < 1:
