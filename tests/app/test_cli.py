@@ -34,10 +34,10 @@ def test_run_writes_summary_log_and_figures(tmp_path, capsys):
     assert SUMMARY_KEYS <= set(summary)
     assert summary["controller"] == "pinv" and summary["scenario"] == "seed-primary"
     assert summary["max_error"] <= 1e-5 and summary["limit_violation_max"] == 0.0
-    log = np.load(out / "log.npz")
-    assert LOG_KEYS <= set(log.files)
-    assert log["q"].shape == (summary["steps"], 4)
-    np.testing.assert_allclose(log["q"][-1], summary["q_final"])
+    with np.load(out / "log.npz") as log:
+        assert LOG_KEYS <= set(log.files)
+        assert log["q"].shape == (summary["steps"], 4)
+        np.testing.assert_allclose(log["q"][-1], summary["q_final"])
     for fig in ("path.png", "joints.png", "velocities.png", "error.png", "manipulability.png"):
         assert (out / fig).stat().st_size > 10_000
     assert "pinv" in capsys.readouterr().out

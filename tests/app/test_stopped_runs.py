@@ -44,18 +44,19 @@ def test_a_stopped_run_writes_its_partial_log_and_exits_1(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["partial"] and not summary["completed"] and summary["stopped_at"] == 0.056
     assert summary["status"] == STOP and "InfeasibleProblem" in summary["failure"]
-    log = np.load(out / "log.npz")
-    assert not log["completed"] and log["stopped_at"] == 0.056
+    with np.load(out / "log.npz") as log:
+        completed, stopped_at, t, q = log["completed"], log["stopped_at"], log["t"], log["q"]
+    assert not completed and stopped_at == 0.056
     # The steps before the stop, equal to an in-process run stopped the same way.
     _, reference = run("arm", "too-fast", "qp-hard", on_failure="stop")
-    assert len(log["t"]) == 28 and log["t"][-1] == 0.054
-    np.testing.assert_array_equal(log["q"], reference.q)
+    assert len(t) == 28 and t[-1] == 0.054
+    np.testing.assert_array_equal(q, reference.q)
 
 
 def test_a_complete_log_is_marked_complete(tmp_path):
     _, log = run("arm", "too-fast", "qp")
     log.save(tmp_path)
-    saved = np.load(tmp_path / "log.npz")
-    assert saved["completed"] and np.isnan(saved["stopped_at"])
+    with np.load(tmp_path / "log.npz") as saved:
+        assert saved["completed"] and np.isnan(saved["stopped_at"])
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["completed"] and summary["status"] == "complete" and "stopped_at" not in summary
