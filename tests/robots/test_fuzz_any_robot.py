@@ -7,7 +7,15 @@ case past its time budget is a hang, and a repeat in another process gives the s
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from qpik.fuzz import CLASSES, DEFECTS, run_case
 from qpik.fuzz.checks import lp_feasible
@@ -46,3 +54,34 @@ def test_the_short_any_robot_fuzz_finds_no_defect(tmp_path):
     found = {key: counts.get(key, 0) for key in DEFECTS if counts.get(key, 0)}
     assert not found, (found, summary["sites"], {k: v[:2] for k, v in summary["examples"].items()})
     assert {key for key, _, _ in CLASSES} >= set(counts) - {"cases"}
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        found += [int(c) for c in task.read_text().split()]
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads child processes from /proc")
+def test_sigterm_ends_the_sweep_and_its_workers():
+    script = "from qpik.fuzz.sweep import run_workers; run_workers(list(range(40)), 1, 40, 600.0)"
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    children: list[int] = []
+    try:
+        deadline = time.monotonic() + 60
+        while not children and time.monotonic() < deadline:
+            time.sleep(0.1)
+            children = _children(parent.pid)
+        assert children, "no worker started"
+        time.sleep(0.5)
+        parent.send_signal(signal.SIGTERM)
+        assert parent.wait(timeout=60) == 128 + signal.SIGTERM
+        assert not [c for c in children if Path(f"/proc/{c}").exists()]  # reaped by the sweep, not left running
+    finally:
+        for pid in children:
+            if Path(f"/proc/{pid}").exists():
+                os.kill(pid, signal.SIGKILL)  # only when the test fails: the worker it started
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
