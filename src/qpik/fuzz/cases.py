@@ -68,6 +68,7 @@ class Case:
         rng = self.rng
         self.invalid = str(rng.choice(INVALID)) if rng.random() < 1 / 6 else None
         self.injected = False  # whether the invalid value was given (its place may not exist)
+        self.refusal_wrong = ""  # how a start outside the ranges was not refused as it must be
         self.kind = str(rng.choice(["qp", "hqp", "sns", "pinv"], p=[0.45, 0.25, 0.15, 0.15]))
         self.params.update(invalid=self.invalid, controller=self.kind)
 
@@ -134,8 +135,33 @@ class Case:
                 self.params.setdefault("start", []).append(str(where))
             else:
                 q[adr] = rng.uniform(-np.pi, np.pi)
+        if self._refused_outside(robot, q):
+            robot.allow_outside_limits = True  # the opt-in: the limits bring the joints back
+            self.params["allow_outside_limits"] = True
         robot.set_q(q)
         robot.update_kinematics()
+
+    def _refused_outside(self, robot, q: np.ndarray) -> bool:
+        """Whether ``q`` lies outside the ranges; if so, ``set_q`` without the opt-in must
+        refuse it naming exactly the joints outside, and by how much (else a defect)."""
+        from ..errors import OutsideJointLimits
+        from ..robot import KEYFRAME_TOLERANCE
+
+        limits = robot.joint_limits
+        values = q[limits.qpos_index]
+        excess = np.maximum(limits.lower - values, values - limits.upper)
+        expected = {limits.names[i]: float(excess[i]) for i in np.flatnonzero(excess > KEYFRAME_TOLERANCE)}
+        if not expected:
+            return False
+        try:
+            robot.set_q(q)
+        except OutsideJointLimits as exc:
+            named = exc.excess
+            if set(named) != set(expected) or any(abs(named[k] - v) > 1e-12 * max(1.0, v) for k, v in expected.items()):
+                self.refusal_wrong = f"named {named}, expected {expected}"
+        else:
+            self.refusal_wrong = "a start outside the ranges accepted without allow_outside_limits"
+        return True
 
     def _frames(self, robot) -> list[tuple[str, str]]:
         model = robot.model
@@ -369,6 +395,9 @@ def run_case(seed: int, folder: Path, steps: int = STEPS) -> dict:
         except Exception as exc:  # noqa: BLE001 - the class the fuzz looks for
             _untyped(result, exc, "build")
         else:
+            if case.refusal_wrong:
+                result["classes"].append("invalid_accepted")
+                result["details"]["outside_start"] = case.refusal_wrong[:300]
             _roll_out(case, result, steps)
         stray = _stray(records)
     if stray:
