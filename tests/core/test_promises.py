@@ -270,3 +270,24 @@ def test_a_far_hard_target_is_not_blamed_on_the_limits_alone(distance):
     assert lp.status == 0  # the limits alone are feasible
     assert "limits alone" not in message
     assert "'tip'" in message and "speed limit" in message
+
+
+def test_the_pseudoinverse_law_calls_a_diverged_step_an_error_before_anything_overflows():
+    """The undamped law near a singularity (the any-robot fuzz: 1.8e16 rad/s at the first
+    step, 8.7e214 five steps on) returned such speeds as answers until J Jᵀ overflowed in a
+    RuntimeWarning. A speed beyond 1e100 is now a DivergenceError, before any warning; a
+    target 1e140 m away asks for one."""
+    from qpik import DivergenceError, PseudoinverseController
+
+    robot = chain(3)
+    robot.set_q([0.3, 0.5, -0.4])
+    robot.update_kinematics()
+    tip = PositionTask(robot, "tip", gain=1.0)
+    tip.set_target(np.array([1e140, 0.0, 0.0]))
+    ctrl = PseudoinverseController(robot, [tip])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DivergenceError, match="beyond"):
+            ctrl.compute_velocity()
+        tip.set_target(tip.frame.position + np.array([0.01, 0.0, 0.0]))
+        assert np.all(np.isfinite(ctrl.compute_velocity()))
