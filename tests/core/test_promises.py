@@ -291,3 +291,27 @@ def test_the_pseudoinverse_law_calls_a_diverged_step_an_error_before_anything_ov
             ctrl.compute_velocity()
         tip.set_target(tip.frame.position + np.array([0.01, 0.0, 0.0]))
         assert np.all(np.isfinite(ctrl.compute_velocity()))
+
+
+@pytest.mark.parametrize("solver", [s for s in ("daqp", "quadprog") if s in SOLVERS])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_soft_target_far_beyond_the_hard_rows_scale_is_tamed_not_a_solver_error(solver, seed):
+    """An 8-hinge chain without limits: a hard tip task near its target and a soft
+    task on a middle body 1e8 m away, damping 1e-12. The soft cost (1e9 times H's scale
+    after the first cap) drove |q̇| to ~1e8, where A q̇ cannot be computed to the hard
+    rows' 1e-9: every solver's answer failed the check, a SolverError on a feasible step
+    (any-robot fuzz cases 1047, 1258, 3486, 3586). The failed step is now solved with the
+    cost capped harder: the hard rows met, the soft task still pulled toward its target."""
+    rng = np.random.default_rng(seed)
+    robot = chain(8)
+    robot.set_q(rng.uniform(-1.0, 1.0, 8))
+    robot.update_kinematics()
+    tip = PositionTask(robot, "tip", gain=100.0, hard=True)
+    tip.set_target(tip.frame.position + rng.normal(0.0, 0.01, 3))
+    far = PositionTask(robot, "mid", gain=400.0, weight=10.0)
+    far.set_target(rng.normal(0.0, 1e8, 3))
+    ctrl = QPController(robot, [tip, far, DampingTask(robot, weight=1e-12)], solver=solver, dt=0.002,
+                        fast_path=False)
+    qdot = ctrl.compute_velocity()
+    assert np.all(np.isfinite(qdot)) and relative_miss(tip, qdot) <= HARD_ROW_TOLERANCE
+    assert float(np.dot(far.jacobian @ qdot, far.error)) > 0.0

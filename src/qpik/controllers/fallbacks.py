@@ -129,6 +129,9 @@ class GuardedSolve:
         also = f" (also with {', and with '.join(tried)})" if tried else ""
         if not has_feasible_point(self.backend):
             raise InfeasibleProblem(f"{failure}{also}, and an LP finds no point that meets the constraints") from None
+        x = self._solve_capped(H, c)
+        if x is not None:
+            return x
         raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
                           "(weight 1e-6 or more), lower the task gains or try another solver") from None
 
@@ -142,7 +145,20 @@ class GuardedSolve:
         still finds to about 1e-3 relative)."""
         if report.variable is not None or not has_feasible_point(self.backend):
             raise report
-        for cap in (COST_SCALE_CAP, 1e6, 1e3):
+        x = self._solve_capped(H, c)
+        if x is not None:
+            return x
+        raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
+                          "point (an LP finds one) and no exact solver found the minimiser: the cost is badly "
+                          "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
+                          "or a DampingTask")
+
+    def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
+        """A feasible step the solvers failed on, solved by the exact solvers with the cost
+        capped harder and harder (down to H's own scale): a soft cost 1e9 times H's scale
+        makes |q̇| ~ 1e8, where Ax cannot even be computed to the hard rows' 1e-9 (any-robot
+        fuzz); the minimiser keeps the cost's direction. None if every try fails."""
+        for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0):
             capped = tame(c, _scale(H), cap)
             for name in FALLBACK_SOLVERS:
                 spare = self._spare(name)
@@ -154,10 +170,7 @@ class GuardedSolve:
                     continue
                 self.fallbacks += 1
                 return x
-        raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
-                          "point (an LP finds one) and no exact solver found the minimiser: the cost is badly "
-                          "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
-                          "or a DampingTask")
+        return None
 
     def _spare(self, name: str):
         """Solver ``name`` sized like the problem, with the back-end's constraints (a

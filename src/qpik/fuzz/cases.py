@@ -195,7 +195,11 @@ class Case:
         tasks = []
         for _ in range(count):
             kind = str(rng.choice(kinds))
+            injected = self.injected
             task = self._task(robot, kind)
+            if task is None and self.injected and not injected:  # drawn for a task not built
+                self.injected = False
+                self.params.pop("invalid_value", None)
             if task is not None:
                 tasks.append(task)
                 self.params.setdefault("tasks", []).append(kind + (" hard" if task.hard else ""))
