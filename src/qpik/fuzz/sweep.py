@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..io import write_json
-from .cases import CLASSES, DEFECTS, run_case
+from .cases import ALL_SOLVERS, CLASSES, DEFECTS, run_case
 
 PROTOCOL = "@@qpik-fuzz "
 
@@ -224,8 +224,12 @@ def _repeat(results: dict[int, dict], sample: list[int], cap: float) -> None:
             first["details"]["repeat"] = {"classes": second["classes"], "q_hash": second.get("q_hash")}
 
 
+# Classes that depend on the machine's load at that moment, not on the computation.
+TIMING_CLASSES = {"hang", "ok"}
+
+
 def _same_run(first: dict, second: dict) -> bool:
-    if set(first["classes"]) != set(second["classes"]):
+    if set(first["classes"]) - TIMING_CLASSES != set(second["classes"]) - TIMING_CLASSES:
         return False
     if first.get("q_hash") == second.get("q_hash"):
         return True
@@ -245,7 +249,9 @@ def summarise(results: dict[int, dict]) -> dict:
     for seed in sorted(results):
         result = results[seed]
         params, details = result.get("params", {}), result["details"]
-        label = params.get("controller", "?") + (f"/{params['solver']}" if params.get("solver") else "") \
+        solver = params.get("solver")
+        solver = solver if isinstance(solver, str) and solver in ALL_SOLVERS else "invalid" if "solver" in params else None
+        label = params.get("controller", "?") + (f"/{solver}" if solver else "") \
             + ("" if params.get("fast_path") is None else f"/fast={params['fast_path']}")
         model = "generated" if params.get("model") == "generated" else "third-party" if params else "?"
         counts["cases"] += 1
@@ -273,16 +279,21 @@ def _example(result: dict) -> dict:
     params = result.get("params", {})
     keep = ("model", "controller", "solver", "fast_path", "tasks", "limits", "levels", "invalid", "invalid_value",
             "targets", "start")
-    return {"case": result["case"], "classes": result["classes"], "error": result["details"].get("error", "")[:200],
-            "site": result["details"].get("site"), "params": {k: params[k] for k in keep if k in params},
+    details = result["details"]
+    return {"case": result["case"], "classes": result["classes"], "error": details.get("error", "")[:200],
+            "repeat": details.get("repeat"), "max_step_ms": details.get("max_step_ms"),
+            "site": details.get("site"), "params": {k: params[k] for k in keep if k in params},
             "command": f"python benchmarks/fuzz_any_robot.py --case {result['case']}"}
 
 
 def to_markdown(summary: dict, meta: dict) -> str:
     counts = summary["counts"]
+    earlier = f"; {meta['cases_from_chunk_files']} cases read from an earlier run's chunk files" \
+        if meta.get("cases_from_chunk_files") else ""
     lines = [f"Any-robot fuzz, seeds {meta['first_seed']}–{meta['first_seed'] + meta['cases'] - 1} "
-             f"({meta['cases']} cases, {meta['elapsed_s']:.0f} s, `{meta['command']}`). A case may fall in several "
-             "classes; defects in bold.", "", "| class | cases |", "|---|---:|"]
+             f"({meta['cases']} cases, {meta['elapsed_s']:.0f} s with {meta.get('jobs', 1)} workers{earlier}, "
+             f"`{meta['command']}`). A case may fall in several classes; defects in bold.", "",
+             "| class | cases |", "|---|---:|"]
     for key, label, bad in CLASSES:
         lines.append(f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |")
     shown = ["cases", "ok", "typed", "rejected", *DEFECTS]
