@@ -127,11 +127,11 @@ class GuardedSolve:
             self.fallbacks += 1
             return x
         also = f" (also with {', and with '.join(tried)})" if tried else ""
-        if not has_feasible_point(self.backend):
-            raise InfeasibleProblem(f"{failure}{also}, and an LP finds no point that meets the constraints") from None
-        x = self._solve_capped(H, c)
+        x = self._solve_capped(H, c)  # fails on an infeasible step, then decided below
         if x is not None:
             return x
+        if not has_feasible_point(self.backend):
+            raise InfeasibleProblem(f"{failure}{also}, and an LP finds no point that meets the constraints") from None
         raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
                           "(weight 1e-6 or more), lower the task gains or try another solver") from None
 
@@ -153,10 +153,24 @@ class GuardedSolve:
                           "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
                           "or a DampingTask")
 
+    def _spare(self, name: str):
+        """Solver ``name`` sized like the problem, with the back-end's constraints (a
+        workspace of its own, even for the solver itself), or None if not installed."""
+        if name not in available_solvers():
+            return None
+        backend = self.backend
+        if name not in self._spares:
+            self._spares[name] = make_backend(name, backend.nv, backend.meq, backend.mineq)
+        spare = self._spares[name]
+        spare.A[:], spare.b[:] = backend.A, backend.b
+        spare.G[:], spare.h[:] = backend.G, backend.h
+        spare.lb[:], spare.ub[:] = backend.lb, backend.ub
+        return spare
+
     def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
-        """A feasible step the solvers failed on, solved by the exact solvers with the cost
-        capped harder and harder (down to H's own scale): a soft cost 1e9 times H's scale
-        makes |q̇| ~ 1e8, where Ax cannot even be computed to the hard rows' 1e-9 (any-robot
+        """A step the solvers failed on, solved by the exact solvers with the cost capped
+        harder and harder (down to H's own scale): a soft cost 1e9 times H's scale makes
+        |q̇| ~ 1e8, where A q̇ cannot even be computed to the hard rows' 1e-9 (any-robot
         fuzz); the minimiser keeps the cost's direction. None if every try fails."""
         for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0):
             capped = tame(c, _scale(H), cap)
@@ -171,20 +185,6 @@ class GuardedSolve:
                 self.fallbacks += 1
                 return x
         return None
-
-    def _spare(self, name: str):
-        """Solver ``name`` sized like the problem, with the back-end's constraints (a
-        workspace of its own, even for the solver itself), or None if not installed."""
-        if name not in available_solvers():
-            return None
-        backend = self.backend
-        if name not in self._spares:
-            self._spares[name] = make_backend(name, backend.nv, backend.meq, backend.mineq)
-        spare = self._spares[name]
-        spare.A[:], spare.b[:] = backend.A, backend.b
-        spare.G[:], spare.h[:] = backend.G, backend.h
-        spare.lb[:], spare.ub[:] = backend.lb, backend.ub
-        return spare
 
 
 def _scale(H: np.ndarray) -> float:
