@@ -45,10 +45,8 @@ import argparse
 import json
 import queue
 import re
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 import traceback
 import warnings
@@ -58,6 +56,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qpik.fuzz.sweep import PROTOCOL, WorkerProcess, ending_workers_on_exit, wait_for_message
+
 RESULTS = Path(__file__).resolve().parent / "results"
 KINDS = ("arm", "hexapod", "physics", "model")
 KIND_CODE = {kind: i + 1 for i, kind in enumerate(KINDS)}
@@ -66,7 +66,6 @@ DT = 0.002
 CROSSING_TOL = 1e-9
 SLOW_STEP_S = 0.050
 LOOP_TOL = 1e-4
-PROTOCOL = "@@fuzz "  # worker lines start with this (MuJoCo may print its own warnings)
 
 # Outcome classes: (key, label, a defect?)
 CLASSES = (
@@ -518,27 +517,10 @@ def worker(case_ids: list[str]) -> None:
             print(PROTOCOL + json.dumps({"result": result}, default=float), flush=True)
 
 
-@dataclass
-class _Worker:
-    process: subprocess.Popen
-    cases: list[str]
-    current: str | None = None
-    started: float = 0.0
-    done: set = field(default_factory=set)
-
-
-def _spawn(cases: list[str], lines: queue.Queue, index: int) -> _Worker:
-    process = subprocess.Popen([sys.executable, __file__, "--worker", *cases], stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, text=True, cwd=Path(__file__).parent)
-
-    def read():
-        for line in process.stdout:
-            if line.startswith(PROTOCOL):
-                lines.put((index, json.loads(line[len(PROTOCOL):])))
-        lines.put((index, None))  # end of output
-
-    threading.Thread(target=read, daemon=True).start()
-    return _Worker(process, cases)
+class _Worker(WorkerProcess):
+    def __init__(self, cases: list[str], lines: queue.Queue, index: int):
+        self.cases, self.current, self.started, self.done = cases, None, 0.0, set()
+        super().__init__([sys.executable, __file__, "--worker", *cases], lines, index, cwd=Path(__file__).parent)
 
 
 def sweep(case_ids: list[str], jobs: int, chunk: int, cap: float, progress=None) -> dict[str, dict]:
@@ -548,52 +530,58 @@ def sweep(case_ids: list[str], jobs: int, chunk: int, cap: float, progress=None)
     lines: queue.Queue = queue.Queue()
     workers: dict[int, _Worker] = {}
     next_index = 0
-    while pending or workers:
-        while pending and len(workers) < jobs:
-            workers[next_index] = _spawn(pending.pop(0), lines, next_index)
-            next_index += 1
-        try:
-            index, message = lines.get(timeout=0.2)
-        except queue.Empty:
-            index, message = None, None
-        if index is not None and index in workers:
-            w = workers[index]
-            if message is None:  # the worker ended: cleanly, or it crashed mid-case
-                w.process.wait()
-                if w.current is not None and w.current not in w.done:
-                    results[w.current] = {"case": w.current, "classes": ["crash"], "params": {},
-                                          "details": {"exit_code": w.process.returncode}}
+    with ending_workers_on_exit(workers):
+        while pending or workers:
+            while pending and len(workers) < jobs:
+                workers[next_index] = _Worker(pending.pop(0), lines, next_index)
+                next_index += 1
+            _handle(lines, workers, pending, results, progress, cap)
+            now = time.monotonic()
+            for index, w in list(workers.items()):
+                if w.current is not None and now - w.started > cap:
+                    w.end()  # the hang detector
+                    results[w.current] = {"case": w.current, "classes": ["hang"], "params": {},
+                                          "details": {"cap_s": cap}}
                     w.done.add(w.current)
                     if progress:
                         progress(1)
-                rest = [c for c in w.cases if c not in w.done and c != w.current]
-                if rest:
-                    pending.insert(0, rest)
-                del workers[index]
-            elif "start" in message:
-                w.current, w.started = message["start"], time.monotonic()
-            else:
-                result = message["result"]
-                results[result["case"]] = result
-                w.done.add(result["case"])
-                w.current = None
-                if progress:
-                    progress(1)
-        now = time.monotonic()
-        for index, w in list(workers.items()):
-            if w.current is not None and now - w.started > cap:
-                w.process.kill()  # our own child: the hang detector
-                w.process.wait()
-                results[w.current] = {"case": w.current, "classes": ["hang"], "params": {},
-                                      "details": {"cap_s": cap}}
-                w.done.add(w.current)
-                if progress:
-                    progress(1)
-                rest = [c for c in w.cases if c not in w.done]
-                if rest:
-                    pending.insert(0, rest)
-                del workers[index]  # its reader thread sees EOF and its message is ignored
+                    rest = [c for c in w.cases if c not in w.done]
+                    if rest:
+                        pending.insert(0, rest)
+                    del workers[index]  # its reader thread sees EOF and its message is ignored
     return results
+
+
+def _handle(lines: queue.Queue, workers: dict, pending: list, results: dict, progress, cap: float) -> None:
+    """One message from a worker (or none before the next deadline): a case started, a result, its end."""
+    try:
+        index, message = lines.get(timeout=wait_for_message(workers, cap))
+    except queue.Empty:
+        return
+    w = workers.get(index)
+    if w is None:
+        return
+    if message is None:  # the worker ended: cleanly, or it crashed mid-case
+        w.end()
+        if w.current is not None and w.current not in w.done:
+            results[w.current] = {"case": w.current, "classes": ["crash"], "params": {},
+                                  "details": {"exit_code": w.process.returncode}}
+            w.done.add(w.current)
+            if progress:
+                progress(1)
+        rest = [c for c in w.cases if c not in w.done and c != w.current]
+        if rest:
+            pending.insert(0, rest)
+        del workers[index]
+    elif "start" in message:
+        w.current, w.started = message["start"], time.monotonic()
+    else:
+        result = message["result"]
+        results[result["case"]] = result
+        w.done.add(result["case"])
+        w.current = None
+        if progress:
+            progress(1)
 
 
 # Report --------------------------------------------------------------------------------

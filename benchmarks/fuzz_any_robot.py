@@ -54,14 +54,15 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     seeds = list(range(args.seed, args.seed + args.cases))
+    stored = sum(len(json.loads(f.read_text())) for f in (args.out / "fuzz_any_robot_chunks" / "chunks").glob("*.json"))
     started = time.monotonic()
     with tqdm(total=len(seeds), desc="any-robot fuzz", unit="case", file=sys.stderr) as bar:
         results = sweep(seeds, args.jobs, args.chunk, args.cap, args.out / "fuzz_any_robot_chunks",
                         progress=bar.update)
     summary = summarise(results)
     meta = {"first_seed": args.seed, "cases": args.cases, "elapsed_s": time.monotonic() - started,
-            "jobs": args.jobs, "cap_s": args.cap, "python": sys.version.split()[0],
-            "command": f"python benchmarks/fuzz_any_robot.py --cases {args.cases} --seed {args.seed}"}
+            "jobs": args.jobs, "cap_s": args.cap, "python": sys.version.split()[0], "cases_from_chunk_files": stored,
+            "command": f"python benchmarks/fuzz_any_robot.py --cases {args.cases} --seed {args.seed} --jobs {args.jobs}"}
     md = to_markdown(summary, meta)
     print(md)
     write_json(args.out / "fuzz_any_robot.json", {"meta": meta, **summary})

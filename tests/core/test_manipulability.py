@@ -139,3 +139,25 @@ def test_sigma_proxy_takes_its_joints_explicitly(jaco_path):
         SigmaProxy(robot, "joint_2")
     with pytest.raises(InvalidInput, match="ball or free"):
         SigmaProxy(Robot(mujoco.MjModel.from_xml_string(MIXED)), ["shoulder"])
+
+
+def test_a_diverged_configuration_is_a_divergence_error_not_a_warning():
+    """Gradient ascent on w with an unlimited slide joint (the any-robot fuzz: the
+    pseudoinverse law, no limits) extends the joint without end; once JJᵀ overflowed the
+    task warned (RuntimeWarning from the determinant) on every step. A DivergenceError
+    now, with no warning; a long but finite extension still gives a finite gradient."""
+    from qpik import DivergenceError
+
+    xml = """<mujoco><worldbody><body><joint name="h" axis="0 0 1"/><geom size="0.05" mass="1"/>
+      <body><joint name="s" type="slide" axis="1 0 0"/><geom size="0.05" mass="1"/>
+      <site name="tip" pos="0.5 0 0"/></body></body></worldbody></mujoco>"""
+    robot = Robot(mujoco.MjModel.from_xml_string(xml))
+    task = ManipulabilityTask(robot, Yoshikawa(robot, "tip", "site", axes="xy"))
+    robot.set_q([0.3, 1e3])
+    robot.update_kinematics()
+    task.update()
+    assert np.all(np.isfinite(task.target_velocity)) and np.abs(task.target_velocity).max() > 0
+    robot.set_q([0.3, 1e200])
+    robot.update_kinematics()
+    with pytest.raises(DivergenceError, match="overflowed"):
+        task.update()

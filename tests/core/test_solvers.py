@@ -104,3 +104,29 @@ def test_osqp_never_returns_a_stale_answer_after_a_rejected_update():
 def test_unknown_solver_lists_the_installed_ones():
     with pytest.raises(UnknownName, match="daqp"):
         make_backend("no_such_solver", 2, 0)
+
+
+@pytest.mark.parametrize("solver", [s for s in ("daqp", "quadprog") if s in available_solvers()])
+def test_an_answer_that_lost_the_hard_rows_last_digits_is_moved_back_onto_them(solver):
+    """An ill-conditioned step (any-robot fuzz case 560: a hard CoM task beside a connect
+    equality, 25 dofs) came back from quadprog, then daqp, missing A x = b by 8.4e-6: above
+    the exact solvers' 1e-9 (1 + |b|), a SolverError although an LP finds the step
+    feasible. The check now corrects the free dofs by least squares (a dof at
+    its bound stays there) and keeps the point only if it then meets the rows inside the
+    box. A point that cannot be corrected (every dof at a bound) is still refused."""
+    rng = np.random.default_rng(3)
+    nv, meq = 6, 2
+    backend = make_backend(solver, nv, meq)
+    backend.A[:] = rng.normal(size=(meq, nv))
+    backend.lb[:], backend.ub[:] = -1.0, 1.0
+    x = rng.uniform(-0.5, 0.5, nv)
+    x[0] = backend.ub[0]  # one dof at its bound
+    backend.b[:] = backend.A @ x
+    lost = x + np.r_[0.0, rng.normal(0.0, 1e-8, nv - 1)]  # the rows' last digits lost
+    answer = backend._check_result(lost.copy())
+    assert np.abs(backend.A @ answer - backend.b).max() <= 1e-12
+    assert np.all(answer >= backend.lb) and np.all(answer <= backend.ub) and answer[0] == backend.ub[0]
+    assert np.abs(answer - x).max() < 1e-7  # a correction of the lost digits' size
+    pinned = np.where(rng.random(nv) < 0.5, backend.lb, backend.ub)
+    with pytest.raises(SolverError, match="misses the equality"):
+        backend._check_result(pinned)

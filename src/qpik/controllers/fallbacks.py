@@ -146,6 +146,9 @@ class GuardedSolve:
             self.fallbacks += 1
             return x
         also = f" (also with {', and with '.join(tried)})" if tried else ""
+        x = self._solve_capped(H, c)  # fails on an infeasible step, then decided below
+        if x is not None:
+            return x
         if not has_feasible_point(self.backend):
             raise InfeasibleProblem(f"{failure}{also}, and no point meets the constraints (a phase-1 problem proves it)") from None
         raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
@@ -161,18 +164,9 @@ class GuardedSolve:
         still finds to about 1e-3 relative)."""
         if report.variable is not None or not has_feasible_point(self.backend):
             raise report
-        for cap in (COST_SCALE_CAP, 1e6, 1e3):
-            capped = tame(c, _scale(H), cap)
-            for name in FALLBACK_SOLVERS:
-                spare = self._spare(name)
-                if spare is None:
-                    continue
-                try:
-                    x = spare.solve(H, capped)
-                except (InfeasibleProblem, SolverError):
-                    continue
-                self.fallbacks += 1
-                return x
+        x = self._solve_capped(H, c)
+        if x is not None:
+            return x
         raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
                           "point (a phase-1 problem finds one) and no exact solver found the minimiser: the cost is badly "
                           "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
@@ -191,6 +185,25 @@ class GuardedSolve:
         spare.G[:], spare.h[:] = backend.G, backend.h
         spare.lb[:], spare.ub[:] = backend.lb, backend.ub
         return spare
+
+    def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
+        """A step the solvers failed on, solved by the exact solvers with the cost capped
+        harder and harder (down to H's own scale): a soft cost 1e9 times H's scale makes
+        |q̇| ~ 1e8, where A q̇ cannot even be computed to the hard rows' 1e-9 (any-robot
+        fuzz); the minimiser keeps the cost's direction. None if every try fails."""
+        for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0):
+            capped = tame(c, _scale(H), cap)
+            for name in FALLBACK_SOLVERS:
+                spare = self._spare(name)
+                if spare is None:
+                    continue
+                try:
+                    x = spare.solve(H, capped)
+                except (InfeasibleProblem, SolverError):
+                    continue
+                self.fallbacks += 1
+                return x
+        return None
 
 
 def _scale(H: np.ndarray) -> float:

@@ -23,6 +23,10 @@ from ..errors import DivergenceError, InvalidInput
 from ..robot import Robot, check_same_robot
 from ..tasks import Task
 
+# A joint speed beyond this (rad/s or m/s) is divergence, not an answer: its square and
+# a step's kinematics of it stay finite, so the error comes before any overflow.
+DIVERGED_SPEED = 1e100
+
 
 class _StackedTasks:
     """Stacks the primary tasks' Jacobians and velocities into preallocated arrays."""
@@ -104,8 +108,11 @@ class PseudoinverseController(_StackedTasks):
         np.matmul(J.T, y, out=self.qdot)
         if self.secondary is not None:
             self.qdot += self._qdot0
-        if not np.all(np.isfinite(self.qdot)):
-            raise DivergenceError("pseudoinverse produced a non-finite joint velocity (singularity)")
+        # NaN fails the comparison too. Beyond the bound the undamped law at a singularity
+        # has diverged: the next step's J Jᵀ would overflow (a RuntimeWarning, then inf).
+        if not np.abs(self.qdot).max(initial=0.0) <= DIVERGED_SPEED:
+            raise DivergenceError(f"pseudoinverse produced a joint velocity beyond {DIVERGED_SPEED:g} or not "
+                                  "finite (singularity): give the law some damping")
         return self.qdot
 
 

@@ -12,16 +12,18 @@ from __future__ import annotations
 
 import json
 import queue
+import signal
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from collections import Counter, defaultdict
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..io import write_json
-from .cases import CLASSES, DEFECTS, run_case
+from .cases import ALL_SOLVERS, CLASSES, DEFECTS, run_case
 
 PROTOCOL = "@@qpik-fuzz "
 
@@ -46,19 +48,62 @@ def _jsonable(value):
     return value
 
 
-class _Worker:
+class WorkerProcess:
+    """A worker subprocess whose protocol lines go to ``lines`` as ``(index, message)``,
+    then ``(index, None)`` when its output ends; the reader closes the pipe it reads."""
+
+    def __init__(self, command: list[str], lines: queue.Queue, index: int, **popen):
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                        **popen)
+        self.reader = threading.Thread(target=self._read, args=(lines, index), daemon=True)
+        self.reader.start()
+
+    def _read(self, lines: queue.Queue, index: int) -> None:
+        with self.process.stdout:
+            for line in self.process.stdout:
+                if line.startswith(PROTOCOL):
+                    lines.put((index, json.loads(line[len(PROTOCOL):])))
+        lines.put((index, None))
+
+    def end(self) -> None:
+        """Kill it if it still runs, reap it and wait for its reader (which closes the pipe)."""
+        if self.process.poll() is None:
+            self.process.kill()  # our own child
+        self.process.wait()
+        self.reader.join(timeout=10.0)
+
+
+@contextmanager
+def ending_workers_on_exit(workers: dict):
+    """Every worker in ``workers`` ended on the way out — normally, on an error, Ctrl-C or
+    SIGTERM (turned into SystemExit while this runs in the main thread)."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm) if main else None
+    try:
+        yield
+    finally:
+        for w in list(workers.values()):
+            w.end()
+        if main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def wait_for_message(workers: dict, cap: float) -> float:
+    """Seconds to wait for a message: 0.2, or less when a running case's cap comes first
+    (a case is a hang when its cap passes, however soon its result would have come)."""
+    now = time.monotonic()
+    return max(0.0, min([0.2, *(w.started + cap - now for w in workers.values() if w.current is not None)]))
+
+
+def _exit_on_sigterm(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+class _Worker(WorkerProcess):
     def __init__(self, seeds: list[int], lines: queue.Queue, index: int):
         self.seeds, self.done = seeds, set()
         self.current, self.started = None, 0.0
-        self.process = subprocess.Popen([sys.executable, "-m", "qpik.fuzz.sweep", "--worker", *map(str, seeds)],
-                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        threading.Thread(target=self._read, args=(lines, index), daemon=True).start()
-
-    def _read(self, lines: queue.Queue, index: int) -> None:
-        for line in self.process.stdout:
-            if line.startswith(PROTOCOL):
-                lines.put((index, json.loads(line[len(PROTOCOL):])))
-        lines.put((index, None))
+        super().__init__([sys.executable, "-m", "qpik.fuzz.sweep", "--worker", *map(str, seeds)], lines, index)
 
     def rest(self) -> list[int]:
         return [s for s in self.seeds if s not in self.done and s != self.current]
@@ -81,39 +126,46 @@ def run_workers(seeds: list[int], jobs: int, chunk: int, cap: float, progress=No
         if progress:
             progress(1)
 
-    while pending or workers:
-        while pending and len(workers) < jobs:
-            workers[count] = _Worker(pending.pop(0), lines, count)
-            count += 1
-        try:
-            index, message = lines.get(timeout=0.2)
-        except queue.Empty:
-            index, message = None, None
-        w = workers.get(index)
-        if w is not None and message is None:  # the worker ended, cleanly or mid-case
-            w.process.wait()
-            if w.current is not None:
-                finish(w.current, _lost(w.current, "untyped", {"error": f"worker died: exit {w.process.returncode}"}))
-            if w.rest():
-                pending.insert(0, w.rest())
-            del workers[index]
-        elif w is not None and "start" in message:
-            w.current, w.started = message["start"], time.monotonic()
-        elif w is not None:
-            w.done.add(message["result"]["case"])
-            w.current = None
-            finish(message["result"]["case"], message["result"])
-        for index, w in list(workers.items()):
-            if w.current is not None and time.monotonic() - w.started > cap:
-                w.process.kill()  # our own child: the hang detector
-                w.process.wait()
-                finish(w.current, _lost(w.current, "hang", {"cap_s": cap}))
-                w.done.add(w.current)
-                rest, w.current = w.rest(), None
-                if rest:
-                    pending.insert(0, rest)
-                del workers[index]
+    with ending_workers_on_exit(workers):
+        while pending or workers:
+            while pending and len(workers) < jobs:
+                workers[count] = _Worker(pending.pop(0), lines, count)
+                count += 1
+            _handle(lines, workers, pending, finish, cap)
+            for index, w in list(workers.items()):
+                if w.current is not None and time.monotonic() - w.started > cap:  # the hang detector
+                    w.end()
+                    finish(w.current, _lost(w.current, "hang", {"cap_s": cap}))
+                    w.done.add(w.current)
+                    rest, w.current = w.rest(), None
+                    if rest:
+                        pending.insert(0, rest)
+                    del workers[index]
     return results
+
+
+def _handle(lines: queue.Queue, workers: dict, pending: list, finish, cap: float) -> None:
+    """One message from a worker (or none before the next deadline): a case started, a result, its end."""
+    try:
+        index, message = lines.get(timeout=wait_for_message(workers, cap))
+    except queue.Empty:
+        return
+    w = workers.get(index)
+    if w is None:  # a killed worker's last words
+        return
+    if message is None:  # the worker ended, cleanly or mid-case
+        w.end()
+        if w.current is not None:
+            finish(w.current, _lost(w.current, "untyped", {"error": f"worker died: exit {w.process.returncode}"}))
+        if w.rest():
+            pending.insert(0, w.rest())
+        del workers[index]
+    elif "start" in message:
+        w.current, w.started = message["start"], time.monotonic()
+    else:
+        w.done.add(message["result"]["case"])
+        w.current = None
+        finish(message["result"]["case"], message["result"])
 
 
 def sweep(seeds: list[int], jobs: int = 1, chunk: int = 50, cap: float = 60.0, folder: Path | None = None,
@@ -153,16 +205,40 @@ def _confirm_slow(results: dict[int, dict], cap: float) -> None:
                 classes.append("ok")
 
 
+# ProxQP repeats only to its tolerance across processes (docs/controllers.md,
+# "Repeatability"): its repeat must end within this of the first run's q (relative to
+# max(1, |q|)); 25 steps carried its ~1e-16 per-solve differences to ~1e-12 at most.
+PROXQP_REPEAT_TOLERANCE = 1e-6
+
+
 def _repeat(results: dict[int, dict], sample: list[int], cap: float) -> None:
-    """The sample run again in a fresh process: the same classes and a bitwise-equal q."""
+    """The sample run again in a fresh process: the same classes and a bitwise-equal q
+    (for ProxQP, a final q within :data:`PROXQP_REPEAT_TOLERANCE`)."""
     sample = [s for s in sample if "hang" not in results[s]["classes"]]
     again = run_workers(sample, 1, len(sample) or 1, cap) if sample else {}
     for seed in sample:
         first, second = results[seed], again[seed]
         first["details"]["repeated"] = True
-        if first.get("q_hash") != second.get("q_hash") or set(first["classes"]) != set(second["classes"]):
+        if not _same_run(first, second):
             first["classes"] = [c for c in first["classes"] if c != "ok"] + ["nondeterministic"]
             first["details"]["repeat"] = {"classes": second["classes"], "q_hash": second.get("q_hash")}
+
+
+# Classes that depend on the machine's load at that moment, not on the computation.
+TIMING_CLASSES = {"hang", "ok"}
+
+
+def _same_run(first: dict, second: dict) -> bool:
+    if set(first["classes"]) - TIMING_CLASSES != set(second["classes"]) - TIMING_CLASSES:
+        return False
+    if first.get("q_hash") == second.get("q_hash"):
+        return True
+    if first.get("params", {}).get("solver") != "proxqp" or not first.get("q_final") or not second.get("q_final"):
+        return False
+    a, b = first["q_final"], second["q_final"]
+    gap = max(abs(x - y) / max(1.0, abs(x)) for x, y in zip(a, b)) if len(a) == len(b) else float("inf")
+    first["details"]["proxqp_repeat_gap"] = gap
+    return gap <= PROXQP_REPEAT_TOLERANCE
 
 
 # Summary ------------------------------------------------------------------------------
@@ -173,7 +249,9 @@ def summarise(results: dict[int, dict]) -> dict:
     for seed in sorted(results):
         result = results[seed]
         params, details = result.get("params", {}), result["details"]
-        label = params.get("controller", "?") + (f"/{params['solver']}" if params.get("solver") else "") \
+        solver = params.get("solver")
+        solver = solver if isinstance(solver, str) and solver in ALL_SOLVERS else "invalid" if "solver" in params else None
+        label = params.get("controller", "?") + (f"/{solver}" if solver else "") \
             + ("" if params.get("fast_path") is None else f"/fast={params['fast_path']}")
         model = "generated" if params.get("model") == "generated" else "third-party" if params else "?"
         counts["cases"] += 1
@@ -201,16 +279,21 @@ def _example(result: dict) -> dict:
     params = result.get("params", {})
     keep = ("model", "controller", "solver", "fast_path", "tasks", "limits", "levels", "invalid", "invalid_value",
             "targets", "start")
-    return {"case": result["case"], "classes": result["classes"], "error": result["details"].get("error", "")[:200],
-            "site": result["details"].get("site"), "params": {k: params[k] for k in keep if k in params},
+    details = result["details"]
+    return {"case": result["case"], "classes": result["classes"], "error": details.get("error", "")[:200],
+            "repeat": details.get("repeat"), "max_step_ms": details.get("max_step_ms"),
+            "site": details.get("site"), "params": {k: params[k] for k in keep if k in params},
             "command": f"python benchmarks/fuzz_any_robot.py --case {result['case']}"}
 
 
 def to_markdown(summary: dict, meta: dict) -> str:
     counts = summary["counts"]
+    earlier = f"; {meta['cases_from_chunk_files']} cases read from an earlier run's chunk files" \
+        if meta.get("cases_from_chunk_files") else ""
     lines = [f"Any-robot fuzz, seeds {meta['first_seed']}–{meta['first_seed'] + meta['cases'] - 1} "
-             f"({meta['cases']} cases, {meta['elapsed_s']:.0f} s, `{meta['command']}`). A case may fall in several "
-             "classes; defects in bold.", "", "| class | cases |", "|---|---:|"]
+             f"({meta['cases']} cases, {meta['elapsed_s']:.0f} s with {meta.get('jobs', 1)} workers{earlier}, "
+             f"`{meta['command']}`). A case may fall in several classes; defects in bold.", "",
+             "| class | cases |", "|---|---:|"]
     for key, label, bad in CLASSES:
         lines.append(f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |")
     shown = ["cases", "ok", "typed", "rejected", *DEFECTS]

@@ -164,9 +164,7 @@ class QPBackend:
         if outside > self.bound_tolerance:
             raise SolverError(f"QP solver {self.name} returned a point {outside:.3g} outside its bounds")
         if self.meq and not equalities_met(self.A, x, self.b, self.equality_tolerance):
-            miss = float(np.abs(self.A @ x - self.b).max())
-            raise SolverError(f"QP solver {self.name} returned a point that misses the equality "
-                              f"constraints by {miss:.3g}")
+            x = self._refined(x)
         if self.mineq:
             finite = self.h < BIG
             if finite.any():
@@ -176,6 +174,28 @@ class QPBackend:
                     raise SolverError(f"QP solver {self.name} returned a point that exceeds an inequality "
                                       f"by {excess:.3g}")
         return x
+
+    def _refined(self, x: np.ndarray, rounds: int = 4) -> np.ndarray:
+        """``x`` moved onto A x = b by least-squares corrections of the dofs not at a bound
+        (an ill-conditioned KKT system loses the equalities' last digits: far targets give
+        |b| ~ 1e8 with cond(A) ~ 1e6), a dof the correction pushes out held at its bound
+        and left out of the next round; kept only if it then meets them (the inequalities
+        are checked after, as for any answer). Else SolverError."""
+        lb, ub = self.lb, self.ub
+        x = x.copy()
+        for _ in range(rounds):
+            free = (x > lb) & (x < ub)
+            if not free.any():
+                break
+            x[free] += np.linalg.lstsq(self.A[:, free], self.b - self.A @ x, rcond=None)[0]
+            np.clip(x, lb, ub, out=x)
+            if not np.all(np.isfinite(x)):
+                break
+            if equalities_met(self.A, x, self.b, self.equality_tolerance):
+                return x
+        miss = float(np.abs(self.A @ x - self.b).max())
+        raise SolverError(f"QP solver {self.name} returned a point that misses the equality "
+                          f"constraints by {miss:.3g}")
 
     def _fail(self, status: str, infeasible: bool) -> None:
         if infeasible:

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import InvalidInput, ModelError
 from ..robot import Robot
-from .task import Task, axis_rows, feedback_gain, finite_vector, positive
+from .task import Task, axis_rows, feedback_gain, positive, target_vector
 
 
 class ComTask(Task):
@@ -70,14 +70,14 @@ class ComTask(Task):
             InvalidInput: a wrong length, NaN or inf, or a target so far away that the
                 feedback K·e would overflow.
         """
-        target = finite_vector(position, self.dim, "target CoM")
+        target = target_vector(position, self.dim, "target CoM")
         # e = target − CoM and K·e must stay finite (an overflow there would warn every step);
         # fmax: a dead-beat gain is NaN until a controller gives its period.
         if not (np.abs(target) <= np.finfo(float).max / (2.0 * np.fmax(self.gain, 1.0))).all():
             raise InvalidInput(f"{self.name}: target CoM {target} is so far away that the feedback "
                                f"(gain {float(np.max(self.gain)):g} times the error) overflows")
         self.target[:] = target
-        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.dim, "target CoM velocity")
+        self.target_rate[:] = 0.0 if velocity is None else target_vector(velocity, self.dim, "target CoM velocity")
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the robot's current configuration."""

@@ -8,7 +8,7 @@ from typing import Protocol, Sequence
 import mujoco
 import numpy as np
 
-from ..errors import InvalidInput
+from ..errors import DivergenceError, InvalidInput
 from ..robot import Robot
 from .task import JointSpaceTask, positive_scalar
 
@@ -291,6 +291,12 @@ class ManipulabilityTask(JointSpaceTask):
         self._every_dof = bool(np.array_equal(self.dofs, np.arange(robot.nv)))
 
     def update(self) -> None:
-        self.measure.gradient(self._grad)
+        # Unbounded (no limits, a slide joint extending) the ascent grows w without end
+        # until JJᵀ overflows: a DivergenceError, not a RuntimeWarning per step.
+        with np.errstate(over="ignore", invalid="ignore"):
+            self.measure.gradient(self._grad)
+        if not math.isfinite(sum(self._grad.tolist())):
+            raise DivergenceError(f"{self.name}: the manipulability gradient overflowed (the configuration "
+                                  "diverged, e.g. an unlimited joint extending): add joint limits")
         gradient = self._grad if self._every_dof else self._grad[self.dofs]
         np.multiply(gradient, self.gain, self.target_velocity)

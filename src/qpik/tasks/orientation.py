@@ -11,7 +11,7 @@ from .task import (
     axis_rows,
     check_axes_frame,
     feedback_gain,
-    finite_vector,
+    target_vector,
     mocap_pose,
     positive,
     rotation_matrix,
@@ -72,7 +72,7 @@ class OrientationTask(Task):
         """
         self.target_rotation[:] = rotation_matrix(rotation)
         self.target_angular_velocity[:] = (0.0 if angular_velocity is None
-                                           else finite_vector(angular_velocity, 3, "target angular velocity"))
+                                           else target_vector(angular_velocity, 3, "target angular velocity"))
 
     def set_target_from_configuration(self) -> None:
         """Desired rotation: the frame's at the robot's current configuration."""

@@ -12,7 +12,7 @@ from .task import (
     check_axes_frame,
     contiguous_rows,
     feedback_gain,
-    finite_vector,
+    target_vector,
     mocap_pose,
     positive,
 )
@@ -95,8 +95,8 @@ class PositionTask(Task):
         Raises:
             InvalidInput: a wrong length, NaN or inf.
         """
-        self.target[:] = finite_vector(position, self.target_dim, "target position")
-        self.target_rate[:] = 0.0 if velocity is None else finite_vector(velocity, self.target_dim, "target velocity")
+        self.target[:] = target_vector(position, self.target_dim, "target position")
+        self.target_rate[:] = 0.0 if velocity is None else target_vector(velocity, self.target_dim, "target velocity")
 
     def set_target_from_configuration(self) -> None:
         """Desired position: the frame's position at the robot's current configuration."""

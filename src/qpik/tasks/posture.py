@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from ..robot import Robot
-from .task import JointSpaceTask, contiguous_rows, finite_vector, positive_scalar
+from .task import JointSpaceTask, contiguous_rows, positive_scalar, target_vector
 
 
 class PostureTask(JointSpaceTask):
@@ -31,7 +31,7 @@ class PostureTask(JointSpaceTask):
     def __init__(self, robot: Robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
         self.gain = positive_scalar(gain, "posture gain", allow_zero=True)
-        self.target = robot.q.copy() if target is None else finite_vector(target, robot.nq, "posture target")
+        self.target = robot.q.copy() if target is None else target_vector(target, robot.nq, "posture target")
         self._difference = np.zeros(robot.nv)
         # Consecutive dofs (every hinge, with or without a floating base before them): the
         # error is a view of the difference, no copy per step.
@@ -42,7 +42,7 @@ class PostureTask(JointSpaceTask):
         self._model, self._qpos = robot.model, robot.data.qpos  # views, valid for the robot's life
 
     def set_target(self, target) -> None:
-        self.target[:] = finite_vector(target, self.robot.nq, "posture target")
+        self.target[:] = target_vector(target, self.robot.nq, "posture target")
 
     def feedback_gains(self) -> np.ndarray:
         return np.full(self.dim, self.gain)

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import Robot
-from .task import RotationError, Task, feedback_gain, finite_vector, homogeneous_transform, positive, rotation_matrix
+from .task import RotationError, Task, feedback_gain, homogeneous_transform, positive, rotation_matrix, target_vector
 
 
 class RelativeFrameTask(Task):
@@ -85,10 +85,10 @@ class RelativeFrameTask(Task):
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
         """
-        self.target_position[:] = finite_vector(position, 3, "target position")
+        self.target_position[:] = target_vector(position, 3, "target position")
         self.target_rotation[:] = rotation_matrix(rotation)
-        self.target_linear_velocity[:] = 0.0 if linear_velocity is None else finite_vector(linear_velocity, 3, "target linear velocity")
-        self.target_angular_velocity[:] = 0.0 if angular_velocity is None else finite_vector(angular_velocity, 3, "target angular velocity")
+        self.target_linear_velocity[:] = 0.0 if linear_velocity is None else target_vector(linear_velocity, 3, "target linear velocity")
+        self.target_angular_velocity[:] = 0.0 if angular_velocity is None else target_vector(angular_velocity, 3, "target angular velocity")
 
     def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
         """Desired pose in ``root`` coordinates as a homogeneous 4x4 transform."""

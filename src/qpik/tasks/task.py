@@ -206,6 +206,21 @@ def finite_vector(value, size: int, what: str) -> np.ndarray:
     return arr
 
 
+# A target (or feed-forward velocity) entry beyond this is refused: no model is that large,
+# and it keeps K·e, its square and J q̇ − v finite for any gain with K·Δt <= 2 and Δt > 1e-150.
+TARGET_MAGNITUDE_LIMIT = 1e150
+
+
+def target_vector(value, size: int, what: str) -> np.ndarray:
+    """:func:`finite_vector`, and InvalidInput for an entry beyond
+    :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
+    arr = finite_vector(value, size, what)
+    if size and max(map(abs, arr.tolist())) > TARGET_MAGNITUDE_LIMIT:
+        raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback "
+                           "K·e (and its square) would overflow; give a target the robot could reach")
+    return arr
+
+
 def positive(value, size: int, what: str, allow_zero: bool = False) -> np.ndarray:
     """A scalar (broadcast) or a (size,) vector of positive (or >= 0) finite values."""
     if np.ndim(value) == 0:
