@@ -59,9 +59,17 @@ def test_the_short_any_robot_fuzz_finds_no_defect(tmp_path):
 
 
 def _children(pid: int) -> list[int]:
+    """The sweep's worker processes among ``pid``'s children (an import may start a helper
+    process of its own, e.g. ldconfig, before the sweep installs its SIGTERM handler)."""
     found = []
     for task in Path(f"/proc/{pid}/task").glob("*/children"):
-        found += [int(c) for c in task.read_text().split()]
+        for child in task.read_text().split():
+            try:
+                command = Path(f"/proc/{child}/cmdline").read_bytes()
+            except OSError:  # already gone
+                continue
+            if b"qpik.fuzz.sweep" in command:
+                found.append(int(child))
     return found
 
 
