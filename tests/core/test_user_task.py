@@ -59,27 +59,7 @@ def arm():
     return robot
 
 
-def finite_difference_jacobian(robot, measure, eps=1e-6):
-    """Central differences of ``measure(robot)`` along each dof (q ⊕ ±eps e_i)."""
-    q0 = robot.q.copy()
-    columns = []
-    for i in range(robot.nv):
-        values = []
-        for sign in (1.0, -1.0):
-            step = np.zeros(robot.nv)
-            step[i] = sign * eps
-            q = q0.copy()
-            mujoco.mj_integratePos(robot.model, q, step, 1.0)
-            robot.set_q(q)
-            robot.update_kinematics()
-            values.append(np.atleast_1d(measure(robot)))
-        columns.append((values[0] - values[1]) / (2 * eps))
-    robot.set_q(q0)
-    robot.update_kinematics()
-    return np.array(columns).T
-
-
-def test_the_user_jacobian_is_the_derivative_of_what_the_error_measures(arm):
+def test_the_user_jacobian_is_the_derivative_of_what_the_error_measures(arm, finite_difference_jacobian):
     task = TipDistance(arm, centre=[0.1, -0.2, 0.0], gain=10.0)
     # x = x_d − e, so ∂x/∂q = −∂e/∂q; central differences with eps 1e-6 on a smooth
     # distance (curvature ~1/|offset| ~ 3 1/m): truncation ~1e-12, rounding ~1e-10.
@@ -197,7 +177,7 @@ def test_a_subclass_without_the_contract_is_refused_when_built(arm):
         NoDim(arm)
 
 
-def test_builtin_tasks_answer_the_same_two_methods(arm):
+def test_builtin_tasks_answer_the_same_two_methods(arm, finite_difference_jacobian):
     from qpik import PositionTask
 
     task = PositionTask(arm, "end_effector", axes="xy", gain=10.0)
