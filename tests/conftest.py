@@ -1,9 +1,12 @@
 """Shared fixtures: the third-party test models, read from the installed PyPI packages
-(dm_control, gymnasium; the ``test`` extra) and never copied into the repository, and a
-finite-difference Jacobian for the tasks' derivative tests."""
+(dm_control, gymnasium; the ``test`` extra) and never copied into the repository; a
+finite-difference Jacobian for the tasks' derivative tests; a subprocess runner in which
+chosen packages cannot be imported (the extras' tests)."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -72,3 +75,27 @@ def finite_difference_jacobian():
         return np.array(columns).T
 
     return jacobian
+
+
+# Prepended to a subprocess's code: the modules named are not found, as if not installed.
+_HIDE = """\
+import importlib.machinery, sys
+HIDDEN = {hidden!r}
+class Hide(importlib.machinery.PathFinder):
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        return None if name.split(".")[0] in HIDDEN else super().find_spec(name, path, target)
+sys.meta_path[:] = [Hide if finder is importlib.machinery.PathFinder else finder for finder in sys.meta_path]
+"""
+
+
+@pytest.fixture(scope="session")
+def run_without_modules():
+    """``run_without_modules(code, hidden, timeout=None)``: ``code`` run in a new Python
+    process in which the top-level packages ``hidden`` cannot be imported."""
+
+    def run(code: str, hidden: tuple[str, ...], timeout: float | None = None) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-c", _HIDE.format(hidden=hidden) + code], capture_output=True,
+                              text=True, timeout=timeout)
+
+    return run

@@ -5,28 +5,8 @@ printed, no output folder. (``--plot`` used to fail only after the whole run.)""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 
 import pytest
-
-HIDE = """\
-import importlib.machinery, sys
-HIDDEN = {hidden!r}
-class Hide(importlib.machinery.PathFinder):
-    @classmethod
-    def find_spec(cls, name, path=None, target=None):
-        return None if name.split(".")[0] in HIDDEN else super().find_spec(name, path, target)
-sys.meta_path[:] = [Hide if finder is importlib.machinery.PathFinder else finder for finder in sys.meta_path]
-from qpik.app.cli import main
-sys.exit(main({argv!r}))
-"""
-
-
-def _qpik_without(hidden: tuple[str, ...], *argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", HIDE.format(hidden=hidden, argv=list(argv))],
-                          capture_output=True, text=True, timeout=300)
-
 
 CASES = [
     (("matplotlib",), ["run", "arm", "--scenario", "seed-redundant", "--plot"], '".[plots]"'),
@@ -40,10 +20,10 @@ CASES = [
 
 
 @pytest.mark.parametrize("hidden, argv, extra", CASES, ids=lambda v: " ".join(v) if isinstance(v, (list, tuple)) else v)
-def test_a_missing_extra_is_one_line_before_any_work(tmp_path, hidden, argv, extra):
+def test_a_missing_extra_is_one_line_before_any_work(tmp_path, hidden, argv, extra, run_without_modules):
     out = tmp_path / "out"
     argv = [a.format(out=tmp_path) for a in argv] + ["--out", str(out), "--quiet"]
-    done = _qpik_without(hidden, *argv)
+    done = run_without_modules(f"from qpik.app.cli import main\nsys.exit(main({list(argv)!r}))", hidden, timeout=300)
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("qpik: error:") and extra in lines[0], done.stderr

@@ -6,24 +6,12 @@ imported: the steps are those of the SciPy path (NumPy's linear algebra,
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from qpik.errors import InfeasibleProblem
 
-# Prepended to a subprocess's code: the modules named are not found, as if not installed.
-HIDE = """\
-import importlib.machinery, sys
-HIDDEN = {hidden!r}
-class Hide(importlib.machinery.PathFinder):
-    @classmethod
-    def find_spec(cls, name, path=None, target=None):
-        return None if name.split(".")[0] in HIDDEN else super().find_spec(name, path, target)
-sys.meta_path[:] = [Hide if finder is importlib.machinery.PathFinder else finder for finder in sys.meta_path]
-"""
 WITHOUT_SCIPY = ("scipy", "qpsolvers", "osqp")
 
 # (scenario, controller): the arm with its joint limits binding, SNS at the edge of the
@@ -61,12 +49,8 @@ def contradictory():
 """
 
 
-def _run_hidden(code: str, hidden=WITHOUT_SCIPY) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", HIDE.format(hidden=hidden) + code], capture_output=True, text=True)
-
-
 @pytest.fixture(scope="module")
-def without_scipy():
+def without_scipy(run_without_modules):
     code = ROLLOUTS + f"""
 import sys, qpik
 from qpik import linalg
@@ -74,7 +58,7 @@ print(json.dumps({{"backend": linalg.BACKEND, "steps": [rollout(s, k, {STEP_COUN
                   "contradictory": contradictory(),
                   "scipy_imported": any(m.split(".")[0] == "scipy" for m in sys.modules)}}))
 """
-    done = _run_hidden(code)
+    done = run_without_modules(code, WITHOUT_SCIPY)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
 
