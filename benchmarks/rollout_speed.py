@@ -76,7 +76,8 @@ def timed_rollout(runs_module, robot: str, scenario: str) -> tuple[float, dict]:
         elapsed = time.perf_counter() - start
     finally:
         gc.enable()
-    return elapsed, log.summary()
+    summary = log.summary()  # a dict before the typed summary
+    return elapsed, summary.to_json() if hasattr(summary, "to_json") else summary
 
 
 def measure(versions: dict[str, object], rounds: int) -> dict:

@@ -28,7 +28,7 @@ from pathlib import Path
 from qpik.app.progress import iterate, wanted
 from qpik.app.runs import compare, run
 from qpik.io import write_json, write_text
-from qpik.rollout.log import run_status
+from qpik.rollout.log import RunSummary
 from qpik.scenario import build_scenario, scenarios
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -86,7 +86,7 @@ def chaotic_rows() -> list[dict]:
     for scenario, mode, controller, solver in CHAOTIC:
         _, log = run(registry()[scenario].robot, scenario, controller, "daqp" if solver == "none" else solver, mode,
                      on_failure="stop")
-        rows.append({**log.summary(), "kernel": kernel})
+        rows.append({**log.summary().to_json(), "kernel": kernel})
     return rows
 
 
@@ -119,11 +119,11 @@ def compute_rows(progress: bool = False) -> list[dict]:
     rows = []
     for name, info in iterate(list(scenarios().items()), desc="scenarios", enabled=progress, unit="scenario"):
         _, logs, _ = compare(info.robot, name, ["daqp"])
-        rows += [log.summary() for log in logs]
+        rows += [log.summary().to_json() for log in logs]
         if name in PHYSICS:
-            rows.append(run(info.robot, name, "qp", "daqp", "physics")[1].summary())
+            rows.append(run(info.robot, name, "qp", "daqp", "physics")[1].summary().to_json())
         if name == "hexapod-position-only":  # the same run without the manipulability task
-            summary = run(info.robot, name, "qp", "daqp", setup=build_scenario(name, k0=0.0))[1].summary()
+            summary = run(info.robot, name, "qp", "daqp", setup=build_scenario(name, k0=0.0))[1].summary().to_json()
             rows.append({**summary, "controller": "qp, k0 = 0"})
     return rows
 
@@ -145,7 +145,7 @@ def to_markdown(rows: list[dict], chaotic: dict | None = None) -> str:
         if chaotic is not None and row_key(s) in CHAOTIC:
             runs = [r for r in chaotic["runs"] if row_key(r) == row_key(s)]
             ctrl += f" (chaotic: range over {len(runs)} BLAS kernels)"
-        status = sorted({run_status(r) for r in runs})
+        status = sorted({RunSummary.from_json(r).status for r in runs})
         lines.append(f"| {s['scenario']} | {s['mode']} | {ctrl} | {' | '.join(_cells(runs))} | {'; '.join(status)} |")
     return "\n".join(lines) + "\n"
 

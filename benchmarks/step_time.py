@@ -56,7 +56,7 @@ def measure(robot: str, scenario: str, entries: list[tuple[str, str]], repeats: 
     rows = []
     for (controller, solver), row in zip(entries, timing.rows()):
         log = logged_run(robot, scenario, controller, solver)
-        rows.append({"controller": controller, "solver": solver, **row, "summary": log.summary(),
+        rows.append({"controller": controller, "solver": solver, **row, "summary": log.summary().to_json(),
                      "timed_vs_logged_q": timed_vs_logged(timing.contestants[row["label"]].last_run, log)})
     return rows, timing
 

@@ -100,7 +100,7 @@ def test_a_stopped_run_is_flagged_in_its_row():
     from qpik.app.runs import compare
 
     _, logs, _ = compare("arm", "too-fast", ["daqp"], classical=("qp-hard", "pinv"), peers=())
-    table = scenarios_table.to_markdown([log.summary() for log in logs]).splitlines()
+    table = scenarios_table.to_markdown([log.summary().to_json() for log in logs]).splitlines()
     flagged = {line.split("|")[3].strip(): line.split("|")[-2].strip() for line in table[2:]}
     assert flagged == {"qp (daqp)": "complete", "qp-hard (daqp)": "stopped at 0.056 s: infeasible",
                        "pinv": "complete"}

@@ -21,6 +21,7 @@ from .controllers.sns import SNSController
 from .errors import UnknownName
 from .robot import JointLimits, Robot, scene_path
 from .robots import BUNDLED
+from .rollout import Rollout
 from .solvers import available_solvers
 from .tasks import Task
 
@@ -77,10 +78,11 @@ class Setup:
     level_errors: object | None = None  # a qpik.rollout.levels.LevelErrors
     variants: dict[str, Callable[[str], object]] = field(default_factory=dict)
 
+    rolled_out: bool = False  # set by qpik.app.runs.run, which refuses a setup twice
+
     def controller_kinds(self) -> list[str]:
         """Every controller this setup builds (the peers aside)."""
         return ["qp", *self.variants, *(["hqp", "sns"] if self.hierarchy else []), *self.classical]
-    rolled_out: bool = False  # set by qpik.app.runs.run, which refuses a setup twice
 
     def controller(self, kind: str = "qp", solver: str = "daqp", **options):
         if kind == "qp":
@@ -94,6 +96,19 @@ class Setup:
         if kind in self.classical:
             return self.classical[kind]()
         raise UnknownName(f"unknown controller {kind!r} for {self.scenario}; choose from {self.controller_kinds()}")
+
+    def rollout(self, controller, *, mode: str = "kinematic", on_failure: str = "raise", progress=None,
+                duration: float | None = None, scenario: str | None = None) -> Rollout:
+        """``controller`` (built on this setup's robot) rolled out along the setup's
+        reference, measured as the scenario says (its manipulability, joint limits,
+        joints, levels), for ``duration`` (default the scenario's) seconds; ``scenario``
+        relabels the run. See :class:`qpik.rollout.Rollout` for the other arguments."""
+        return Rollout(controller, self.reference, self.duration if duration is None else duration, dt=self.dt,
+                       mode=mode, manipulability=self.manipulability,
+                       manipulability_measure=self.manipulability_measure, joint_limits=self.joint_limits,
+                       scenario=scenario or self.scenario, robot_name=self.robot_name, on_failure=on_failure,
+                       closure=self.closure, speed_dofs=self.plot_joints.dof_index, progress=progress,
+                       levels=self.level_errors)
 
 
 @dataclass(frozen=True)

@@ -180,7 +180,7 @@ def test_missing_peer_is_skipped_with_a_note(monkeypatch):
     monkeypatch.setattr("qpik.app.runs.peer_installed", lambda kind: kind != "mink")
     _, logs, notes = compare("arm", "seed-primary", ["daqp"], classical=())
     assert "mink not installed: skipped" in notes
-    assert [log.controller for log in logs] == ["qp", "placo"]
+    assert [log.info.controller for log in logs] == ["qp", "placo"]
 
 
 

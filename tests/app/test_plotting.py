@@ -20,18 +20,18 @@ def test_the_log_keeps_the_commanded_configuration_the_stops_cut():
     dofs = np.array(setup.plot_joints.dof_index)
     commanded, reached = log.q_commanded[:-1, strokes], log.q[:, strokes]
     # Scalar joints integrate as q + q̇Δt: the commanded strokes follow from the log's q and q̇.
-    np.testing.assert_allclose(commanded, reached[:-1] + log.dt * log.qdot[:-1, dofs], atol=1e-15)
+    np.testing.assert_allclose(commanded, reached[:-1] + log.info.dt * log.qdot[:-1, dofs], atol=1e-15)
     assert np.all(np.isnan(log.q_commanded[-1]))
     # The inverse-Jacobian law asks for strokes past the 0.35 m end of travel; the stops
     # (and the jammed mechanism) keep the reached strokes inside. How far past is chaotic
     # (it jams, and what follows depends on rounding: 0.06-0.15 m across OpenBLAS kernels),
     # so the test asks only that it crosses by more than a centimetre.
     assert commanded.max() > 0.35 + 0.01 and reached.max() <= 0.35 + 1e-12
-    assert log.summary()["limit_violation_max"] == np.max(commanded - 0.35)
+    assert log.summary().limit_violation_max == np.max(commanded - 0.35)
     # The QP on the same scenario never commands a stroke past the stop (1e-12: rounding
     # of q + q̇Δt at |q| < 1).
     _, qp = run("hexapod", "hexapod-stroke-limits", "qp")
-    assert np.max(qp.q_commanded[:-1, strokes]) <= 0.35 + 1e-12 and qp.summary()["limit_violation_max"] <= 1e-12
+    assert np.max(qp.q_commanded[:-1, strokes]) <= 0.35 + 1e-12 and qp.summary().limit_violation_max <= 1e-12
 
 
 def test_an_off_scale_run_is_clipped_and_its_peak_written():
@@ -104,9 +104,9 @@ def test_readme_command_figures_keep_the_legend_inside_and_one_colour_per_contro
         legend, canvas = fig.legends[0].get_window_extent(), fig.bbox
         assert canvas.x0 <= legend.x0 and legend.x1 <= canvas.x1 and canvas.y0 <= legend.y0, name
     lines = figures["error.png"].axes[0].get_lines()
-    assert [to_hex(line.get_color()) for line in lines] == [controller_colour(log.controller) for log in logs]
+    assert [to_hex(line.get_color()) for line in lines] == [controller_colour(log.info.controller) for log in logs]
     # No two runs alike: the same controller with another solver has another line style.
-    assert len({(log.controller, repr(solver_linestyle(log.solver))) for log in logs}) == len(logs)
+    assert len({(log.info.controller, repr(solver_linestyle(log.info.solver))) for log in logs}) == len(logs)
     assert len(set(CONTROLLER_COLOURS.values())) == len(CONTROLLER_COLOURS)
     plt.close("all")
 

@@ -17,8 +17,8 @@ def _circle_setup():
 
 def test_a_custom_setup_runs_and_tracks_its_path():
     setup, log = run(setup=_circle_setup(), controller="qp")
-    assert log.scenario == "my-circle" and log.robot == "arm" and log.completed
-    assert log.summary()["max_error"] < 2e-5
+    assert log.info.scenario == "my-circle" and log.info.robot == "arm" and log.completed
+    assert log.summary().max_error < 2e-5
     # Measured on the logged q by the DH model (independent of MuJoCo): the circle's end point.
     np.testing.assert_allclose(end_effector_position(log.q[-1]), [0.5, 2.0], atol=1e-6)
 
@@ -34,12 +34,12 @@ def test_a_used_setup_is_refused_not_silently_continued():
     # A fresh setup of the same definition starts from q0 again and tracks the same circle.
     _, pinv_log = run(setup=_circle_setup(), controller="pinv")
     np.testing.assert_array_equal(pinv_log.q[0], ARM_START)
-    assert pinv_log.summary()["max_error"] < 2e-5
+    assert pinv_log.summary().max_error < 2e-5
     np.testing.assert_allclose(end_effector_position(pinv_log.q[-1]), [0.5, 2.0], atol=1e-6)
 
 
 def test_compare_runs_every_controller_from_the_same_start():
     _, logs, _ = compare("arm", "seed-primary", ["daqp"], peers=())
-    assert [log.controller for log in logs] == ["qp", "hqp", "sns", "pinv", "jt"]
+    assert [log.info.controller for log in logs] == ["qp", "hqp", "sns", "pinv", "jt"]
     for log in logs:
         np.testing.assert_array_equal(log.q[0], ARM_START)

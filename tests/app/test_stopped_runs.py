@@ -16,12 +16,12 @@ STOP = "stopped at 0.056 s: infeasible"
 def test_the_stopped_row_is_flagged_in_the_table_and_in_compare_json(tmp_path):
     _, logs, _ = compare("arm", "too-fast", ["daqp"], classical=("qp-hard", "pinv"), peers=())
     summaries = [log.summary() for log in logs]
-    by_controller = {s["controller"]: s for s in summaries}
+    by_controller = {s.info.controller: s for s in summaries}
     hard = by_controller["qp-hard"]
-    assert not hard["completed"] and hard["partial"] and hard["failure_kind"] == "InfeasibleProblem"
-    assert hard["stopped_at"] == 0.056 and hard["status"] == STOP
-    assert hard["steps"] == 28  # the steps before t = 0.056 s, at Δt = 2 ms
-    assert by_controller["qp"]["status"] == "complete" and "partial" not in by_controller["qp"]
+    assert not hard.completed and hard.stop.failure_kind == "InfeasibleProblem"
+    assert hard.stop.stopped_at == 0.056 and hard.status == STOP
+    assert hard.steps == 28  # the steps before t = 0.056 s, at Δt = 2 ms
+    assert by_controller["qp"].status == "complete" and by_controller["qp"].stop is None
     # The CLI table: a `run` column on every row, the stop in the stopped run's own row.
     lines = format_table(summaries).splitlines()
     assert lines[0].split()[-1] == "run"
@@ -30,8 +30,8 @@ def test_the_stopped_row_is_flagged_in_the_table_and_in_compare_json(tmp_path):
     assert rows["qp"].endswith("complete") and rows["pinv"].endswith("complete")
     # compare.json carries the same flag.
     written = json.loads(write_compare(tmp_path, "arm", "too-fast", summaries, "kinematic").read_text())
-    flags = {r["controller"]: (r["completed"], r["status"]) for r in written["runs"]}
-    assert flags == {"qp": (True, "complete"), "qp-hard": (False, STOP), "pinv": (True, "complete")}
+    flags = {r["controller"]: (r["completed"], r["status"], r.get("partial")) for r in written["runs"]}
+    assert flags == {"qp": (True, "complete", None), "qp-hard": (False, STOP, True), "pinv": (True, "complete", None)}
 
 
 def test_a_stopped_run_writes_its_partial_log_and_exits_1(tmp_path, capsys):

@@ -67,8 +67,8 @@ def test_hqp_rollout_equals_the_hard_qp_and_the_classical_law(scenario):
     assert np.max(np.abs(hqp.q - qp.q)) <= 1e-9
     assert np.max(np.abs(hqp.q - pinv.q)) <= 1e-9
     summary = hqp.summary()
-    assert summary["controller"] == "hqp" and summary["limit_violation_max"] == 0.0
-    assert summary["level_error_max"][0] == pytest.approx(qp.summary()["max_error"], rel=1e-6)
+    assert summary.info.controller == "hqp" and summary.limit_violation_max == 0.0
+    assert summary.levels.error_max[0] == pytest.approx(qp.summary().max_error, rel=1e-6)
 
 
 def _recursive_law(jacobians, velocities):
@@ -229,6 +229,6 @@ def test_hexapod_hierarchy_closes_the_loops_first_and_equals_the_hard_qp():
     """Loops (level 0), platform pose (1), damping (2): every level hard or a minimum norm,
     as in the hexapod's QP, so the two give the same rollout."""
     hqp, qp = run("hexapod", "hexapod-circle", "hqp")[1], run("hexapod", "hexapod-circle", "qp")[1]
-    assert hqp.level_names == ("loops", "platform")
+    assert hqp.levels.names == ("loops", "platform")
     assert np.max(np.abs(hqp.q - qp.q)) <= 1e-9
-    assert hqp.summary()["level_error_max"][0] <= 1e-6 and hqp.summary()["limit_violation_max"] == 0.0
+    assert hqp.summary().levels.error_max[0] <= 1e-6 and hqp.summary().limit_violation_max == 0.0

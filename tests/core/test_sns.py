@@ -54,7 +54,7 @@ def test_no_bound_reached_is_exactly_the_null_space_law():
 def test_no_bound_reached_rollout_is_the_pseudoinverse_rollout():
     sns, pinv = run("arm", "seed-redundant", "sns")[1], run("arm", "seed-redundant", "pinv")[1]
     assert np.max(np.abs(sns.q - pinv.q)) <= 1e-11
-    assert sns.summary()["task_scale_min"] == 1.0
+    assert sns.summary().task_scale_min == 1.0
 
 
 def _max_scale(J, v, lb, ub):
@@ -147,9 +147,9 @@ def test_braking_bound_from_max_acceleration():
 
 def test_joint_limits_rollout_keeps_the_limits_and_tracks_like_the_qp():
     sns, qp = run("arm", "joint-limits", "sns")[1].summary(), run("arm", "joint-limits", "qp")[1].summary()
-    assert sns["limit_violation_max"] == 0.0
-    assert sns["max_error"] <= 1e-3
-    assert sns["max_error"] <= 2.0 * qp["max_error"]
+    assert sns.limit_violation_max == 0.0
+    assert sns.max_error <= 1e-3
+    assert sns.max_error <= 2.0 * qp.max_error
 
 
 def _segment_distance(x):
@@ -163,17 +163,17 @@ def test_too_fast_sns_stays_on_the_segment_and_arrives_late_the_soft_qp_cuts_acr
     sns, qp = run("arm", "too-fast", "sns")[1], run("arm", "too-fast", "qp")[1]
     speeds = np.array([TOO_FAST_SPEEDS[j] for j in ("theta1", "theta2", "theta3", "d4")])
     for log in (sns, qp):
-        assert log.summary()["limit_violation_max"] == 0.0
+        assert log.summary().limit_violation_max == 0.0
         assert np.all(np.abs(log.qdot) <= speeds + 1e-12)
     s_sns, s_qp = sns.summary(), qp.summary()
-    assert s_sns["task_scale_min"] < 0.1  # slowed down a lot ...
+    assert s_sns.task_scale_min < 0.1  # slowed down a lot ...
     # ... on the segment (the reference's measure, checked here from x directly) ...
-    assert np.max(_segment_distance(sns.x)) == pytest.approx(s_sns["path_deviation_max"], rel=1e-9)
-    assert s_sns["path_deviation_max"] <= 1e-3
-    assert s_qp["path_deviation_max"] >= 30 * s_sns["path_deviation_max"]  # the soft QP cuts across
+    assert np.max(_segment_distance(sns.x)) == pytest.approx(s_sns.path_deviation_max, rel=1e-9)
+    assert s_sns.path_deviation_max <= 1e-3
+    assert s_qp.path_deviation_max >= 30 * s_sns.path_deviation_max  # the soft QP cuts across
     # ... and later: the path's end is reached after the reference's 0.5 s.
-    assert s_sns["completion_time"] > TOO_FAST_DURATION + 0.05
-    assert s_sns["completion_time"] > s_qp["completion_time"]
+    assert s_sns.completion_time > TOO_FAST_DURATION + 0.05
+    assert s_sns.completion_time > s_qp.completion_time
 
 
 def test_closed_form_pseudoinverse_equals_numpy_and_falls_back_near_singular():
@@ -244,13 +244,13 @@ def test_unreachable_target_without_chatter():
     QP slides along the boundary to the closest point instead)."""
     setup, log = run("arm", "unreachable", "sns")
     summary = log.summary()
-    assert summary["reversal_fraction"] < 0.05
-    assert summary["limit_violation_max"] == 0.0
+    assert summary.reversal_fraction < 0.05
+    assert summary.limit_violation_max == 0.0
     speeds = np.abs(log.qdot)
     assert np.all(speeds <= setup.robot.velocity_limits + 1e-12)
     assert np.max(speeds[-500:]) <= 0.1  # at rest for the last second
     qp = run("arm", "unreachable", "qp")[1].summary()
-    assert qp["final_error"] <= summary["final_error"] <= 0.5  # 0.39 m the closest point
+    assert qp.final_error <= summary.final_error <= 0.5  # 0.39 m the closest point
 
 
 def test_three_tasks_rollout_has_no_reversals_and_keeps_its_levels():
@@ -258,6 +258,6 @@ def test_three_tasks_rollout_has_no_reversals_and_keeps_its_levels():
     commands never reverse a joint above 1 rad/s, the limits hold, and the path (level 0)
     is tracked as before."""
     summary = run("arm", "three-tasks", "sns")[1].summary()
-    assert summary["reversal_fraction"] == 0.0
-    assert summary["limit_violation_max"] == 0.0
-    assert summary["max_error"] <= 2e-6
+    assert summary.reversal_fraction == 0.0
+    assert summary.limit_violation_max == 0.0
+    assert summary.max_error <= 2e-6

@@ -103,7 +103,7 @@ def test_a_user_task_in_a_rollout_with_a_reference(arm):
     goal = task.target.copy()
     controller = QPController(arm, [task, DampingTask(arm, weight=1e-4)], dt=DT)
     log = simulate(controller, PositionReference(task, Hold(goal, 2.0)), 2.0, dt=DT)
-    assert log.summary()["final_error"] < 1e-6
+    assert log.summary().final_error < 1e-6
     np.testing.assert_allclose(task.measured(), goal, atol=1e-6)
 
 

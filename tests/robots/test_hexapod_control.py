@@ -91,10 +91,10 @@ def test_pose_trajectory_angular_velocity_matches_finite_differences():
 @pytest.mark.parametrize("controller", ["qp", "pinv"])
 def test_circle_is_tracked_with_closed_loops(logs, controller):
     s = logs("hexapod-circle", controller).summary()
-    assert s["max_error"] <= 1e-4
-    assert s["orientation_error_max"] <= 1e-4
-    assert s["constraint_violation_max"] <= 1e-6
-    assert s["limit_violation_max"] == 0.0
+    assert s.max_error <= 1e-4
+    assert s.orientation_error_max <= 1e-4
+    assert s.constraint_violation_max <= 1e-6
+    assert s.limit_violation_max == 0.0
     # How long a step takes (inside the 2 ms control period?) is measured by
     # benchmarks/step_time.py, not asserted here: a test must not depend on the machine's load.
 
@@ -111,16 +111,16 @@ def test_circle_qp_and_classical_law_agree(logs):
 
 def test_circle_in_physics_mode(logs):
     s = logs("hexapod-circle", "qp", "physics").summary()
-    assert s["max_error"] <= 2e-3
-    assert s["mode"] == "physics"
+    assert s.max_error <= 2e-3
+    assert s.info.mode == "physics"
     # The plant's loops are MuJoCo's soft constraints, so they open a little under load.
-    assert 1e-7 < s["constraint_violation_max"] <= 1e-3
+    assert 1e-7 < s.constraint_violation_max <= 1e-3
 
 
 def test_stroke_limits_classical_exceeds_qp_keeps(logs):
     pinv, qp = logs("hexapod-stroke-limits", "pinv"), logs("hexapod-stroke-limits", "qp")
-    assert pinv.summary()["limit_violation_max"] > 1e-3
-    assert qp.summary()["limit_violation_max"] == 0.0
+    assert pinv.summary().limit_violation_max > 1e-3
+    assert qp.summary().limit_violation_max == 0.0
     strokes = qp.q[:, [0, 3, 6, 9, 12, 15]]
     assert strokes.min() >= 0.0 and strokes.max() <= 0.35
     assert strokes.max() >= 0.35 - 1e-6  # it does use the whole stroke
@@ -133,12 +133,12 @@ def test_position_only_raises_manipulability(logs):
     with_task = logs("hexapod-position-only", "qp").summary()
     setup, without_log = run("hexapod", "hexapod-position-only", "qp", setup=build_scenario("hexapod-position-only", k0=0.0))
     without = without_log.summary()
-    assert with_task["max_error"] <= 1e-4 and without["max_error"] <= 1e-4
-    assert with_task["manipulability_mean"] > without["manipulability_mean"] + 0.01
-    assert with_task["manipulability_final"] > without["manipulability_final"] + 0.02
+    assert with_task.max_error <= 1e-4 and without.max_error <= 1e-4
+    assert with_task.manipulability_mean > without.manipulability_mean + 0.01
+    assert with_task.manipulability_final > without.manipulability_final + 0.02
     # The classical law with the same null-space gradient reaches the same orientation.
     classical = logs("hexapod-position-only", "pinv").summary()
-    assert classical["manipulability_final"] == pytest.approx(with_task["manipulability_final"], abs=1e-3)
+    assert classical.manipulability_final == pytest.approx(with_task.manipulability_final, abs=1e-3)
 
 
 def test_stroke_driven_closure_assembles_or_jams():

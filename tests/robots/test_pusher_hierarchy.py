@@ -121,12 +121,12 @@ def checked_rollout():
 def test_pose_level_is_met_and_limits_kept(checked_rollout):
     _, log = checked_rollout
     summary = log.summary()
-    assert summary["completed"] and summary["limit_violation_max"] == 0.0
+    assert summary.completed and summary.limit_violation_max == 0.0
     assert np.all(np.abs(log.qdot) <= SPEED + 1e-12)
     assert np.sum(np.any(np.abs(log.qdot) >= SPEED - 1e-9, axis=1)) > 300  # the box is active
-    assert summary["level_error_max"][0] <= 1e-4  # pose error (m and rad) along the path
-    assert summary["level_error_final"][0] <= 1e-6
-    assert summary["level_error_max"][1] > 0.05  # the elbow cannot rise 15 cm with the pose held
+    assert summary.levels.error_max[0] <= 1e-4  # pose error (m and rad) along the path
+    assert summary.levels.error_final[0] <= 1e-6
+    assert summary.levels.error_max[1] > 0.05  # the elbow cannot rise 15 cm with the pose held
 
 
 def test_elbow_level_is_the_best_the_pose_and_limits_allow(checked_rollout):
@@ -147,5 +147,5 @@ def test_sns_rollout_keeps_the_limits_and_the_pose():
     log = simulate(SNSController(robot, levels=levels, limits=limits, dt=DT), reference, DURATION + 0.5, dt=DT,
                    levels=level_errors)
     summary = log.summary()
-    assert summary["limit_violation_max"] == 0.0 and np.all(np.abs(log.qdot) <= SPEED + 1e-12)
-    assert summary["level_error_max"][0] <= 1e-4 and summary["task_scale_min"] == 1.0
+    assert summary.limit_violation_max == 0.0 and np.all(np.abs(log.qdot) <= SPEED + 1e-12)
+    assert summary.levels.error_max[0] <= 1e-4 and summary.task_scale_min == 1.0

@@ -34,25 +34,25 @@ def summaries(logs):
 
 def test_hqp_keeps_the_path_exact_and_the_limits(summaries):
     hqp = summaries["hqp"]
-    assert hqp["level_names"] == ["path", "phi", "sigma"] and hqp["level_units"] == ["m", "rad", "rad/s, m/s"]
-    assert hqp["level_error_max"][0] <= 1e-6
-    assert hqp["limit_violation_max"] == 0.0
-    assert hqp["level_error_max"][1] > 0.3  # φ is infeasible part of the time ...
-    assert hqp["level_error_final"][1] <= 1e-5  # ... and tracked again at the end
+    assert hqp.levels.names == ("path", "phi", "sigma") and hqp.levels.units == ("m", "rad", "rad/s, m/s")
+    assert hqp.levels.error_max[0] <= 1e-6
+    assert hqp.limit_violation_max == 0.0
+    assert hqp.levels.error_max[1] > 0.3  # φ is infeasible part of the time ...
+    assert hqp.levels.error_final[1] <= 1e-5  # ... and tracked again at the end
 
 
 def test_soft_qp_trades_the_path_for_phi_and_the_classical_law_breaks_the_limits(summaries):
     soft, hard, hqp = summaries["qp"], summaries["qp-hard"], summaries["hqp"]
-    assert soft["level_error_max"][0] >= 1e-2  # centimetres off the path ...
-    assert soft["level_error_max"][1] < hqp["level_error_max"][1] - 0.03  # ... for a better φ
-    assert hard["level_error_max"][0] <= 1e-6  # the path hard: exact; but φ weighed against σ
-    assert hard["level_error_final"][1] > 100 * hqp["level_error_final"][1]  # gives way to it
+    assert soft.levels.error_max[0] >= 1e-2  # centimetres off the path ...
+    assert soft.levels.error_max[1] < hqp.levels.error_max[1] - 0.03  # ... for a better φ
+    assert hard.levels.error_max[0] <= 1e-6  # the path hard: exact; but φ weighed against σ
+    assert hard.levels.error_final[1] > 100 * hqp.levels.error_final[1]  # gives way to it
     for kind in ("qp", "qp-hard", "hqp", "sns"):
-        assert summaries[kind]["limit_violation_max"] == 0.0, kind
-    assert summaries["pinv"]["limit_violation_max"] > 0.1
+        assert summaries[kind].limit_violation_max == 0.0, kind
+    assert summaries["pinv"].limit_violation_max > 0.1
     sns = summaries["sns"]
-    assert sns["level_error_max"][0] <= 1e-5 and sns["task_scale_min"] == 1.0
-    assert sns["level_task_scale_min"][1] < 1.0  # φ scaled (or dropped) where infeasible
+    assert sns.levels.error_max[0] <= 1e-5 and sns.task_scale_min == 1.0
+    assert sns.report["level_task_scale_min"][1] < 1.0  # φ scaled (or dropped) where infeasible
 
 
 class _Checked:
@@ -102,7 +102,7 @@ def test_hqp_gets_phi_as_close_as_the_limits_allow_every_step():
 ])
 def test_compare_shows_the_hierarchy_columns(scenario, columns):
     _, logs, _ = compare("arm", scenario, ["daqp"], peers=())
-    assert {"qp", "qp-hard", "hqp", "sns", "pinv"} <= {log.controller for log in logs}
+    assert {"qp", "qp-hard", "hqp", "sns", "pinv"} <= {log.info.controller for log in logs}
     table = format_table([log.summary() for log in logs])
     for column in columns:
         assert column in table
@@ -119,6 +119,6 @@ def test_level_error_figure(logs, setup_joints):
     assert len(panels) == 4
     assert all(len(ax.lines) == len(logs) for ax in panels[:3])
     assert panels[3].get_ylabel().startswith("task scale")
-    without = dataclasses.replace(logs["pinv"], level_error=None)
+    without = dataclasses.replace(logs["pinv"], levels=None)
     assert "levels.png" not in make_figures([without], setup_joints, "no levels")
     plt.close("all")

@@ -126,19 +126,15 @@ def _outputs(p: argparse.ArgumentParser, out_default: str) -> None:
 
 
 def _run_arguments(p: argparse.ArgumentParser) -> None:
-    from .peers import PEERS, PLACO_SOLVER
-    from .runs import CLASSICAL_KINDS, HIERARCHY_KINDS, QP_KINDS
+    from .kinds import KINDS, SOLVER_KINDS
 
     solvers, listing = _catalogue()
     _robot_and_scenario(p, listing)
     p.add_argument("--controller", default="qp", metavar="NAME",
-                   help=f"one of {', '.join(('qp', *HIERARCHY_KINDS, *CLASSICAL_KINDS, *PEERS))}: qp (qpik's "
-                        "QP), qp-hard (the scenario's QP with its top level hard, where it offers one), hqp "
-                        "(strict task hierarchy), sns (saturation in the null space), pinv (pseudoinverse "
-                        "CLIK + null space), jt (Jacobian transpose; arm only), the peer libraries mink and "
-                        f"placo (placo solves with its own {PLACO_SOLVER})")
+                   help=f"one of {', '.join(KINDS)}: "
+                        + ", ".join(f"{name} ({kind.description})" for name, kind in KINDS.items()))
     p.add_argument("--solver", default=None, metavar="NAME",
-                   help=f"QP solver of {' and '.join(QP_KINDS)}, one of the installed {', '.join(solvers)} "
+                   help=f"QP solver of {' and '.join(SOLVER_KINDS)}, one of the installed {', '.join(solvers)} "
                         "(default: daqp); an error with the other controllers")
     _outputs(p, "out/run-SCENARIO-CONTROLLER-MODE")
     p.set_defaults(handler=cmd_run)
@@ -219,20 +215,22 @@ def cmd_scenarios(args) -> int:
 
 def cmd_run(args) -> int:
     from ..errors import InvalidInput
-    from .runs import QP_KINDS, format_table, level_note, run, run_label
+    from .kinds import SOLVER_KINDS, uses_solver
+    from .runs import format_table, level_note, run, run_label
 
-    if args.solver is not None and args.controller not in QP_KINDS:
-        raise InvalidInput(f"--solver applies to {' and '.join(QP_KINDS)} only; controller "
+    if args.solver is not None and not uses_solver(args.controller):
+        raise InvalidInput(f"--solver applies to {' and '.join(SOLVER_KINDS)} only; controller "
                            f"{args.controller!r} uses no QP solver of ours")
     solver = args.solver or "daqp"
     out = _start_output(args, f"out/run-{args.scenario}-{args.controller}-{args.mode}")
     with out, _bars(args) as bars:
-        label = run_label(args.controller, solver if args.controller in QP_KINDS else "none")
+        label = run_label(args.controller, solver if uses_solver(args.controller) else "none")
         setup, log = run(args.robot, args.scenario, args.controller, solver, args.mode, on_failure="stop",
                          progress=bars.callback(label))
         bars.close()
-        print(format_table([log.summary()]))
-        _print_note(level_note([log.summary()], args.mode))
+        summary = log.summary()
+        print(format_table([summary]))
+        _print_note(level_note([summary], args.mode))
         log.save(out.staging)
         title = f"{setup.robot_name} / {args.scenario} / {args.controller} ({args.mode})"
         if args.plot:
@@ -242,7 +240,7 @@ def cmd_run(args) -> int:
         written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
     if not log.completed:  # the steps before the stop are written, marked partial
-        print(f"qpik: the run {log.summary()['status']}; its log is partial: {log.failure}", file=sys.stderr)
+        print(f"qpik: the run {summary.status}; its log is partial: {log.failure}", file=sys.stderr)
         return EXIT_STOPPED
     return 0
 

@@ -8,17 +8,10 @@ solvers share its colour and differ by line style (figures) or shade (videos).
 
 from __future__ import annotations
 
-# matplotlib's "tab10" colours, by controller.
-CONTROLLER_COLOURS = {
-    "qp": "#1f77b4",       # blue
-    "qp-hard": "#17becf",  # cyan
-    "hqp": "#9467bd",      # purple
-    "sns": "#2ca02c",      # green
-    "pinv": "#d62728",     # red
-    "jt": "#8c564b",       # brown
-    "mink": "#ff7f0e",     # orange
-    "placo": "#e377c2",    # pink
-}
+from .kinds import KINDS
+
+# Each controller's colour, from the registry (matplotlib's "tab10" colours).
+CONTROLLER_COLOURS = {name: kind.colour for name, kind in KINDS.items()}
 OTHER_COLOUR = "#bcbd22"  # olive: a controller not listed above
 LIMIT_GREY = "0.4"  # limit lines; no controller is grey
 

@@ -46,14 +46,14 @@ OFF_SCALE_FACTOR = 4.0
 
 
 def _label(log: RolloutLog) -> str:
-    return run_label(log.controller, log.solver)
+    return run_label(log.info.controller, log.info.solver)
 
 
 def _style(log: RolloutLog) -> dict:
     """The controller's colour, the solver's line style; qp thick, so that where the runs
     drawn after it coincide its colour still shows along their edges."""
-    return {"color": controller_colour(log.controller), "linestyle": solver_linestyle(log.solver),
-            "linewidth": 2.8 if log.controller == "qp" else 1.3}
+    return {"color": controller_colour(log.info.controller), "linestyle": solver_linestyle(log.info.solver),
+            "linewidth": 2.8 if log.info.controller == "qp" else 1.3}
 
 
 def _legend(fig, logs: Sequence[RolloutLog], extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
@@ -136,13 +136,23 @@ def plot_logs(logs: Sequence[RolloutLog], joints: JointPlotSpec, out_dir: str | 
 
 def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) -> dict[str, plt.Figure]:
     """The figures of one or several (overlaid) runs, by file name (open: close them)."""
+    drawn = {"path.png": _path_figure(logs), "joints.png": _joints_figure(logs, joints),
+             "velocities.png": _velocities_figure(logs, joints), "error.png": _error_figure(logs),
+             "manipulability.png": _manipulability_figure(logs), "extras.png": _extras_figure(logs),
+             "levels.png": _level_figure(logs)}
     figures = {}
-
-    def finish(fig, name: str, legend_extra: Sequence[tuple[dict, str]] = (), ncol: int | None = None) -> None:
+    for name, figure in drawn.items():
+        if figure is None:  # nothing to draw (no extra series, no levels)
+            continue
+        fig, legend_extra, ncol = figure if isinstance(figure, tuple) else (figure, (), None)
         _legend(fig, logs, legend_extra, ncol)
         fig.suptitle(title, fontsize=10)
         figures[name] = fig
+    return figures
 
+
+def _path_figure(logs: Sequence[RolloutLog]):
+    """path.png: the tracked point against the desired path, with its legend's extras."""
     ref = logs[0]
     planar = ref.x.shape[1] == 2
     fig, ax = plt.subplots(figsize=(5.6, 5.8), layout="constrained")
@@ -159,27 +169,36 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     grey = {"color": "k", "linewidth": 4, "alpha": 0.2}
-    finish(fig, "path.png", [(grey, "desired"),
-                             ({"color": "k", "marker": "o", "linestyle": "none", "markerfacecolor": "none"}, "start"),
-                             ({"color": "k", "marker": "s", "linestyle": "none", "markerfacecolor": "none"}, "end (desired)"),
-                             ({"color": "0.3", "marker": "x", "linestyle": "none"}, "end (reached)")], ncol=3)
+    return fig, [(grey, "desired"),
+                 ({"color": "k", "marker": "o", "linestyle": "none", "markerfacecolor": "none"}, "start"),
+                 ({"color": "k", "marker": "s", "linestyle": "none", "markerfacecolor": "none"}, "end (desired)"),
+                 ({"color": "0.3", "marker": "x", "linestyle": "none"}, "end (reached)")], 3
 
-    # Joint positions: commanded (what the controller asks for), thin where the stops cut it.
+
+def _joint_positions(ax, logs: Sequence[RolloutLog], qi: int) -> bool:
+    """One joint's commanded positions (what each controller asks for), with the reached
+    ones drawn thin where the end stops cut the command; whether any was cut."""
+    cut_any = False
+    for log in logs:
+        style = _style(log)
+        reached = log.q[:, qi]
+        if log.q_commanded is None:
+            ax.plot(log.t, reached, **style)
+            continue
+        commanded = log.q_commanded[:-1, qi]  # reached, or not, at the next step
+        ax.plot(np.concatenate([log.t[:1], log.t[1:]]), np.concatenate([reached[:1], commanded]), **style)
+        if np.max(np.abs(commanded - reached[1:]), initial=0.0) > 1e-6:
+            cut_any = True
+            ax.plot(log.t, reached, color=style["color"], linewidth=0.8, alpha=0.8)
+    return cut_any
+
+
+def _joints_figure(logs: Sequence[RolloutLog], joints: JointPlotSpec):
+    """joints.png: commanded positions, thin where the stops cut them, with the limits."""
     fig, axes = _grid(len(joints.names))
     cut_any = False
     for j, ax in enumerate(axes[: len(joints.names)]):
-        qi = joints.qpos_index[j]
-        for log in logs:
-            style = _style(log)
-            reached = log.q[:, qi]
-            if log.q_commanded is None:
-                ax.plot(log.t, reached, **style)
-                continue
-            commanded = log.q_commanded[:-1, qi]  # reached, or not, at the next step
-            ax.plot(np.concatenate([log.t[:1], log.t[1:]]), np.concatenate([reached[:1], commanded]), **style)
-            if np.max(np.abs(commanded - reached[1:]), initial=0.0) > 1e-6:
-                cut_any = True
-                ax.plot(log.t, reached, color=style["color"], linewidth=0.8, alpha=0.8)
+        cut_any |= _joint_positions(ax, logs, joints.qpos_index[j])
         for bound in (b for b in (joints.lower[j], joints.upper[j]) if np.isfinite(b)):
             # grey: no controller is grey (qpik.app.palette)
             ax.axhline(bound, color=LIMIT_GREY, linewidth=1.0, linestyle=(0, (1, 1)))
@@ -189,8 +208,10 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     if cut_any:
         extra.append(({"color": "0.3", "linewidth": 0.8}, "thin: reached (the end stop cut the command)"))
     axes[0].set_title("commanded position q ⊕ q̇Δt", fontsize=9, loc="left")
-    finish(fig, "joints.png", extra)
+    return fig, extra, None
 
+
+def _velocities_figure(logs: Sequence[RolloutLog], joints: JointPlotSpec):
     fig, axes = _grid(len(joints.names))
     for j, ax in enumerate(axes[: len(joints.names)]):
         unit = joints.units[j] + "/s"
@@ -203,8 +224,10 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
         ax.set_ylabel(f"{joints.names[j]} [{unit}]")
         ax.grid(alpha=0.3)
     axes[0].set_title("commanded velocity q̇", fontsize=9, loc="left")
-    finish(fig, "velocities.png")
+    return fig
 
+
+def _error_figure(logs: Sequence[RolloutLog]):
     fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
     for log in logs:
         ax.semilogy(log.t, _positive(log.error), **_style(log))
@@ -212,57 +235,59 @@ def make_figures(logs: Sequence[RolloutLog], joints: JointPlotSpec, title: str) 
     ax.set_xlabel("t [s]")
     ax.set_ylabel("position error ‖x_d − x‖ [m]")
     ax.grid(alpha=0.3, which="both")
-    finish(fig, "error.png")
+    return fig
 
+
+def _manipulability_figure(logs: Sequence[RolloutLog]):
     fig, ax = plt.subplots(figsize=(6.8, 3.8), layout="constrained")
     for log in logs:
         ax.plot(log.t, log.manipulability, **_style(log))
     ax.set_xlabel("t [s]")
     ax.set_ylabel("manipulability [-]")
-    ax.set_title(ref.manipulability_measure, fontsize=9, loc="left")
+    ax.set_title(logs[0].info.manipulability_measure, fontsize=9, loc="left")
     ax.grid(alpha=0.3)
-    finish(fig, "manipulability.png")
+    return fig
 
+
+def _extras_figure(logs: Sequence[RolloutLog]):
+    """extras.png: the extra series (orientation error, loop residual, ...), or None."""
     extra_names = sorted({name for log in logs for name in log.extras})
-    if extra_names:
-        fig, axes = _grid(len(extra_names), height=3.0)
-        for ax, name in zip(axes, extra_names):
-            label, unit = EXTRA_LABELS.get(name, (name.replace("_", " "), None))
-            values = []
-            for log in logs:
-                if name in log.extras:
-                    ax.semilogy(log.t, _positive(log.extras[name]), **_style(log))
-                    values.append(log.extras[name])
-            _log_limits(ax, values)
-            ax.set_ylabel(label if unit is None else f"{label} [{unit}]")  # no unit claimed for an unknown series
-            ax.grid(alpha=0.3, which="both")
-        finish(fig, "extras.png")
-    levels = _level_figure(logs)
-    if levels is not None:
-        finish(levels, "levels.png")
-    return figures
+    if not extra_names:
+        return None
+    fig, axes = _grid(len(extra_names), height=3.0)
+    for ax, name in zip(axes, extra_names):
+        label, unit = EXTRA_LABELS.get(name, (name.replace("_", " "), None))
+        values = []
+        for log in logs:
+            if name in log.extras:
+                ax.semilogy(log.t, _positive(log.extras[name]), **_style(log))
+                values.append(log.extras[name])
+        _log_limits(ax, values)
+        ax.set_ylabel(label if unit is None else f"{label} [{unit}]")  # no unit claimed for an unknown series
+        ax.grid(alpha=0.3, which="both")
+    return fig
 
 
 def _level_figure(logs: Sequence[RolloutLog]):
     """levels.png: each level's error over time (one panel per level, log scale, the
     controllers overlaid), and the task scale per level of the runs that report one
     (SNS); None when no log has per-level errors."""
-    levelled = [(i, log) for i, log in enumerate(logs) if log.level_error is not None]
+    levelled = [log for log in logs if log.levels is not None]
     if not levelled:
         return None
-    names, units = levelled[0][1].level_names, levelled[0][1].level_units
-    scaled = [(i, log) for i, log in enumerate(logs) if "task_scale" in log.report]
+    names, units = levelled[0].levels.names, levelled[0].levels.units
+    scaled = [log for log in logs if "task_scale" in log.report]
     fig, axes = _grid(len(names) + (1 if scaled else 0))
     for k, (ax, name, unit) in enumerate(zip(axes, names, units)):
-        series = [log.level_error[:, k] for _, log in levelled]
-        for (_, log), values in zip(levelled, series):
+        series = [log.levels.error[:, k] for log in levelled]
+        for log, values in zip(levelled, series):
             ax.semilogy(log.t, _positive(values), **_style(log))
         _log_limits(ax, series)
         ax.set_ylabel(f"level {k}: {name} [{unit}]")
         ax.grid(alpha=0.3, which="both")
     if scaled:
         ax = axes[len(names)]
-        for i, log in scaled:
+        for log in scaled:
             scale = np.atleast_2d(log.report["task_scale"].T).T
             for k in range(min(scale.shape[1], len(names))):  # the levels drawn above (not a last damping level)
                 style = dict(_style(log), linestyle=["-", "--", "-.", ":"][k % 4])

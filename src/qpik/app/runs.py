@@ -4,22 +4,18 @@ placo) run as controllers too, when installed (:mod:`qpik.app.peers`)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
 from ..errors import InvalidInput, UnknownName
 from ..io import write_json
-from .peers import PEERS, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from ..rollout import MODES, Rollout, RolloutLog
-from ..rollout.log import run_status
+from ..rollout.log import RunSummary
 from ..scenario import Setup, build_scenario, check_solver
 from ..solvers import available_solvers
-
-CLASSICAL_KINDS = ("pinv", "jt")
-# Controllers a scenario may offer besides qp: a variant with hard tasks, the strict
-# hierarchy and SNS (each run once, hqp and qp-hard with the first solver asked for).
-HIERARCHY_KINDS = ("qp-hard", "hqp", "sns")
-QP_KINDS = ("qp", "mink", "qp-hard", "hqp")  # the controllers that take a QP solver name
+from .kinds import OFFERED_KINDS, PEER_KINDS, uses_solver
+from .peers import PeerUnsupported, peer_controller, peer_installed, peer_solvers
 
 StepProgress = Callable[[int, int], None]
 
@@ -31,7 +27,7 @@ def start_run(robot: str | None = None, scenario: str | None = None, controller:
     (arguments as :func:`run`)."""
     if mode not in MODES:
         raise InvalidInput(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-    if controller in QP_KINDS:
+    if uses_solver(controller):
         check_solver(solver)
     if setup is None:
         if scenario is None:
@@ -41,17 +37,12 @@ def start_run(robot: str | None = None, scenario: str | None = None, controller:
         raise InvalidInput(f"this setup of {setup.scenario!r} was already run: its robot and "
                            "references are at that run's final state. Build a fresh setup per run "
                            "(call the scenario's or arm_setup()'s constructor again)")
-    known = [*setup.controller_kinds(), *PEERS]
+    known = [*setup.controller_kinds(), *PEER_KINDS]
     if controller not in known:
         raise UnknownName(f"unknown controller {controller!r} for {setup.scenario}; choose from {', '.join(known)}")
     setup.rolled_out = True
-    ctrl = peer_controller(controller, setup, solver) if controller in PEERS else setup.controller(controller, solver)
-    rollout = Rollout(ctrl, setup.reference, setup.duration, dt=setup.dt, mode=mode,
-                      manipulability=setup.manipulability, manipulability_measure=setup.manipulability_measure,
-                      joint_limits=setup.joint_limits, scenario=scenario or setup.scenario,
-                      robot_name=setup.robot_name, on_failure=on_failure, closure=setup.closure,
-                      speed_dofs=setup.plot_joints.dof_index, progress=progress, levels=setup.level_errors)
-    return setup, rollout
+    ctrl = peer_controller(controller, setup, solver) if controller in PEER_KINDS else setup.controller(controller, solver)
+    return setup, setup.rollout(ctrl, mode=mode, on_failure=on_failure, progress=progress, scenario=scenario)
 
 
 def run(robot: str | None = None, scenario: str | None = None, controller: str = "qp", solver: str = "daqp",
@@ -89,7 +80,7 @@ def run_label(controller: str, solver: str) -> str:
 
 
 def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mode: str = "kinematic",
-            classical: Sequence[str] = HIERARCHY_KINDS + CLASSICAL_KINDS, peers: Sequence[str] = PEERS,
+            classical: Sequence[str] = OFFERED_KINDS, peers: Sequence[str] = PEER_KINDS,
             progress: Callable[[str, int, int], None] | None = None) -> tuple[Setup, list[RolloutLog], list[str]]:
     """qp with each solver, the other controllers the scenario offers among ``classical``
     (qp-hard, hqp, sns, pinv, jt), then the peers (mink with each solver, placo with its
@@ -109,114 +100,132 @@ def compare(robot: str, scenario: str, solvers: Sequence[str] | None = None, mod
         raise InvalidInput(f"solvers listed more than once: {', '.join(repeated)}")
     for solver in solvers:
         check_solver(solver)
-    logs, notes = [], []
-    setup = None
-
-    def step_progress(controller: str, solver: str) -> StepProgress | None:
-        if progress is None:
-            return None
-        label = run_label(controller, solver)
-        return lambda k, steps: progress(label, k, steps)
-
+    runs = _Comparison(robot, scenario, mode, progress)
     for solver in solvers:
-        setup, log = run(robot, scenario, "qp", solver, mode, on_failure="stop",
-                         progress=step_progress("qp", solver))
-        logs.append(log)
+        runs.run("qp", solver)
     for kind in classical:
         probe = build_scenario(scenario, robot)
-        if kind not in probe.controller_kinds():
-            continue
-        solver = solvers[0] if kind in QP_KINDS else "none"
-        setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop", setup=probe,
-                         progress=step_progress(kind, solver))
-        logs.append(log)
+        if kind in probe.controller_kinds():
+            runs.run(kind, solvers[0] if uses_solver(kind) else "none", setup=probe)
     for kind in peers:
+        runs.run_peer(kind, solvers)
+    return runs.setup, runs.logs, runs.notes
+
+
+class _Comparison:
+    """The runs of one :func:`compare`: each run's log, the last setup, the notes."""
+
+    def __init__(self, robot: str, scenario: str, mode: str, progress: Callable[[str, int, int], None] | None):
+        self.robot, self.scenario, self.mode, self.progress = robot, scenario, mode, progress
+        self.setup: Setup | None = None
+        self.logs: list[RolloutLog] = []
+        self.notes: list[str] = []
+
+    def run(self, controller: str, solver: str, setup: Setup | None = None) -> None:
+        step_progress = None
+        if self.progress is not None:
+            label, progress = run_label(controller, solver), self.progress
+            step_progress = lambda k, steps: progress(label, k, steps)  # noqa: E731
+        self.setup, log = run(self.robot, self.scenario, controller, solver, self.mode, on_failure="stop",
+                              setup=setup, progress=step_progress)
+        self.logs.append(log)
+
+    def run_peer(self, kind: str, solvers: Sequence[str]) -> None:
         if not peer_installed(kind):
-            notes.append(f"{kind} not installed: skipped")
-            continue
+            self.notes.append(f"{kind} not installed: skipped")
+            return
         for solver in peer_solvers(kind, solvers):
             try:
-                setup, log = run(robot, scenario, kind, solver, mode, on_failure="stop",
-                                 progress=step_progress(kind, solver))
+                self.run(kind, solver)
             except PeerUnsupported as exc:
-                notes.append(f"{kind} skipped: {exc}")
-                break
-            logs.append(log)
-    return setup, logs, notes
+                self.notes.append(f"{kind} skipped: {exc}")
+                return
 
 
-_COLUMNS = (
-    ("controller", "controller", "{}"),
-    ("solver", "solver", "{}"),
-    ("max_error", "max err [m]", "{:.2e}"),
-    ("final_error", "final err [m]", "{:.2e}"),
-    ("limit_violation_max", "limit viol.", "{:.2e}"),
-    ("peak_joint_speed", "peak |q̇|", "{:.3g}"),
-    ("manipulability_final", "manip. final", "{:.4f}"),
-    ("step_time_median_us", "step med [µs]", "{:.1f}"),
-    ("step_time_p99_us", "step p99 [µs]", "{:.1f}"),
-)
+@dataclass(frozen=True)
+class Column:
+    """A column of :func:`format_table`: its header and each run's cell."""
+
+    label: str
+    cell: Callable[[RunSummary], str]
+    left: bool = False  # text, left-aligned
 
 
-def format_table(summaries: Sequence[dict], extra: Sequence[tuple[str, str, str]] = ()) -> str:
-    """A plain-text table of summaries, one row per run; failed runs say why."""
-    columns = list(_COLUMNS) + list(extra)
-    for key, label, fmt in (("orientation_error_max", "orient. err [rad]", "{:.2e}"),
-                            ("constraint_violation_max", "loop resid. [m]", "{:.2e}")):
-        if any(key in s for s in summaries) and key not in [c[0] for c in columns]:
-            columns.insert(4, (key, label, fmt))
-    summaries = [_flatten_levels(s) for s in summaries]
-    levelled = next((s for s in summaries if "level_names" in s), None)
-    if levelled is not None:  # a task hierarchy: each level's error, then SNS's task scale
-        for i, (name, unit) in enumerate(zip(levelled["level_names"], levelled["level_units"])):
-            columns.insert(4 + i, (f"level_error_max[{i}]", f"L{i} {name} [{unit}]", "{:.2e}"))
-    for key, label, fmt in (("task_scale_min", "task scale min", "{:.3f}"),
-                            ("path_deviation_max", "off path [m]", "{:.2e}"),
-                            ("completion_time", "done at [s]", "{:.3f}")):
-        if any(key in s for s in summaries):
-            columns.append((key, label, fmt))
+def _number(label: str, value: Callable[[RunSummary], float | None], spec: str) -> Column:
+    """A column of numbers formatted with ``spec``; "-" where a run has none."""
+    return Column(label, lambda s: "-" if (v := value(s)) is None else format(v, spec))
+
+
+def _level_cell(summary: RunSummary, i: int) -> str:
+    levels = summary.levels
+    return "-" if levels is None or i >= len(levels.error_max) else format(levels.error_max[i], ".2e")
+
+
+def _completion_cell(summary: RunSummary) -> str:
+    """When the path was completed (a path reference's scenarios): "never", or "-"."""
+    if "completion_time" not in summary.reference:
+        return "-"
+    time = summary.completion_time
+    return "never" if time is None else format(time, ".3f")
+
+
+def _columns(summaries: Sequence[RunSummary]) -> list[Column]:
+    """The table's columns: those every run has, and those some runs have (each
+    level's error, the loop residual, the orientation error, SNS's task scale, ...)."""
+    columns = [Column("controller", lambda s: s.info.controller, left=True),
+               Column("solver", lambda s: s.info.solver, left=True),
+               _number("max err [m]", lambda s: s.max_error, ".2e"),
+               _number("final err [m]", lambda s: s.final_error, ".2e")]
+    levels = next((s.levels for s in summaries if s.levels is not None), None)
+    if levels is not None:  # a task hierarchy: each level's error
+        columns += [Column(f"L{i} {name} [{unit}]", lambda s, i=i: _level_cell(s, i))
+                    for i, (name, unit) in enumerate(zip(levels.names, levels.units))]
+    optional = [_number("loop resid. [m]", lambda s: s.constraint_violation_max, ".2e"),
+                _number("orient. err [rad]", lambda s: s.orientation_error_max, ".2e")]
+    columns += [c for c in optional if any(c.cell(s) != "-" for s in summaries)]
+    columns += [_number("limit viol.", lambda s: s.limit_violation_max, ".2e"),
+                _number("peak |q̇|", lambda s: s.peak_joint_speed, ".3g"),
+                _number("manip. final", lambda s: s.manipulability_final, ".4f"),
+                _number("step med [µs]", lambda s: s.step_time_median_us, ".1f"),
+                _number("step p99 [µs]", lambda s: s.step_time_p99_us, ".1f")]
+    optional = [_number("task scale min", lambda s: s.task_scale_min, ".3f"),
+                _number("off path [m]", lambda s: s.path_deviation_max, ".2e"),
+                Column("done at [s]", _completion_cell)]
+    columns += [c for c in optional if any(c.cell(s) != "-" for s in summaries)]
     # Each row says whether its run went to the end: a stopped run's numbers cover only
     # the steps before it stopped.
-    columns.append(("status", "run", "{}"))
-    rows = [[label for _, label, _ in columns]]
-    for s in summaries:
-        s = {**s, "status": run_status(s)}
-        rows.append([("never" if s[key] is None else fmt.format(s[key])) if key in s else "-"
-                     for key, _, fmt in columns])
+    return columns + [Column("run", lambda s: s.status, left=True)]
+
+
+def format_table(summaries: Sequence[RunSummary]) -> str:
+    """A plain-text table of summaries, one row per run; failed runs say why."""
+    columns = _columns(summaries)
+    rows = [[c.label for c in columns]] + [[c.cell(s) for c in columns] for s in summaries]
     widths = [max(len(r[i]) for r in rows) for i in range(len(columns))]
-    text = {0, 1, len(columns) - 1}  # left-aligned: controller, solver, run
-    lines = ["  ".join(cell.ljust(w) if i in text else cell.rjust(w) for i, (cell, w) in enumerate(zip(r, widths)))
-             .rstrip() for r in rows]
+    lines = ["  ".join(cell.ljust(w) if c.left else cell.rjust(w) for c, cell, w in zip(columns, r, widths)).rstrip()
+             for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     for s in summaries:
-        if not s.get("completed", True):
-            lines.append(f"note: {run_label(s['controller'], s['solver'])} {run_status(s)} (its numbers cover "
-                         f"the steps before): {s.get('failure', '')}")
+        if s.stop is not None:
+            lines.append(f"note: {run_label(s.info.controller, s.info.solver)} {s.status} (its numbers cover "
+                         f"the steps before): {s.stop.failure}")
     return "\n".join(lines)
 
 
-def _flatten_levels(summary: dict) -> dict:
-    """The per-level list ``level_error_max`` as keys ``level_error_max[i]`` (table cells)."""
-    flat = dict(summary)
-    for i, value in enumerate(summary.get("level_error_max", [])):
-        flat[f"level_error_max[{i}]"] = value
-    return flat
-
-
-def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Sequence[dict], mode: str) -> Path:
+def write_compare(out_dir: str | Path, robot: str, scenario: str, summaries: Sequence[RunSummary], mode: str) -> Path:
     """Write ``compare.json`` (robot, scenario, mode and every run's summary) into ``out_dir``."""
     path = Path(out_dir) / "compare.json"
-    write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": list(summaries)})
+    write_json(path, {"robot": robot, "scenario": scenario, "mode": mode, "runs": [s.to_json() for s in summaries]})
     return path
 
 
-def level_note(summaries: Sequence[dict], mode: str) -> str | None:
+def level_note(summaries: Sequence[RunSummary], mode: str) -> str | None:
     """What the level columns measure beside ``max err``, where the two differ (physics mode):
     a line to print under the table, or None."""
-    levelled = next((s for s in summaries if s.get("level_names")), None)
-    if levelled is None or mode != "physics":
+    levels = next((s.levels for s in summaries if s.levels is not None and s.levels.names), None)
+    if levels is None or mode != "physics":
         return None
-    columns = ", ".join(f"L{i} {name}" for i, name in enumerate(levelled["level_names"]))
+    columns = ", ".join(f"L{i} {name}" for i, name in enumerate(levels.names))
     return (f"note: {columns}: each priority level's error on the controller's own model, at the "
             "configuration it commands; max err and final err: the simulated robot, which the servos "
             "move after the command (the gap is their lag)")

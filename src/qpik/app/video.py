@@ -258,7 +258,7 @@ def render_logs(model, logs: Sequence, path: str | Path, *, labels: Sequence[str
         InvalidInput: unknown format. VideoUnavailable: no GL back-end or no encoder.
     """
     path = check_video_path(path)
-    dt = logs[0].dt
+    dt = logs[0].info.dt
     duration = max(float(log.t[-1]) for log in logs)
     stride = max(1, int(round(1.0 / (fps * dt))))
     steps = np.arange(0, int(round(duration / dt)) + 1, stride)
@@ -342,12 +342,12 @@ def render_comparison(model, logs: Sequence, path: str | Path, *, caption: str =
     groups = coincident_groups(logs)
     labels, colours = [], []
     for group in groups:
-        names = [run_label(logs[i].controller, logs[i].solver) for i in group]
+        names = [run_label(logs[i].info.controller, logs[i].info.solver) for i in group]
         stopped = [i for i in group if not getattr(logs[i], "completed", True)]
         text = " = ".join(names) if len(names) <= 3 else f"{' = '.join(names[:2])} = {len(names) - 2} more"
         labels.append(text + (f" (stopped at t = {logs[group[0]].t[-1]:.2f} s)" if stopped else ""))
-        controller = logs[group[0]].controller
-        earlier = sum(logs[g[0]].controller == controller for g in groups[:len(colours)])
+        controller = logs[group[0]].info.controller
+        earlier = sum(logs[g[0]].info.controller == controller for g in groups[:len(colours)])
         colours.append(lighten(controller_colour(controller), min(0.6, 0.3 * earlier)))
     return render_logs(model, [logs[g[0]] for g in groups], path, labels=labels, colours=colours, caption=caption,
                        fps=fps, width=width, height=height, progress=progress)

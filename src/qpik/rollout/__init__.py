@@ -1,8 +1,8 @@
 """Headless rollouts: the simulate loop, the physics plant, references and the log."""
 
-from .log import RolloutLog
+from .log import RolloutLog, RunInfo, RunStop, RunSummary
 from .references import PositionReference, Reference, ReferenceRun
 from .simulate import MODES, Controller, Rollout, simulate
 
 __all__ = ["MODES", "Controller", "PositionReference", "Reference", "ReferenceRun", "Rollout", "RolloutLog",
-           "simulate"]
+           "RunInfo", "RunStop", "RunSummary", "simulate"]

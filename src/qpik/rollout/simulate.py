@@ -45,7 +45,7 @@ import numpy as np
 
 from ..errors import DivergenceError, InfeasibleProblem, InvalidInput, SolverError
 from ..robot import JointLimits, Robot
-from .log import RolloutLog
+from .log import LevelLog, RolloutLog, RunInfo, RunStop
 from .plant import PhysicsPlant
 from ..limits.limit import as_slice
 from .references import Reference, start_measurement, start_reference
@@ -156,9 +156,9 @@ class Rollout:
         if self.actuated_only and closure is None:
             raise InvalidInput(f"controller {controller.kind!r} moves only the actuated joints: give a loop closure")
         self.closure = closure
-        self._meta = dict(robot=robot_name or robot.name, controller=controller.kind, solver=controller.solver,
-                          scenario=scenario, mode=mode, dt=self.dt, manipulability_measure=manipulability_measure,
-                          speed_dofs=None if speed_dofs is None else np.asarray(speed_dofs, dtype=int))
+        self.info = RunInfo(robot=robot_name or robot.name, controller=controller.kind, solver=controller.solver,
+                            scenario=scenario, mode=mode, dt=self.dt, manipulability_measure=manipulability_measure)
+        self.speed_dofs = None if speed_dofs is None else np.asarray(speed_dofs, dtype=int)
         self.steps = int(round(duration / dt)) + 1
         self.times = np.arange(self.steps) * self.dt  # k·dt, the same bits as in a loop
         self.physics = PhysicsPlant(robot, self.dt) if mode == "physics" else None
@@ -183,9 +183,7 @@ class Rollout:
         self._report_log: dict[str, list] = {}
         self._source_reference = reference
         self.done = 0  # steps logged
-        self.failure = ""
-        self.stopped_at: float | None = None  # the time of the step that failed
-        self.failure_kind = ""  # the failure's error type, e.g. InfeasibleProblem
+        self.stop: RunStop | None = None  # why and when the run stopped early
         self.finished = False
 
     def advance(self, count: int | None = None) -> int:
@@ -203,12 +201,12 @@ class Rollout:
         start = self.done
         stop = self.steps if count is None else min(self.steps, start + int(count))
         robot, plant, controller, reference = self.robot, self.plant, self.controller, self._reference
-        manipulability, physics, times, dt = self._manipulability, self.physics, self.times, self.dt
-        q_log, q_cmd, qdot_log, time_log = self._q, self._q_commanded, self._qdot, self._step_time
+        manipulability, physics, times = self._manipulability, self.physics, self.times
+        q_log, qdot_log, time_log = self._q, self._qdot, self._step_time
         last = self.steps - 1
         clock = time.perf_counter
-        q, plant_q = robot.data.qpos, plant.data.qpos  # views, valid for the data's life
-        stops, stop_view, lower, upper = self._has_stops, self._stop_view, self._stop_lower, self._stop_upper
+        plant_q = plant.data.qpos  # a view, valid for the data's life
+        after_step = self._after_step if self._level_error is not None or self._report is not None else None
         for k in range(start, stop):
             if physics is not None:
                 plant.update_kinematics()
@@ -222,11 +220,8 @@ class Rollout:
                 self._fail(type(exc), f"{when}: {exc}", times[k], f"{type(exc).__name__} {when}: {exc}")
                 break
             time_log[k] = clock() - begin
-            if self._level_error is not None:
-                self._level_error[k] = self.levels.measure(qdot)
-            if self._report is not None:
-                for name, value in self._report().items():
-                    self._report_log.setdefault(name, []).append(value)
+            if after_step is not None:
+                after_step(k, qdot)
             reference.record(k)
             manipulability.record(k)
             q_log[k] = plant_q
@@ -235,31 +230,45 @@ class Rollout:
             if k == last:
                 self.finished = True
                 break
-            # A NaN velocity is the controller diverging, not a bad argument to integrate.
-            if not math.isfinite(mujoco.mju_sum(qdot_log[k])):
-                message = f"at t = {times[k]:.3f} s: the controller returned a non-finite velocity"
-                if self._fail(DivergenceError, message, times[k]):
-                    break
-            robot.integrate(qdot_log[k], dt)  # the logged copy: contiguous and writable
-            q_cmd[k] = q
-            if stop_view is not None:  # two ufuncs: np.clip's Python wrapper costs 3 µs more
-                np.maximum(stop_view, lower, out=stop_view)
-                np.minimum(stop_view, upper, out=stop_view)
-            elif stops:
-                index = self._stop_index
-                q[index] = np.clip(q[index], lower, upper)
-            if self.actuated_only:
-                self.closure(robot)
-            failure = ""
-            if physics is not None:
-                failure = physics.step(q, qdot)
-            if not failure and not math.isfinite(mujoco.mju_sum(q)):
-                failure = "the controller drove the configuration to non-finite values"
-            if failure and self._fail(DivergenceError, f"at t = {times[k]:.3f} s: {failure}", times[k]):
+            if not self._move(k):
                 break
             if self.progress is not None:
                 self.progress(k + 1, self.steps)
         return self.done - start
+
+    def _after_step(self, k: int, qdot: np.ndarray) -> None:
+        """Outside the timed part: the levels' errors and the controller's report."""
+        if self._level_error is not None:
+            self._level_error[k] = self.levels.measure(qdot)
+        if self._report is not None:
+            for name, value in self._report().items():
+                self._report_log.setdefault(name, []).append(value)
+
+    def _move(self, k: int) -> bool:
+        """Integrate step k's logged velocity, hold the joints at their end stops, close
+        the loops, step the plant; False when the rollout stops here."""
+        robot, t, qdot = self.robot, self.times[k], self._qdot[k]  # the logged copy: contiguous and writable
+        # A NaN velocity is the controller diverging, not a bad argument to integrate.
+        if not math.isfinite(mujoco.mju_sum(qdot)):
+            message = f"at t = {t:.3f} s: the controller returned a non-finite velocity"
+            if self._fail(DivergenceError, message, t):
+                return False
+        q = robot.data.qpos  # a view, valid for the data's life
+        robot.integrate(qdot, self.dt)
+        self._q_commanded[k] = q
+        stop_view = self._stop_view
+        if stop_view is not None:  # two ufuncs: np.clip's Python wrapper costs 3 µs more
+            np.maximum(stop_view, self._stop_lower, out=stop_view)
+            np.minimum(stop_view, self._stop_upper, out=stop_view)
+        elif self._has_stops:
+            index = self._stop_index
+            q[index] = np.clip(q[index], self._stop_lower, self._stop_upper)
+        if self.actuated_only:
+            self.closure(robot)
+        failure = self.physics.step(q, qdot) if self.physics is not None else ""
+        if not failure and not math.isfinite(mujoco.mju_sum(q)):
+            failure = "the controller drove the configuration to non-finite values"
+        return not (failure and self._fail(DivergenceError, f"at t = {t:.3f} s: {failure}", t))
 
     @property
     def q_commanded(self) -> np.ndarray:
@@ -271,8 +280,7 @@ class Rollout:
         """Raise ``error(message)`` or, with ``on_failure="stop"``, end the rollout at time ``t``."""
         if self.on_failure == "raise":
             raise error(message) from None
-        self.failure = reason or message
-        self.stopped_at, self.failure_kind = float(t), error.__name__
+        self.stop = RunStop(reason or message, error.__name__, float(t))
         self.finished = True
         return True
 
@@ -284,44 +292,22 @@ class Rollout:
         """
         n = self.done
         if n == 0:
-            raise DivergenceError(f"the controller failed at the first step: {self.failure}")
+            raise DivergenceError(f"the controller failed at the first step: {self.stop.failure if self.stop else ''}")
         x, x_des, extras = self._reference.results(n)
         q = self._q[:n]
         commanded = self.limits.violations(self._q_commanded[:n])
-        violation = np.maximum(self.limits.violations(q), commanded)
-        meta = self._meta
+        levels = None
+        if self.levels is not None:
+            levels = LevelLog(tuple(self.levels.names), tuple(self.levels.units), self._level_error[:n])
+        summarize = getattr(self._source_reference, "summarize", None)
         return RolloutLog(
-            robot=meta["robot"],
-            controller=meta["controller"],
-            solver=meta["solver"],
-            scenario=meta["scenario"],
-            mode=meta["mode"],
-            dt=meta["dt"],
-            t=self.times[:n],
-            q=q,
-            qdot=self._qdot[:n],
-            x=x,
-            x_des=x_des,
-            error=np.linalg.norm(x_des - x, axis=1),
-            manipulability=self._manipulability.values(n),
-            step_time=self._step_time[:n],
-            limit_violation=violation,
-            extras=extras,
-            manipulability_measure=meta["manipulability_measure"],
-            speed_dofs=meta["speed_dofs"],
-            completed=not self.failure,
-            failure=self.failure,
-            stopped_at=self.stopped_at,
-            failure_kind=self.failure_kind,
-            commanded_violation=commanded,
-            q_commanded=self._q_commanded[:n],
-            level_error=None if self._level_error is None else self._level_error[:n],
-            level_names=() if self.levels is None else tuple(self.levels.names),
-            level_units=() if self.levels is None else tuple(self.levels.units),
+            info=self.info, t=self.times[:n], q=q, qdot=self._qdot[:n], x=x, x_des=x_des,
+            error=np.linalg.norm(x_des - x, axis=1), manipulability=self._manipulability.values(n),
+            step_time=self._step_time[:n], limit_violation=np.maximum(self.limits.violations(q), commanded),
+            extras=extras, speed_dofs=self.speed_dofs, stop=self.stop, levels=levels,
             report={name: np.array(values[:n]) for name, values in self._report_log.items()},
-            summary_extras=(self._source_reference.summarize(self.times[:n], x)
-                            if hasattr(self._source_reference, "summarize") else {}),
-        )
+            reference_summary=summarize(self.times[:n], x) if summarize is not None else {},
+            commanded_violation=commanded, q_commanded=self._q_commanded[:n])
 
 
 def simulate(controller: Controller, reference, duration: float, **options) -> RolloutLog:

@@ -18,10 +18,11 @@ from typing import Sequence
 
 from ...errors import UnknownName
 from ...scenario import Setup
+from ..kinds import KINDS, PEER_KINDS
 from .problem import PeerUnsupported
 
-PEERS = ("mink", "placo")
-PLACO_SOLVER = "eiquadprog"  # placo's built-in QP solver
+PEERS = PEER_KINDS
+PLACO_SOLVER = KINDS["placo"].own_solver  # placo's built-in QP solver
 
 
 def peer_installed(kind: str) -> bool:
@@ -31,7 +32,8 @@ def peer_installed(kind: str) -> bool:
 
 def peer_solvers(kind: str, solvers: Sequence[str]) -> list[str]:
     """The solvers a peer runs with: mink each qpsolvers name asked for, placo its own."""
-    return list(solvers) if kind == "mink" else [PLACO_SOLVER]
+    own = KINDS[kind].own_solver
+    return list(solvers) if own is None else [own]
 
 
 def peer_controller(kind: str, setup: Setup, solver: str = "daqp"):
