@@ -1,4 +1,5 @@
-"""A fast subset of the fuzz (benchmarks/fuzz.py): the same random cases, a few dozen.
+"""A fast subset of the bundled robots' fuzz (qpik.fuzz.bundled, whose command line is
+benchmarks/fuzz.py): the same random cases, a few dozen.
 
 The promises are checked on cases hypothesis draws (derandomized, so every run checks
 the same cases), and each defect the first full sweep found is pinned by the case that
@@ -8,15 +9,14 @@ slow steps are left to the benchmark (a test must not depend on the clock).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-import fuzz  # noqa: E402
+from qpik.fuzz.bundled import MUTATIONS, run_case
+from qpik.fuzz.bundled_sweep import sweep
 
 FAST = settings(max_examples=12, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -24,7 +24,7 @@ seeds = st.integers(0, 10**6)
 
 
 def _case(kind: str, seed: int, tmp_path: Path) -> dict:
-    return fuzz.run_case(kind, seed, tmp_path)
+    return run_case(kind, seed, tmp_path)
 
 
 @FAST
@@ -59,13 +59,13 @@ def test_every_mutation_of_a_bundled_scene_is_caught_or_harmless(tmp_path):
             must_reject += ("keyframe_outside", "keyframe_nan")
         if mutation in must_reject:
             assert "rejected" in result["classes"], result
-        if len(seen) == len(fuzz.MUTATIONS):
+        if len(seen) == len(MUTATIONS):
             break
-    assert seen == set(fuzz.MUTATIONS)
+    assert seen == set(MUTATIONS)
 
 
 def test_the_sweep_kills_a_case_past_its_cap_and_goes_on_with_the_rest():
-    results = fuzz.sweep(["arm:1", "arm:3", "hexapod:0"], jobs=1, chunk=2, cap=0.001)
+    results = sweep(["arm:1", "arm:3", "hexapod:0"], jobs=1, chunk=2, cap=0.001)
     assert {case: r["classes"] for case, r in results.items()} == \
         {"arm:1": ["hang"], "arm:3": ["hang"], "hexapod:0": ["hang"]}
 
