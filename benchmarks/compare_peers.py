@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 from step_time import RESULTS, label_of, measure
-from timing import P99_BOUND, ratio_cell
+from timing import P99_BOUND
 
+from qpik.app.readme_tables import ratio_cell
 from qpik.io import write_json, write_text
 from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from qpik.scenario import build_scenario, scenarios

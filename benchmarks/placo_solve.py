@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from qpik.app.peers import peer_installed
+from qpik.app.readme_tables import placo_solve_markdown
 from qpik.io import write_json, write_text
-from timing import Contestant, interleave, ratio_cell, scenario_run, spread
+from timing import Contestant, interleave, scenario_run, spread
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -81,21 +82,6 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
             "ratio": spread(ratios), "compiled_ratio": spread(compiled_ratios)}
 
 
-def to_markdown(results: list[dict], repeats: int) -> str:
-    lines = [f"qpik's whole step (set_target, compute_velocity, integrate) against placo's compiled `solve` alone, and "
-             f"against its compiled work per step (`update_kinematics` + `solve`); block-interleaved, gc off, "
-             f"{repeats} repeats (medians over the repeats' medians; the ratios' median and range).", "",
-             "| robot / scenario | qp (daqp) step [µs] | placo step [µs] | placo solve [µs] | "
-             "placo kinematics + solve [µs] | qp step / placo solve | qp step / placo kinematics + solve |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
-    for r in results:
-        lines.append(f"| {r['robot']} / {r['scenario']} | {np.median(r['qp_step_median_us']):.1f} | "
-                     f"{np.median(r['placo_step_median_us']):.1f} | {np.median(r['placo_solve_median_us']):.1f} | "
-                     f"{np.median(r['placo_compiled_median_us']):.1f} | "
-                     f"{ratio_cell(r['ratio'])} | {ratio_cell(r['compiled_ratio'])} |")
-    return "\n".join(lines) + "\n"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -107,7 +93,7 @@ def main(argv=None) -> int:
         parser.error("placo is not installed: pip install -e '.[peers]'")
     results = [measure(robot, scenario, args.repeats) for robot, scenario in CASES]
     meta = {"python": platform.python_version(), "machine": platform.machine(), "repeats": args.repeats}
-    markdown = to_markdown(results, args.repeats)
+    markdown = placo_solve_markdown(results, args.repeats)
     write_json(args.out / "placo_solve.json", {"meta": meta, "results": results})
     write_text(args.out / "placo_solve.md", markdown)
     print(markdown)

@@ -20,8 +20,9 @@ import platform
 import sys
 from pathlib import Path
 
-from timing import P99_BOUND, Contestant, interleave, logged_run, ratio_cell, scenario_run, timed_vs_logged
+from timing import P99_BOUND, Contestant, interleave, logged_run, scenario_run, timed_vs_logged
 
+from qpik.app.readme_tables import ratio_cell
 from qpik.app.runs import run
 from qpik.io import write_json, write_text
 from qpik.scenario import scenarios

@@ -64,8 +64,9 @@ import humanoid_reach  # noqa: E402
 import jaco_circle  # noqa: E402
 from demo_support import Demo, speed_violation  # noqa: E402
 from mink_mirror import MinkMirror, MinkRun  # noqa: E402
-from timing import Contestant, interleave, ratio_cell  # noqa: E402
+from timing import Contestant, interleave  # noqa: E402
 
+from qpik.app.readme_tables import ratio_cell  # noqa: E402
 from qpik.errors import QpikError  # noqa: E402
 from qpik import FrameTask, JointPositionLimit, JointVelocityLimit, PostureTask, Robot  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402

@@ -206,11 +206,6 @@ def interleave(contestants: Sequence[Contestant], repeats: int = 3, block: int =
     return Timing(timings, repeats, block)
 
 
-def ratio_cell(ratio: dict) -> str:
-    """``0.42 (0.40–0.45)``: the median over repeats and its range."""
-    return f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f})"
-
-
 class ControllerRun:
     """A controller on a bundled scenario, stepped as its user's loop does.
 

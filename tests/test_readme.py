@@ -1,5 +1,5 @@
-"""The README against the code: its tables (benchmarks/readme_tables.py --check) and its
-Python examples (run as written).
+"""The README against the code: its tables (qpik.app.readme_tables, whose command line is
+benchmarks/readme_tables.py --check) and its Python examples (run as written).
 
 The quick tables are recomputed here on the installed versions (the scenarios table takes
 about 30 s): an edited number, or a change of the code that moves one, fails with the cell
@@ -17,19 +17,18 @@ from pathlib import Path
 
 import pytest
 
+from qpik.app import readme_tables, scenarios_table
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-import readme_tables  # noqa: E402
-import scenarios_table  # noqa: E402
-
-README = (ROOT / "README.md").read_text()
+README_PATH = ROOT / "README.md"
+RESULTS = ROOT / "benchmarks" / "results"
+README = README_PATH.read_text()
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.fp_sensitive) if table.recomputed else name
                                   for name, table in readme_tables.TABLES.items()])
 def test_readme_table_matches_the_code(name):
-    problems = readme_tables.check([name])
+    problems = readme_tables.check([name], README_PATH, RESULTS)
     assert not problems, "\n".join(problems)
 
 
@@ -39,11 +38,11 @@ def test_the_check_names_an_edited_cell(tmp_path):
     block = readme_tables.read_block(README, "calibration")
     # One unit in the last printed digit is what another CPU's rounding may give: agreed.
     readme.write_text(readme_tables.write_block(README, "calibration", block.replace("| 1 | 2.1 |", "| 1 | 2.2 |", 1)))
-    assert readme_tables.check(["calibration"], readme) == []
+    assert readme_tables.check(["calibration"], readme, RESULTS) == []
     edited = block.replace("| 1 | 2.1 |", "| 1 | 2.5 |", 1)
     assert edited != block
     readme.write_text(readme_tables.write_block(README, "calibration", edited))
-    problems = readme_tables.check(["calibration"], readme)
+    problems = readme_tables.check(["calibration"], readme, RESULTS)
     assert problems == ["calibration: row `qpik calibrate`, column 'condition number': README has 2.5, "
                         "the code gives 2.1"]
     # A recorded table: a timing edited in the README no longer matches its JSON.
@@ -52,7 +51,7 @@ def test_the_check_names_an_edited_cell(tmp_path):
     cells = first_row.split("|")
     cells[3] = " 99.9 "
     readme.write_text(readme_tables.write_block(README, "step-time", block.replace(first_row, "|".join(cells))))
-    problems = readme_tables.check(["step-time"], readme)
+    problems = readme_tables.check(["step-time"], readme, RESULTS)
     assert len(problems) == 1 and "column 'median [µs]': README has 99.9" in problems[0]
 
 
@@ -76,19 +75,20 @@ def test_numbers_agree_to_their_last_printed_digit(want, have, agree):
 
 def test_rounding_level_values_print_as_one_class():
     # 0 on one CPU, a few ε on another: the same cell (they printed `< 1e-12` and `0.00e+00`).
-    assert {scenarios_table._fmt(v, ".2e") for v in (0.0, 2.48e-16, -3e-16, 9.9e-13)} == {"0"}
-    assert scenarios_table._fmt(1.5e-12, ".2e") == "1.50e-12" and scenarios_table._fmt(None, ".2e") == "-"
+    assert {scenarios_table.format_cell(v, ".2e") for v in (0.0, 2.48e-16, -3e-16, 9.9e-13)} == {"0"}
+    assert scenarios_table.format_cell(1.5e-12, ".2e") == "1.50e-12" and scenarios_table.format_cell(None, ".2e") == "-"
 
 
 def test_chaotic_rows_are_ranges_over_kernels_and_stated_in_the_readme():
-    record = scenarios_table.load_chaotic()
+    record = scenarios_table.load_chaotic(RESULTS / "scenarios_chaotic.json")
     assert len(record["kernels"]) >= 2 and len(set(record["kernels"])) == len(record["kernels"])
     block = readme_tables.read_block(README, "scenarios")
+    recorded = scenarios_table.recorded_runs(record)
     for key in scenarios_table.CHAOTIC:
-        runs = [r for r in record["runs"] if scenarios_table.row_key(r) == key]
-        assert sorted(r["kernel"] for r in runs) == sorted(record["kernels"])
+        runs = [(kernel, s) for kernel, s in recorded if scenarios_table.row_key(s) == key]
+        assert sorted(kernel for kernel, _ in runs) == sorted(record["kernels"])
         row = next(line for line in block.splitlines() if line.startswith(f"| {key[0]} | {key[1]} | {key[2]} (chaotic"))
-        low, high = min(r["max_error"] for r in runs), max(r["max_error"] for r in runs)
+        low, high = min(s.max_error for _, s in runs), max(s.max_error for _, s in runs)
         assert f"{low:.2e}–{high:.2e}" in row
     assert "is chaotic" in README
 
@@ -100,7 +100,7 @@ def test_a_stopped_run_is_flagged_in_its_row():
     from qpik.app.runs import compare
 
     _, logs, _ = compare("arm", "too-fast", ["daqp"], classical=("qp-hard", "pinv"), peers=())
-    table = scenarios_table.to_markdown([log.summary().to_json() for log in logs]).splitlines()
+    table = scenarios_table.to_markdown([log.summary() for log in logs]).splitlines()
     flagged = {line.split("|")[3].strip(): line.split("|")[-2].strip() for line in table[2:]}
     assert flagged == {"qp (daqp)": "complete", "qp-hard (daqp)": "stopped at 0.056 s: infeasible",
                        "pinv": "complete"}

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import pytest
 
 from qpik import Robot
 
@@ -80,16 +79,16 @@ def test_unchanged_the_example_says_what_the_jaco_lacks(jaco_path, tmp_path):
 
 
 def test_the_third_party_table_renders_the_recorded_benchmark():
-    """benchmarks/readme_tables.third_party_table: one row per case of third_party.json, its
+    """qpik.app.readme_tables.third_party_table: one row per case of third_party.json, its
     medians and ratio as recorded (the renderer against the JSON itself; the README block
     against the renderer is tests/test_readme.py's check)."""
     import json
 
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import readme_tables
+    from qpik.app.readme_tables import third_party_table
 
-    data = json.loads((ROOT / "benchmarks" / "results" / "third_party.json").read_text())
-    lines = readme_tables.third_party_table().splitlines()
+    results = ROOT / "benchmarks" / "results"
+    data = json.loads((results / "third_party.json").read_text())
+    lines = third_party_table(results).splitlines()
     assert len(lines) == 2 + len(data["cases"])
     for line, case in zip(lines[2:], data["cases"]):
         cells = [cell.strip() for cell in line.strip("|").split("|")]
