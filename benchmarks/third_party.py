@@ -1,15 +1,16 @@
 r"""qpik beside mink on third-party and generated models: the same problem, solver daqp.
 
-Cases (each a qpik problem and its mink mirror, :mod:`mink_mirror`):
+Cases (each a qpik problem and its mink mirror, :mod:`qpik.app.peers.mink_mirror`; the untimed
+side-by-side rollouts are :mod:`qpik.app.peers.equivalence`):
 
 - ``jaco``: dm_control's Kinova Jaco tracks a 3-D circle with a 6-D pose task, joint
   position and speed limits, 5 s at 2 ms (examples/jaco_circle.py);
 - ``humanoid``: the CMU humanoid, feet held by hard pose tasks, CoM lowered, a hand
   reaching, posture, joint limits, 3 s (examples/humanoid_reach.py);
 - ``chain7``, ``chain30``, ``chain60``: generated chains of n hinges (MjSpec), a hard
-  6-D pose task at the tip along a circle, posture, joint limits, 2 s;
+  6-D pose task at the tip along a circle, posture, joint limits, 2 s (examples/pose_circles.py);
 - ``pusher``: gymnasium's 7-DoF pusher arm (puck and goal removed), a hard 6-D pose task
-  on its fingertip body along a circle, posture, joint limits, 3 s;
+  on its fingertip body along a circle, posture, joint limits, 3 s (examples/pose_circles.py);
 - ``collision``: the Jaco's hand pulled through a box (examples/collision_avoidance.py)
   by qpik with its collision limit, qpik with the limit's damper off, and mink with its
   ``CollisionAvoidanceLimit`` (same pairs, gain, distances), on the model with MuJoCo's
@@ -25,13 +26,13 @@ sampled for every step beforehand into plain arrays (the arguments of each movin
 - qpik: ``task.set_target(position, rotation, velocity, angular_velocity)`` (or
   ``(position, velocity)``) for each moving task, ``controller.compute_velocity()``,
   ``robot.integrate(qdot, dt)``;
-- mink (:class:`mink_mirror.MinkRun`): each moving task's ``set_target`` in mink's types
+- mink (:class:`qpik.app.peers.mink_mirror.MinkRun`): each moving task's ``set_target`` in mink's types
   (``SE3`` of the pose shifted by the feed-forward over K, precomputed as ``wxyz_xyz``;
   for a position-only task the frame's current pose with the translation replaced; the
   CoM's point), ``mink.solve_ik``, ``configuration.integrate_inplace``. No qpik call.
 
 The tracking, limits and the trajectories' difference come from logged rollouts run
-apart (untimed), mink through the exact mirror of the QP (:class:`mink_mirror.MinkMirror`);
+apart (untimed), mink through the exact mirror of the QP (:class:`~qpik.app.peers.mink_mirror.MinkMirror`);
 the timed runs' own final configurations are compared too (mink's shifted target is
 first-order equal to the mirror's). Reported per case: median and p99 step, the ratio
 qpik/mink per repeat (median, range), and whether each of the script's bounds holds
@@ -62,79 +63,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import collision_avoidance  # noqa: E402
 import humanoid_reach  # noqa: E402
 import jaco_circle  # noqa: E402
-from demo_support import Demo, speed_violation  # noqa: E402
-from mink_mirror import MinkMirror, MinkRun  # noqa: E402
+from demo_support import Demo  # noqa: E402
+from pose_circles import CHAIN_MOTION, PUSHER_MOTION, chain_demo, pusher_demo  # noqa: E402
 from timing import Contestant, interleave  # noqa: E402
 
+from qpik.app.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_side, mink_controller,  # noqa: E402
+                                        qpik_controller, without_damper)
+from qpik.app.peers.mink_mirror import MinkMirror, MinkRun  # noqa: E402
 from qpik.app.readme_tables import ratio_cell  # noqa: E402
 from qpik.errors import QpikError  # noqa: E402
-from qpik import FrameTask, JointPositionLimit, JointVelocityLimit, PostureTask, Robot  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402
-from qpik.models import third_party as third_party_model  # noqa: E402
-from qpik.rollout import Rollout  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SOLVER = "daqp"
-DT = 0.002
-
-# Generated chains and the pusher: a hard pose task along a circle, a posture, limits.
-CHAIN_LENGTH = 1.0  # m
-CHAIN_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # joint i turns about axis i mod 3
-CHAIN_BEND = (1.5, 0.8, 0.4)  # rad shared by the joints of each axis at the start (curled, far from singular)
-CHAIN_RANGE = 2.0  # rad, each hinge
-POSE_GAIN = 100.0  # 1/s
-POSTURE = dict(gain=10.0, weight=1e-3)
-SPEED = 3.0  # rad/s, each hinge
-CIRCLE = dict(radius=0.05, plane=((1.0, 0.0, 0.0), (0.0, 0.6, 0.8)), tilt_deg=10.0)
-PUSHER_START = np.array([0.2, 0.3, 0.0, -1.2, 0.0, -0.6, 0.0])
-
-
-def chain_model(n: int) -> mujoco.MjModel:
-    """A chain of n hinges (axes x, y, z in turn), 1 m long, a site ``tip`` at its end."""
-    spec = mujoco.MjSpec()
-    spec.modelname = f"chain{n}"
-    spec.compiler.degree = False
-    link = CHAIN_LENGTH / n
-    body = spec.worldbody
-    for i in range(n):
-        body = body.add_body(name=f"link{i}", pos=[0.0, 0.0, link if i else 0.0])
-        body.add_joint(name=f"joint{i}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=list(CHAIN_AXES[i % 3]),
-                       range=[-CHAIN_RANGE, CHAIN_RANGE], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0.0, 0.0, 0.0, 0.0, 0.0, link], size=[0.01, 0, 0],
-                      mass=0.1)
-    body.add_site(name="tip", pos=[0.0, 0.0, link])
-    return spec.compile()
-
-
-def pose_demo(name: str, robot: Robot, frame: str, frame_type: str, motion: float, duration: float) -> Demo:
-    """A hard 6-D pose task on ``frame`` along the circle (``motion`` seconds), posture, position
-    and speed limits, run for ``duration`` seconds."""
-    robot.update_kinematics()
-    pose = FrameTask(robot, frame, frame_type, position_gain=POSE_GAIN, orientation_gain=POSE_GAIN, hard=True)
-    posture = PostureTask(robot, **POSTURE)
-    limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(robot.nv, SPEED))]
-    reference = jaco_circle.PoseCircle(pose, motion, **CIRCLE)
-    return Demo(name, robot, [pose, posture], limits, reference, DT, duration, follow=pose, moving=(pose,))
-
-
-CHAIN_MOTION, PUSHER_MOTION = 2.0, 3.0  # s
-
-
-def chain_demo(n: int, duration: float = CHAIN_MOTION) -> Demo:
-    robot = Robot(chain_model(n), name=f"chain{n}")
-    bend = np.array(CHAIN_BEND) * 3.0 / n
-    robot.set_q(np.array([bend[i % 3] for i in range(n)]))
-    return pose_demo(f"chain{n}", robot, "tip", "site", CHAIN_MOTION, duration)
-
-
-def pusher_demo(duration: float = PUSHER_MOTION) -> Demo:
-    """gymnasium's pusher without its puck and goal (4 slide joints that no task moves)."""
-    spec = mujoco.MjSpec.from_file(str(third_party_model("pusher")))
-    for body in ("object", "goal"):
-        spec.delete(spec.body(body))
-    robot = Robot(spec.compile(), name="pusher")
-    robot.set_q(PUSHER_START)
-    return pose_demo("pusher", robot, "tips_arm", "body", PUSHER_MOTION, duration)
 
 
 # Cases ------------------------------------------------------------------------------
@@ -151,18 +91,6 @@ class Case:
     build: Callable[[float | None], Demo]
     ratio_bound: float | None = None
     contenders: dict[str, Callable[[Demo], object]] = field(default_factory=dict)
-
-
-def qpik_controller(demo: Demo):
-    return demo.controller(SOLVER)
-
-
-def mink_controller(demo: Demo):
-    return MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt, solver=SOLVER,
-                      regularization=demo.regularization, moving=demo.moving)
-
-
-PAIR = {"qpik": qpik_controller, "mink": mink_controller}
 
 
 def _sized(build, default: float):
@@ -182,26 +110,13 @@ CASES: dict[str, Case] = {
                                    "collision on), 3 s",
                       _sized(lambda d: collision_avoidance.build(d, native_ccd=True), collision_avoidance.DURATION),
                       None, {"qpik": qpik_controller,
-                             "qpik (no damper)": lambda demo: _without_damper(demo).controller(SOLVER),
+                             "qpik (no damper)": lambda demo: qpik_controller(without_damper(demo)),
                              "mink": mink_controller}),
     "collision-mpr": Case("collision-mpr", "the same with the Jaco's stock flags (native convex collision off: "
                                            "mink's mesh distances from libccd's MPR), 3 s",
                           _sized(collision_avoidance.build, collision_avoidance.DURATION), None,
                           {"qpik": qpik_controller, "mink": mink_controller}),
 }
-
-
-def _without_damper(demo: Demo) -> Demo:
-    """The demo with its collision limit's velocity damper off (mink's bound, in q̇ units)."""
-    for limit in demo.limits:
-        if hasattr(limit, "damper_rate"):
-            limit.damper_rate = None
-    return demo
-
-
-def rollout(demo: Demo, controller) -> Rollout:
-    return Rollout(controller, demo.reference, demo.duration, dt=demo.dt, robot_name=demo.robot.name,
-                   scenario=demo.name, on_failure="stop")
 
 
 # Timed contestants ------------------------------------------------------------------
@@ -276,48 +191,6 @@ def timed_differences(timing, labels: list[str], logs: dict) -> dict:
 
 
 # Measures ---------------------------------------------------------------------------
-def log_metrics(case: Case, demo: Demo, log) -> dict:
-    """What one run achieved (plain floats), from its log."""
-    out = {"steps": int(len(log.t)), "completed": bool(log.completed), "failure": log.failure,
-           "max_error": float(np.max(log.error)), "final_error": float(log.error[-1]),
-           "range_violation": float(np.max(log.limit_violation)),
-           "speed_violation": speed_violation(log, _speed_bounds(demo)),
-           "range_margin_min": _range_margin(demo.robot, log.q)}
-    for name, series in log.extras.items():
-        out[f"{name}_max"] = float(np.max(series))
-        out[f"{name}_min"] = float(np.min(series))
-        out[f"{name}_final"] = float(series[-1])
-    if "distance" in log.extras:
-        out.update(_crossing(log, collision_avoidance.MINIMUM_DISTANCE))
-    return out
-
-
-def _speed_bounds(demo: Demo) -> np.ndarray:
-    bounds = np.full(demo.robot.nv, np.inf)
-    for limit in demo.limits:
-        if isinstance(limit, JointVelocityLimit):
-            bounds = np.minimum(bounds, limit.max_velocity)
-    return bounds
-
-
-def _range_margin(robot: Robot, q: np.ndarray) -> float:
-    """The smallest distance of a limited joint to its range's ends over the run (rad)."""
-    limits = robot.joint_limits
-    values = q[:, limits.qpos_index]
-    return float(np.min(np.minimum(values - limits.lower, limits.upper - values)))
-
-
-def _crossing(log, minimum: float) -> dict:
-    """When the hand first came within the minimum distance, and how fast it was approaching."""
-    distance = log.extras["distance"]
-    inside = np.flatnonzero(distance < minimum)
-    if not len(inside):
-        return {"crossed_at_s": None, "approach_speed_at_crossing": None}
-    k = int(inside[0])
-    speed = float((distance[k - 1] - distance[k]) / log.dt) if k else float("nan")
-    return {"crossed_at_s": float(log.t[k]), "approach_speed_at_crossing": speed}
-
-
 def kinematics_cost_us(demo: Demo, number: int = 2000) -> float:
     """One ``robot.update_kinematics()`` (in every contender's timed step) in µs."""
     update = demo.robot.update_kinematics
@@ -368,20 +241,6 @@ def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
     return {"at_s": at, "needs_solver": needs_solver, "total_us": total, "parts_us": parts}
 
 
-def compare(case: Case, logs: dict, demos: dict) -> dict:
-    """The contenders' runs side by side: trajectory differences to the first (qpik)."""
-    labels = list(logs)
-    reference = logs[labels[0]]
-    out = {}
-    for label in labels[1:]:
-        log = logs[label]
-        n = min(len(log.q), len(reference.q))
-        difference = np.abs(log.q[:n] - reference.q[:n])
-        out[label] = {"q_max_difference": float(np.max(difference)),
-                      "q_final_difference": float(np.max(difference[-1]))}
-    return out
-
-
 def checks(case: Case, result: dict) -> list[dict]:
     """The issue's must-show bounds for this case: value, bound, holds."""
     runs, diff = result["runs"], result["differences"]
@@ -415,14 +274,7 @@ def checks(case: Case, result: dict) -> list[dict]:
 # Running ----------------------------------------------------------------------------
 def equivalence(case: Case, duration: float | None = None) -> dict:
     """Each contender once (no timing): the logs, metrics and trajectory differences."""
-    demos, logs = {}, {}
-    for label, make in case.contenders.items():
-        demo = case.build(duration)
-        run = rollout(demo, make(demo))
-        run.advance()
-        demos[label], logs[label] = demo, run.log()
-    return {"logs": logs, "runs": {label: log_metrics(case, demos[label], log) for label, log in logs.items()},
-            "differences": compare(case, logs, demos)}
+    return side_by_side(case.build, case.contenders, duration)
 
 
 def measure(case: Case, repeats: int) -> dict:

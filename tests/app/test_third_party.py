@@ -1,6 +1,7 @@
-"""qpik and mink on the same third-party problems (benchmarks/third_party.py, shortened, no
-timing): the same trajectories where both solve the same QP, and what each collision
-bound does to a hand pulled into a box."""
+"""qpik and mink on the same third-party problems (the problems of benchmarks/third_party.py,
+shortened, no timing; qpik.app.peers.equivalence runs them side by side): the same
+trajectories where both solve the same QP, and what each collision bound does to a hand
+pulled into a box."""
 
 from __future__ import annotations
 
@@ -14,18 +15,34 @@ pytest.importorskip("mink", reason="mink is not installed (pip install -e '.[pee
 pytest.importorskip("dm_control", reason="the models come with dm_control (pip install -e '.[test]')")
 pytest.importorskip("gymnasium", reason="the pusher comes with gymnasium (pip install -e '.[test]')")
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-
-import third_party  # noqa: E402
-
 from qpik import JointPositionLimit  # noqa: E402
+from qpik.app.peers.equivalence import PAIR, equivalence, mink_controller, qpik_controller, without_damper  # noqa: E402
+from qpik.app.peers.mink_mirror import MinkMirror  # noqa: E402
 from qpik.app.peers.problem import PeerUnsupported  # noqa: E402
 
-D_MIN = third_party.collision_avoidance.MINIMUM_DISTANCE
+# The problems are the examples' (a folder of scripts, imported as the scripts import each other).
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "examples"))
+
+import collision_avoidance  # noqa: E402
+import humanoid_reach  # noqa: E402
+import jaco_circle  # noqa: E402
+import pose_circles  # noqa: E402
+
+D_MIN = collision_avoidance.MINIMUM_DISTANCE
+PROBLEMS = {
+    "jaco": (jaco_circle.build, PAIR),
+    "humanoid": (humanoid_reach.build, PAIR),
+    "chain7": (lambda duration: pose_circles.chain_demo(7, duration), PAIR),
+    "pusher": (pose_circles.pusher_demo, PAIR),
+    "collision": (lambda duration: collision_avoidance.build(duration, native_ccd=True),
+                  {"qpik": qpik_controller, "qpik (no damper)": lambda demo: qpik_controller(without_damper(demo)),
+                   "mink": mink_controller}),
+}
 
 
 def run(case: str, duration: float) -> dict:
-    result = third_party.equivalence(third_party.CASES[case], duration)
+    build, contenders = PROBLEMS[case]
+    result = equivalence(build, contenders, duration)
     for label, log in result["logs"].items():
         assert log.completed, f"{label}: {log.failure}"
     return result
@@ -69,18 +86,18 @@ def test_collision_limits_qpik_keeps_the_minimum_distance_mink_crosses_it():
 
 
 def test_the_mirror_refuses_what_mink_cannot_express():
-    demo = third_party.CASES["chain7"].build(0.1)
+    demo = pose_circles.chain_demo(7, 0.1)
     damped = [JointPositionLimit(demo.robot, influence=0.1)]
     with pytest.raises(PeerUnsupported, match="without the velocity damper"):
-        third_party.MinkMirror(demo.robot, demo.tasks, damped, demo.dt)
+        MinkMirror(demo.robot, demo.tasks, damped, demo.dt)
     demo.tasks[0].position_gain[:] = [100.0, 100.0, 50.0]
     with pytest.raises(PeerUnsupported, match="gain must be the same on every row"):
-        third_party.MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt)
+        MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt)
 
 
 def test_mirror_maps_weights_gains_and_limits_as_documented():
-    demo = third_party.CASES["humanoid"].build(0.1)
-    mirror = third_party.MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt, moving=demo.moving)
+    demo = humanoid_reach.build(0.1)
+    mirror = MinkMirror(demo.robot, demo.tasks, demo.limits, demo.dt, moving=demo.moving)
     feet, com, hand, posture = demo.tasks[0], demo.tasks[2], demo.tasks[3], demo.tasks[4]
     assert len(mirror.constraints) == 2 and all(c.gain == pytest.approx(feet.position_gain[0] * demo.dt)
                                                  for c in mirror.constraints)

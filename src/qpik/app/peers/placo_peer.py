@@ -149,7 +149,7 @@ class PlacoController:
         else:
             text = mjcf_to_urdf(robot.model, robot.velocity_limits, setup.robot_name)
             self.wrapper = placo.RobotWrapper(str(BUNDLED[setup.robot_name][0].parent if setup.robot_name in BUNDLED else Path.cwd()), placo.Flags.ignore_collisions, text)
-        self.joints = joints = _JointMap(robot.model, self.wrapper)
+        self.joints = _JointMap(robot.model, self.wrapper)
         self._state_q = self.wrapper.state.q  # placo's own vector (it keeps its storage), written in place
         self.ik = ik = placo.KinematicsSolver(self.wrapper)
         ik.mask_fbase(True)
