@@ -24,10 +24,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from step_time import RESULTS, label_of, measure
+from step_time import RESULTS, measure
 from timing import P99_BOUND
 
 from qpik.app.readme_tables import ratio_cell
+from qpik.app.runs import run_label
+from qpik.rollout import RunSummary
 from qpik.io import write_json, write_text
 from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
 from qpik.scenario import build_scenario, scenarios
@@ -66,7 +68,7 @@ def ratios(rows: list[dict], timing) -> list[dict]:
     out = []
     for label, num, den, bound in RATIOS:
         if num in present and den in present:
-            ratio = timing.ratio(label_of(*num), label_of(*den))
+            ratio = timing.ratio(run_label(*num), run_label(*den))
             out.append({"ratio": label, "value": ratio["median"], "min": ratio["min"], "max": ratio["max"],
                         "pooled": ratio["pooled"], "bound": bound,
                         "holds": None if bound is None else bool(ratio["median"] <= bound)})
@@ -75,14 +77,16 @@ def ratios(rows: list[dict], timing) -> list[dict]:
 
 def agreement(rows: list[dict]) -> None:
     """Each row's largest |q_final − q_final of qp(daqp)| (the same problem: same motion)."""
-    ref = next(np.array(r["summary"]["q_final"]) for r in rows if (r["controller"], r["solver"]) == ("qp", "daqp"))
-    for r in rows:
-        r["q_final_vs_qp_daqp"] = float(np.max(np.abs(np.array(r["summary"]["q_final"]) - ref)))
+    q_final = [np.array(RunSummary.from_json(r["summary"]).q_final) for r in rows]
+    ref = next(q for r, q in zip(rows, q_final) if (r["controller"], r["solver"]) == ("qp", "daqp"))
+    for r, q in zip(rows, q_final):
+        r["q_final_vs_qp_daqp"] = float(np.max(np.abs(q - ref)))
 
 
 def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict], notes: list[str],
                 repeats: int) -> str:
-    loops = all("constraint_violation_max" in r["summary"] for r in rows)
+    summaries = [RunSummary.from_json(r["summary"]) for r in rows]
+    loops = all(s.constraint_violation_max is not None for s in summaries)
     lines = [f"### {robot} / {scenario}", "",
              f"Per-step time (kinematics update + controller), {rows[0]['steps']} steps per controller over "
              f"{repeats} repeats, controllers interleaved in blocks of 50 steps; tracking from the last repeat; "
@@ -90,13 +94,12 @@ def to_markdown(robot: str, scenario: str, rows: list[dict], checks: list[dict],
              f"| controller | solver | median [µs] | p99 [µs] | p99 ≤ {P99_BOUND:g}× median | max error [m] | "
              "tracks (≤ 1e-3) | limit viol. | " + ("loop resid. [m] | " if loops else "") + "Δq_final |",
              "|---|---|---:|---:|:---:|---:|:---:|---:|" + ("---:|" if loops else "") + "---:|"]
-    for r in rows:
-        s = r["summary"]
-        tracks = "yes" if s["completed"] and s["max_error"] <= TRACKING else f"no: {s.get('failure', 'error')}"
-        loop = f"{s['constraint_violation_max']:.1e} | " if loops else ""
+    for r, s in zip(rows, summaries):
+        tracks = "yes" if s.completed and s.max_error <= TRACKING else f"no: {s.stop.failure if s.stop else 'error'}"
+        loop = f"{s.constraint_violation_max:.1e} | " if loops else ""
         p99 = f"{r['p99_over_median']:.2f} " + ("yes" if r["p99_within_3_medians"] else "**no**")
         lines.append(f"| {r['controller']} | {r['solver']} | {r['median_us']:.1f} | {r['p99_us']:.1f} | {p99} | "
-                     f"{s['max_error']:.2e} | {tracks} | {s['limit_violation_max']:.1e} | {loop}"
+                     f"{s.max_error:.2e} | {tracks} | {s.limit_violation_max:.1e} | {loop}"
                      f"{r['q_final_vs_qp_daqp']:.1e} |")
     lines += ["", "| ratio of medians | median over repeats (range) | bound | holds |", "|---|---:|---:|:---:|"]
     for c in checks:

@@ -54,7 +54,7 @@ from qpik.robot import Robot
 from qpik.robots.arm.scenarios import SEED_PATH, arm_setup
 from qpik.scenario import Setup
 from qpik.trajectories import PoseTrajectory, Segment
-from step_time import timed_run
+from timing import timed_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MOVE, HOLD = 1.0, 0.5  # s: quintic segment, then the target held

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,27 +27,10 @@ import numpy as np
 from qpik.app.peers import peer_installed
 from qpik.app.readme_tables import placo_solve_markdown
 from qpik.io import write_json, write_text
-from timing import Contestant, interleave, scenario_run, spread
+from timing import Contestant, MethodTimer, interleave, scenario_run, spread
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
-
-
-class _Timed:
-    """An object with one method timed into ``times``; every other attribute passed through."""
-
-    def __init__(self, inner, method: str, times: list[float]):
-        self._inner, self._method, self._times = inner, getattr(inner, method), times
-        setattr(self, method, self._timed)
-
-    def __getattr__(self, name):
-        return getattr(self._inner, name)
-
-    def _timed(self, *args):
-        start = time.perf_counter()
-        result = self._method(*args)
-        self._times.append(time.perf_counter() - start)
-        return result
 
 
 def measure(robot: str, scenario: str, repeats: int) -> dict:
@@ -60,8 +42,8 @@ def measure(robot: str, scenario: str, repeats: int) -> dict:
         solve_times.append([])
         kinematics_times.append([])
         controller = run.controller
-        controller.ik = _Timed(controller.ik, "solve", solve_times[-1])
-        controller.wrapper = _Timed(controller.wrapper, "update_kinematics", kinematics_times[-1])
+        controller.ik = MethodTimer(controller.ik, "solve", solve_times[-1])
+        controller.wrapper = MethodTimer(controller.wrapper, "update_kinematics", kinematics_times[-1])
         return run
 
     contestants = [Contestant("qp (daqp)", lambda: scenario_run(robot, scenario, "qp", "daqp")),

@@ -6,7 +6,8 @@ optionally against the package at another git revision, interleaved in one proce
 With ``--against REV`` the package at REV is exported (``git archive``) to a temporary
 folder and imported under another name, so both versions run in this one process; each
 round runs one rollout of every (version, scenario) pair, in an order rotated from round
-to round, with the garbage collector off. Reported per pair: the median rollout time over
+to round, with the garbage collector off (the timing harness, :mod:`timing`, with one
+rollout per step; a first rollout of each pair warms it up). Reported per pair: the median rollout time over
 the rounds and rollouts per second; per scenario, the ratio of the two versions' rates,
 median and range over the rounds (each round's ratio comes from rollouts run seconds
 apart, so a burst of load moves both). The two versions' summaries must agree to 1e-12
@@ -18,17 +19,15 @@ writes benchmarks/results/rollout_speed.json and .md.
 from __future__ import annotations
 
 import argparse
-import gc
 import importlib
 import platform
-import re
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from timing import Contestant, import_revision, interleave
 
 from qpik.io import write_json, write_text
 
@@ -38,28 +37,6 @@ RUNS = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
 TIMING_KEYS = ("step_time_median_us", "step_time_p99_us")
 
 
-def import_revision(revision: str, folder: Path) -> str:
-    """Import the package at git ``revision`` as ``qpik_<rev>``; return the module name."""
-    name = "qpik_" + re.sub(r"\W", "_", revision)
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", revision, "src/qpik"], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
-    package = folder / name
-    (folder / "src" / "qpik").rename(package)
-    # Module paths written as strings (the lazy exports, the robot registry) and absolute
-    # imports name the package: point them at the copy.
-    pattern = re.compile(r"""(["'])qpik\.|\bfrom qpik\b|\bimport qpik\b""")
-    for path in package.rglob("*.py"):
-        text = path.read_text()
-        new = pattern.sub(lambda m: (m.group(1) + name + ".") if m.group(1) else m.group(0).replace("qpik", name),
-                          text)
-        if new != text:
-            path.write_text(new)
-    sys.path.insert(0, str(folder))
-    importlib.import_module(name + ".app.runs")
-    return name
-
-
 def tree_label() -> str:
     """``this tree (abc1234)``, with ``+`` when the tree has uncommitted changes."""
     head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
@@ -67,34 +44,37 @@ def tree_label() -> str:
     return f"this tree ({head.stdout.strip() or 'no git'}{'+' if dirty.stdout.strip() else ''})"
 
 
-def timed_rollout(runs_module, robot: str, scenario: str) -> tuple[float, dict]:
-    gc.collect()
-    gc.disable()
-    try:
-        start = time.perf_counter()
-        _, log = runs_module.run(robot, scenario)
-        elapsed = time.perf_counter() - start
-    finally:
-        gc.enable()
-    summary = log.summary()  # a dict before the typed summary
-    return elapsed, summary.to_json() if hasattr(summary, "to_json") else summary
+class Rollouts:
+    """A contestant whose step is one whole rollout (``run(robot, scenario)`` of a version's
+    ``qpik.app.runs``), ``rounds`` of them after a first that warms it up; the summary of
+    the last is kept (a dict, the step times aside)."""
+
+    failures = ()
+
+    def __init__(self, runs_module, robot: str, scenario: str, rounds: int):
+        self.runs, self.robot, self.scenario, self.steps = runs_module, robot, scenario, rounds + 1
+        self.summary: dict = {}
+
+    def step(self, k: int) -> None:
+        self._log = self.runs.run(self.robot, self.scenario)[1]
+
+    def after(self, k: int) -> None:
+        summary = self._log.summary()  # a dict before the typed summary
+        summary = summary.to_json() if hasattr(summary, "to_json") else summary
+        self.summary = {key: value for key, value in summary.items() if key not in TIMING_KEYS}
 
 
 def measure(versions: dict[str, object], rounds: int) -> dict:
-    pairs = [(v, run) for run in RUNS for v in versions]
-    times = {pair: [] for pair in pairs}
-    summaries = {}
-    for pair in pairs:  # warm-up: imports, first solver set-ups
-        timed_rollout(versions[pair[0]], *pair[1])
-    for r in range(rounds):
-        order = pairs[r % len(pairs):] + pairs[: r % len(pairs)]
-        for version, run in order:
-            elapsed, summary = timed_rollout(versions[version], *run)
-            times[(version, run)].append(elapsed)
-            summaries[(version, run)] = {k: v for k, v in summary.items() if k not in TIMING_KEYS}
+    """Every (version, scenario) pair's rollouts, interleaved one rollout at a time (the
+    order rotated every round) by the benchmarks' timing harness."""
+    pairs = {f"{version}: {robot} / {scenario}": (version, (robot, scenario)) for robot, scenario in RUNS
+             for version in versions}
+    timing = interleave([Contestant(label, lambda v=v, run=run: Rollouts(versions[v], *run, rounds))
+                         for label, (v, run) in pairs.items()], repeats=1, block=1)
+    times = {pair: timing.contestants[label].step_times[0] for label, pair in pairs.items()}
+    summaries = {pair: timing.contestants[label].last_run.summary for label, pair in pairs.items()}
     rows = []
     for (version, (robot, scenario)), values in times.items():
-        values = np.array(values)
         rows.append({"version": version, "robot": robot, "scenario": scenario, "rounds": rounds,
                      "median_s": float(np.median(values)), "min_s": float(values.min()), "max_s": float(values.max()),
                      "rollouts_per_s": float(1.0 / np.median(values))})
@@ -107,7 +87,7 @@ def measure(versions: dict[str, object], rounds: int) -> dict:
             if mismatch:
                 raise SystemExit(f"{run}: the two versions' summaries differ ({mismatch}); not a like-for-like "
                                  "comparison")
-            per_round = np.array(times[(old, run)]) / np.array(times[(new, run)])
+            per_round = times[(old, run)] / times[(new, run)]
             ratios.append({"robot": run[0], "scenario": run[1], "speedup_median": float(np.median(per_round)),
                            "speedup_min": float(per_round.min()), "speedup_max": float(per_round.max())})
     return {"rows": rows, "speedups": ratios}
@@ -155,7 +135,7 @@ def main(argv=None) -> int:
     versions = {tree_label(): importlib.import_module("qpik.app.runs")}
     with tempfile.TemporaryDirectory() as folder:
         if args.against:
-            name = import_revision(args.against, Path(folder))
+            name = import_revision(REPO, args.against, Path(folder))
             versions[args.against] = importlib.import_module(name + ".app.runs")
         result = measure(versions, args.rounds)
     md = to_markdown(result, list(versions))

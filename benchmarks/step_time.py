@@ -15,7 +15,6 @@ writes benchmarks/results/step_time_<scenario>.json and .md.
 from __future__ import annotations
 
 import argparse
-import gc
 import platform
 import sys
 from pathlib import Path
@@ -23,7 +22,7 @@ from pathlib import Path
 from timing import P99_BOUND, Contestant, interleave, logged_run, scenario_run, timed_vs_logged
 
 from qpik.app.readme_tables import ratio_cell
-from qpik.app.runs import run
+from qpik.app.runs import run_label
 from qpik.io import write_json, write_text
 from qpik.scenario import scenarios
 from qpik.solvers import available_solvers
@@ -32,26 +31,11 @@ RESULTS = Path(__file__).resolve().parent / "results"
 CONTROL_PERIOD_US = 2000.0  # the scenarios' Δt: a step must fit in it to run in real time
 
 
-def timed_run(*args, **kwargs):
-    """``qpik.app.runs.run`` with the garbage collector off, so no collector pause lands in a
-    measured step (the Monte Carlo's whole rollouts)."""
-    gc.collect()
-    gc.disable()
-    try:
-        return run(*args, **kwargs)
-    finally:
-        gc.enable()
-
-
-def label_of(controller: str, solver: str) -> str:
-    return controller if solver == "none" else f"{controller} ({solver})"
-
-
 def measure(robot: str, scenario: str, entries: list[tuple[str, str]], repeats: int = 3):
     """Interleaved step times of each (controller, solver); each row keeps the summary of
     the controller's logged rollout (run apart, untimed) and how far the last timed run's
     q strayed from it. Returns the rows and the :class:`timing.Timing`."""
-    contestants = [Contestant(label_of(c, s), lambda c=c, s=s: scenario_run(robot, scenario, c, s))
+    contestants = [Contestant(run_label(c, s), lambda c=c, s=s: scenario_run(robot, scenario, c, s))
                    for c, s in entries]
     timing = interleave(contestants, repeats=repeats)
     rows = []

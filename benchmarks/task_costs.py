@@ -9,23 +9,22 @@ median over every call:
 - the hexapod's loop-closure rows: EqualityTask (``mj_makeConstraint`` with the other
   constraint types disabled) against two ``mj_jacSite`` per ``connect`` (the former
   LoopClosureTask);
-- with ``--baseline-src DIR`` (a ``src/`` of another checkout, e.g. from
-  ``git archive <commit> src | tar -x -C /tmp/base``): the QP step of bundled scenarios,
-  this checkout against that one, in alternating subprocesses.
+- with ``--against REV``: the QP step of bundled scenarios, this checkout against the
+  package at git revision REV, both imported in this process (:func:`timing.import_revision`)
+  and block-interleaved.
 
-    python benchmarks/task_costs.py [--baseline-src /tmp/base/src --baseline-label main]
+    python benchmarks/task_costs.py [--against main]
 writes benchmarks/results/task_costs.json and .md.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import importlib.util
-import json
-import os
 import platform
-import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import mujoco
@@ -33,10 +32,10 @@ import numpy as np
 
 from qpik import EqualityTask, Robot, Yoshikawa
 from qpik.io import write_json, write_text
-from timing import Contestant, interleave
+from timing import Contestant, ControllerRun, import_revision, interleave
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SRC = Path(__file__).resolve().parents[1] / "src"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def central_difference_gradient(measure: Yoshikawa, scratch: mujoco.MjData, jac: np.ndarray, out: np.ndarray,
@@ -135,44 +134,26 @@ def loop_rows(blocks: int) -> dict:
             "new_us": t["equality"], "old": "2 mj_jacSite per loop", "old_us": t["sites"], "max_difference": agreement}
 
 
-STEP_SCRIPT = """
-import gc, json, sys, time
-import numpy as np
-from qpik.scenario import build_scenario
-out = {}
-for name in sys.argv[1:]:
-    setup = build_scenario(name)
-    controller = setup.controller("qp", "daqp")
-    robot, dt = setup.robot, setup.dt
-    times = []
-    gc.disable()
-    for k in range(int(setup.duration / dt)):
-        setup.reference.apply(k * dt)
-        start = time.perf_counter()
-        robot.update_kinematics()
-        qdot = controller.compute_velocity()
-        times.append(time.perf_counter() - start)
-        robot.integrate(qdot, dt)
-    gc.enable()
-    out[name] = float(np.median(times[1:]) * 1e6)
-print(json.dumps(out))
-"""
+def step_rows(revision: str, scenarios: list[str], repeats: int) -> list[dict]:
+    """The QP step of each scenario (the timing harness's: set_target, compute_velocity,
+    integrate), this checkout against the package at git ``revision``, both in this
+    process, block-interleaved."""
+    import qpik.scenario
 
+    def qp_run(scenario_module, name: str) -> ControllerRun:
+        setup = scenario_module.build_scenario(name)
+        return ControllerRun(setup.controller("qp", "daqp"), setup)
 
-def step_rows(baseline_src: Path, label: str, scenarios: list[str], blocks: int) -> list[dict]:
-    """Median QP step (kinematics + compute_velocity) over a scenario's kinematic rollout,
-    this checkout vs another, in alternating subprocesses."""
-    times = {("new", s): [] for s in scenarios} | {("old", s): [] for s in scenarios}
-    for _ in range(blocks):
-        for which, src in (("new", SRC), ("old", baseline_src)):
-            env = dict(os.environ, PYTHONPATH=str(src))
-            done = subprocess.run([sys.executable, "-c", STEP_SCRIPT, *scenarios], env=env, check=True,
-                                  capture_output=True, text=True)
-            for name, value in json.loads(done.stdout).items():
-                times[(which, name)].append(value)
-    return [{"measure": f"QP step, {s} (kinematics + compute_velocity)", "new": "this checkout",
-             "new_us": float(np.median(times[("new", s)])), "old": label,
-             "old_us": float(np.median(times[("old", s)]))} for s in scenarios]
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        other = importlib.import_module(import_revision(ROOT, revision, Path(folder)) + ".scenario")
+        for name in scenarios:
+            timing = interleave([Contestant("new", lambda: qp_run(qpik.scenario, name)),
+                                 Contestant("old", lambda: qp_run(other, name))], repeats=repeats)
+            median = {row["label"]: row["median_us"] for row in timing.rows()}
+            rows.append({"measure": f"QP step, {name} (set_target, compute_velocity, integrate)",
+                         "new": "this checkout", "new_us": median["new"], "old": revision, "old_us": median["old"]})
+    return rows
 
 
 def to_markdown(rows: list[dict]) -> str:
@@ -186,15 +167,13 @@ def to_markdown(rows: list[dict]) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--blocks", type=int, default=15)
-    parser.add_argument("--baseline-src", type=Path, help="src/ of another checkout to compare QP steps with")
-    parser.add_argument("--baseline-label", help="what the baseline is (default: its path)")
+    parser.add_argument("--against", metavar="REV", help="a git revision whose QP steps to compare with")
     parser.add_argument("--scenarios", nargs="+", default=["seed-redundant", "joint-limits", "hexapod-circle",
                                                             "hexapod-position-only"])
     args = parser.parse_args(argv)
     rows = yoshikawa_rows(args.blocks) + [loop_rows(args.blocks)]
-    if args.baseline_src is not None:
-        label = args.baseline_label or str(args.baseline_src)
-        rows += step_rows(args.baseline_src, label, args.scenarios, max(3, args.blocks // 3))
+    if args.against is not None:
+        rows += step_rows(args.against, args.scenarios, max(3, args.blocks // 3))
     RESULTS.mkdir(exist_ok=True)
     write_json(RESULTS / "task_costs.json", {"machine": platform.processor() or platform.machine(),
                                              "python": sys.version.split()[0], "rows": rows})

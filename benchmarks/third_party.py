@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import platform
 import sys
-import timeit
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -65,7 +64,7 @@ import humanoid_reach  # noqa: E402
 import jaco_circle  # noqa: E402
 from demo_support import Demo  # noqa: E402
 from pose_circles import CHAIN_MOTION, PUSHER_MOTION, chain_demo, pusher_demo  # noqa: E402
-from timing import Contestant, interleave  # noqa: E402
+from timing import Contestant, call_cost_us, interleave  # noqa: E402
 
 from qpik.app.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_side, mink_controller,  # noqa: E402
                                         qpik_controller, without_damper)
@@ -193,9 +192,7 @@ def timed_differences(timing, labels: list[str], logs: dict) -> dict:
 # Measures ---------------------------------------------------------------------------
 def kinematics_cost_us(demo: Demo, number: int = 2000) -> float:
     """One ``robot.update_kinematics()`` (in every contender's timed step) in µs."""
-    update = demo.robot.update_kinematics
-    update()
-    return min(timeit.repeat(update, number=number, repeat=3)) / number * 1e6
+    return call_cost_us(demo.robot.update_kinematics, number)
 
 
 def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
@@ -213,8 +210,7 @@ def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
     robot.update_kinematics()
 
     def cost(call) -> float:
-        call()
-        return min(timeit.repeat(call, number=number, repeat=3)) / number * 1e6
+        return call_cost_us(call, number)
 
     calls = controller.solver_calls
     controller.compute_velocity()

@@ -11,7 +11,9 @@ and its timed step is exactly what its user writes in a control loop, nothing el
 
 A contestant's run has ``steps``, ``step(k)`` (timed) and ``after(k)`` (not timed: the
 plant's end stops, copying the state for the metrics); ``failures`` are the exception
-types that end its run early (an infeasible hard task) instead of the benchmark.
+types that end its run early (an infeasible hard task) instead of the benchmark; an
+optional ``begin_block()`` (not timed) runs before each of its blocks (e.g. selecting
+its linear-algebra back-end).
 
 Whole runs timed one after the other let a burst of load (another job, a frequency
 change) land on one contestant and not the next: on a busy 2-core machine the ratio
@@ -20,6 +22,11 @@ qp/pinv ranged 1.13–1.64 across runs that way. Here all contestants advance in
 block replays the same steps for every contestant within milliseconds of each other.
 The garbage collector is off while they run. This is repeated ``repeats`` times (≥ 3)
 with fresh runs; the first step of each run is left out (it sets up the solvers).
+
+Every timing benchmark uses this module and nothing else to time: the steps
+(:func:`interleave`), a part of a step timed inside it (:class:`MethodTimer`), the cost of
+one call on a fixed state (:func:`call_cost_us`), whole rollouts (a contestant whose step
+is one rollout), another revision of the package beside this one (:func:`import_revision`).
 
 Reported per contestant: median and 99th percentile of the step over all repeats (the
 p99 leaves out the first step of each block: it runs after the other contestants' blocks
@@ -36,8 +43,14 @@ repeats shows how much the machine's load moved it.
 from __future__ import annotations
 
 import gc
+import importlib
+import re
+import subprocess
+import sys
 import time
+import timeit
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -151,6 +164,9 @@ class _Clocked:
     def advance(self, count: int) -> None:
         run, wall, cpu, clock = self.run, self.wall, self.cpu, time.perf_counter
         failures = getattr(run, "failures", (QpikError,))
+        begin_block = getattr(run, "begin_block", None)
+        if begin_block is not None:
+            begin_block()
         for k in range(self.done, min(self.done + count, run.steps)):
             cpu_start = time.thread_time() if cpu is not None else 0.0
             start = clock()
@@ -206,6 +222,61 @@ def interleave(contestants: Sequence[Contestant], repeats: int = 3, block: int =
     return Timing(timings, repeats, block)
 
 
+def call_cost_us(call: Callable[[], object], number: int = 2000, repeat: int = 3) -> float:
+    """One call's cost in µs: the best of ``repeat`` rounds of ``number`` calls on the same
+    state (a part of a step, timed alone after a first call that warms it)."""
+    call()
+    return min(timeit.repeat(call, number=number, repeat=repeat)) / number * 1e6
+
+
+class MethodTimer:
+    """An object whose method ``method`` is timed into ``times`` (seconds, one entry per
+    call) inside a contestant's step; every other attribute passes through."""
+
+    def __init__(self, inner, method: str, times: list[float]):
+        self._inner, self._method, self._times = inner, getattr(inner, method), times
+        setattr(self, method, self._timed)
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def _timed(self, *args):
+        start = time.perf_counter()
+        result = self._method(*args)
+        self._times.append(time.perf_counter() - start)
+        return result
+
+
+def import_revision(repository: Path, revision: str, folder: Path) -> str:
+    """Import the package at git ``revision`` of ``repository`` as ``qpik_<rev>`` (its
+    files exported into ``folder``), so that both versions run in this one process;
+    returns the module name."""
+    name = "qpik_" + re.sub(r"\W", "_", revision)
+    # The bundled scenes live in a top-level scenes/ folder (installed as qpik.scenes) since
+    # they left src/qpik: a revision that has it gets it back inside the package.
+    scenes = subprocess.run(["git", "-C", str(repository), "cat-file", "-e", f"{revision}:scenes"],
+                            capture_output=True).returncode == 0
+    archive = subprocess.run(["git", "-C", str(repository), "archive", revision, "src/qpik",
+                              *(["scenes"] if scenes else [])], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    package = folder / name
+    (folder / "src" / "qpik").rename(package)
+    if scenes:
+        (folder / "scenes").rename(package / "scenes")
+    # Module paths written as strings (the lazy exports, the robot registry) and absolute
+    # imports name the package: point them at the copy.
+    pattern = re.compile(r"""(["'])qpik\.|\bfrom qpik\b|\bimport qpik\b""")
+    for path in package.rglob("*.py"):
+        text = path.read_text()
+        new = pattern.sub(lambda m: (m.group(1) + name + ".") if m.group(1) else m.group(0).replace("qpik", name),
+                          text)
+        if new != text:
+            path.write_text(new)
+    sys.path.insert(0, str(folder))
+    importlib.import_module(name + ".app.runs")
+    return name
+
+
 class ControllerRun:
     """A controller on a bundled scenario, stepped as its user's loop does.
 
@@ -224,7 +295,12 @@ class ControllerRun:
     def __init__(self, controller, setup, refresh: bool = False):
         self.controller, self.robot, self.dt = controller, controller.robot, setup.dt
         self.steps = int(round(setup.duration / setup.dt)) + 1
-        self._targets = start_reference(setup.reference, self.robot, np.arange(self.steps) * setup.dt)
+        times = np.arange(self.steps) * setup.dt
+        # The reference's own start (also that of another revision's package, which this
+        # tree's start_reference would not recognise and would sample step by step).
+        start = getattr(setup.reference, "start", None)
+        self._targets = start(self.robot, times) if callable(start) else start_reference(setup.reference, self.robot,
+                                                                                          times)
         self._refresh = refresh
         self._closure = setup.closure if getattr(controller, "actuated_only", False) else None
         stops = self.robot.joint_limits
@@ -255,6 +331,20 @@ def scenario_run(robot: str, scenario: str, controller: str, solver: str) -> Con
     if controller in PEERS:
         return ControllerRun(peer_controller(controller, setup, solver), setup, refresh=True)
     return ControllerRun(setup.controller(controller, solver), setup)
+
+
+def timed_run(*args, **kwargs):
+    """``qpik.app.runs.run`` with the garbage collector off, so no collector pause lands in
+    a step its log times (the Monte Carlo's whole rollouts, whose step times are the
+    rollout's own per-step clock)."""
+    from qpik.app.runs import run
+
+    gc.collect()
+    gc.disable()
+    try:
+        return run(*args, **kwargs)
+    finally:
+        gc.enable()
 
 
 def logged_run(robot: str, scenario: str, controller: str, solver: str):
