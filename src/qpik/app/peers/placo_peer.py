@@ -63,7 +63,7 @@ from ...robots.hexapod.control import PlatformManipulabilityTask
 from ...robots import BUNDLED
 from ...scenario import Setup
 from ...tasks import DampingTask
-from . import PLACO_SOLVER
+from ..kinds import KINDS
 from .problem import REGULARIZATION, SCALAR_JOINTS, PeerProblem, PeerUnsupported
 from .urdf import mjcf_to_urdf
 
@@ -137,7 +137,7 @@ class PlacoController:
     """
 
     kind = "placo"
-    solver = PLACO_SOLVER
+    solver = KINDS["placo"].own_solver
 
     def __init__(self, setup: Setup, urdf: str | Path | None = None):
         self.problem = problem = PeerProblem.from_setup(setup, "placo")

@@ -1,0 +1,116 @@
+"""No import cycle anywhere: among qpik's modules counting every import (those inside
+functions too, which only defer a cycle to the first call), among the benchmark scripts,
+and no test imports a benchmark script (what tests and benchmarks share is library code).
+The imports are read from the sources with ``ast``."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import qpik
+
+SRC = Path(qpik.__file__).resolve().parent
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(SRC.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _qpik_imports(path: Path, modules: set[str]) -> set[str]:
+    """The qpik modules ``path`` imports anywhere in it; a name imported from a package
+    counts as its module when it is one (``from . import runs``)."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for alias in node.names:
+                found.add(f"{target}.{alias.name}" if f"{target}.{alias.name}" in modules else target)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+    # A module that imports a name its package's __init__ defines depends on that __init__:
+    # the edge counts (an __init__ that imports the module back closes a cycle).
+    return {m for m in found if m in modules and m != name}
+
+
+def _script_imports(path: Path, scripts: set[str]) -> set[str]:
+    """The other benchmark scripts a benchmark script imports (by module name)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and not node.level:
+            found.add((node.module or "").split(".")[0])
+        elif isinstance(node, ast.Import):
+            found.update(alias.name.split(".")[0] for alias in node.names)
+    return (found & scripts) - {path.stem}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str]:
+    """A cycle of ``graph`` (nodes in order, the first repeated at the end), or []."""
+    state: dict[str, int] = {}
+
+    def visit(node: str, stack: list[str]) -> list[str]:
+        state[node] = 1
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [node, nxt] if nxt in stack else [node, nxt]
+            if state.get(nxt) is None and (cycle := visit(nxt, stack + [node])):
+                return cycle
+        state[node] = 2
+        return []
+
+    for node in sorted(graph):
+        if state.get(node) is None and (cycle := visit(node, [])):
+            return cycle
+    return []
+
+
+def test_find_cycle_finds_one_and_only_one():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"a"}}) == ["a", "a"]
+
+
+def test_no_import_cycle_in_qpik_counting_imports_inside_functions():
+    paths = list(SRC.rglob("*.py"))
+    modules = {_module_name(p) for p in paths}
+    graph = {_module_name(p): _qpik_imports(p, modules) for p in paths}
+    assert "qpik.app.runs" in graph["qpik.app.cli"]  # the reader sees imports inside functions
+    cycle = find_cycle(graph)
+    assert not cycle, " -> ".join(cycle)
+
+
+def test_no_import_cycle_among_the_benchmark_scripts():
+    paths = list(BENCHMARKS.glob("*.py"))
+    scripts = {p.stem for p in paths}
+    graph = {p.stem: _script_imports(p, scripts) for p in paths}
+    assert graph["third_party"] >= {"timing"}
+    cycle = find_cycle(graph)
+    assert not cycle, " -> ".join(cycle)
+
+
+def _puts_benchmarks_on_the_path(path: Path) -> bool:
+    """Whether a file adds the benchmarks folder to the import path (``sys.path.insert``,
+    ``append``, pytest's ``syspath_prepend`` with "benchmarks" in the arguments)."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and \
+                node.func.attr in ("insert", "append", "syspath_prepend"):
+            if any(isinstance(n, ast.Constant) and n.value == "benchmarks" for arg in node.args for n in ast.walk(arg)):
+                return True
+    return False
+
+
+def test_no_test_imports_a_benchmark_script():
+    scripts = {p.stem for p in BENCHMARKS.glob("*.py")}
+    offenders = [f"{path.relative_to(ROOT)}: {sorted(_script_imports(path, scripts))}"
+                 for path in ROOT.joinpath("tests").rglob("*.py")
+                 if _script_imports(path, scripts) or _puts_benchmarks_on_the_path(path)]
+    assert not offenders, offenders
