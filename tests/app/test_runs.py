@@ -43,3 +43,20 @@ def test_compare_runs_every_controller_from_the_same_start():
     assert [log.info.controller for log in logs] == ["qp", "hqp", "sns", "pinv", "jt"]
     for log in logs:
         np.testing.assert_array_equal(log.q[0], ARM_START)
+
+
+def test_the_kinds_registry_names_every_controller_a_scenario_builds():
+    """Every controller a bundled scenario builds is in qpik.app.kinds under the name its
+    summary gives it, and takes a QP solver exactly when the registry says so."""
+    from qpik.app.kinds import KINDS, OFFERED_KINDS, PEER_KINDS, SOLVER_KINDS
+    from qpik.scenario import build_scenario, scenarios
+
+    built = set()
+    for name in scenarios():
+        setup = build_scenario(name)
+        for kind in setup.controller_kinds():
+            controller = setup.controller(kind, "osqp") if kind in SOLVER_KINDS else setup.controller(kind)
+            assert controller.kind == kind, (name, kind)
+            assert (controller.solver == "osqp") == (kind in SOLVER_KINDS), (name, kind, controller.solver)
+            built.add(kind)
+    assert built == {"qp", *OFFERED_KINDS} and set(KINDS) == built | set(PEER_KINDS)
