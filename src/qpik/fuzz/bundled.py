@@ -83,7 +83,6 @@ DEFECTS = {key for key, _, bad in CLASSES if bad}
 
 
 def installed_solvers() -> list[str]:
-
     return [s for s in ALL_SOLVERS if s in available_solvers()]
 
 
@@ -107,7 +106,6 @@ class Case:
 # Generators ---------------------------------------------------------------------------
 
 def _arm(rng: np.random.Generator, mode: str, params: dict) -> Case:
-
     robot = Robot.load("arm")
     limits = robot.joint_limits
     ranges = {}
@@ -184,7 +182,6 @@ def _stiffen(robot, rng: np.random.Generator, params: dict) -> None:
 
 def _random_pose(rng: np.random.Generator, hexapod, home, spread: float = 1.0):
     """A reachable pose about home (uniform in ±(8, 6, 4) cm · spread, ±10° · spread)."""
-
     for _ in range(200):
         p = home + rng.uniform(-1, 1, 3) * np.array([0.08, 0.06, 0.04]) * spread
         rpy = rng.uniform(-10, 10, 3) * spread
@@ -197,7 +194,6 @@ def _random_pose(rng: np.random.Generator, hexapod, home, spread: float = 1.0):
 
 
 def _hexapod(rng: np.random.Generator, mode: str, params: dict) -> Case:
-
     robot = Robot.load("hexapod")
     model = HexapodModel(robot)
     hexapod = model.hexapod
@@ -317,16 +313,7 @@ def mutate(text: str, mutation: str, rng: np.random.Generator) -> tuple[str, str
         return re.sub(rf'(<{kind}[^>]*name="){re.escape(name)}"', rf'\g<1>{name}_renamed"', text, count=1), \
             f"{kind} {name!r} renamed"
     if mutation == "malformed_xml":
-        how = str(rng.choice(["truncate", "drop >", "garbage", "unclosed"]))
-        at = int(rng.integers(len(text) // 4, len(text)))
-        if how == "truncate":
-            return text[:at], f"truncated at {at}"
-        if how == "drop >":
-            at = text.index(">", at) if ">" in text[at:] else text.rindex(">")
-            return text[:at] + text[at + 1:], f"'>' at {at} dropped"
-        if how == "garbage":
-            return text[:at] + "<<&\x01" + text[at:], f"garbage at {at}"
-        return text.replace("</worldbody>", "", 1), "</worldbody> removed"
+        return _malformed(text, rng)
     if mutation == "number":
         matches = list(_NUMBER.finditer(text))
         m = matches[int(rng.integers(len(matches)))]
@@ -339,8 +326,21 @@ def mutate(text: str, mutation: str, rng: np.random.Generator) -> tuple[str, str
     raise ValueError(mutation)
 
 
-def _model(rng: np.random.Generator, params: dict, folder: Path) -> Case:
+def _malformed(text: str, rng: np.random.Generator) -> tuple[str, str]:
+    """The MJCF ``text`` made invalid XML: truncated, a '>' dropped, garbage, a tag unclosed."""
+    how = str(rng.choice(["truncate", "drop >", "garbage", "unclosed"]))
+    at = int(rng.integers(len(text) // 4, len(text)))
+    if how == "truncate":
+        return text[:at], f"truncated at {at}"
+    if how == "drop >":
+        at = text.index(">", at) if ">" in text[at:] else text.rindex(">")
+        return text[:at] + text[at + 1:], f"'>' at {at} dropped"
+    if how == "garbage":
+        return text[:at] + "<<&\x01" + text[at:], f"garbage at {at}"
+    return text.replace("</worldbody>", "", 1), "</worldbody> removed"
 
+
+def _model(rng: np.random.Generator, params: dict, folder: Path) -> Case:
     robot = str(rng.choice(["arm", "hexapod"]))
     mutation = str(rng.choice(MUTATIONS))
     text, description = mutate(BUNDLED[robot][0].read_text(), mutation, rng)
@@ -381,7 +381,6 @@ def build_case(kind: str, seed: int, folder: Path, params: dict | None = None) -
 
 def _loop_residual(case: Case) -> float:
     """Largest loop gap over the commanded configurations (replayed on a scratch robot)."""
-
     commanded = case.rollout.q_commanded
     rows = commanded[np.all(np.isfinite(commanded), axis=1)]
     if not len(rows):
@@ -397,7 +396,6 @@ def _loop_residual(case: Case) -> float:
 
 def run_case(kind: str, seed: int, folder: Path) -> dict:
     """Build, run and classify one case: ``{"case", "classes", "details", "params"}``."""
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = _run_case(kind, seed, folder)
@@ -414,7 +412,6 @@ def run_case(kind: str, seed: int, folder: Path) -> dict:
 
 
 def _run_case(kind: str, seed: int, folder: Path) -> dict:
-
     result = {"case": f"{kind}:{seed}", "classes": [], "details": {}, "params": {}}
     classes, details = result["classes"], result["details"]
     try:
