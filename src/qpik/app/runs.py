@@ -122,13 +122,20 @@ class _Comparison:
         self.notes: list[str] = []
 
     def run(self, controller: str, solver: str, setup: Setup | None = None) -> None:
-        step_progress = None
-        if self.progress is not None:
-            label, progress = run_label(controller, solver), self.progress
-            step_progress = lambda k, steps: progress(label, k, steps)  # noqa: E731
         self.setup, log = run(self.robot, self.scenario, controller, solver, self.mode, on_failure="stop",
-                              setup=setup, progress=step_progress)
+                              setup=setup, progress=self._step_progress(run_label(controller, solver)))
         self.logs.append(log)
+
+    def _step_progress(self, label: str) -> StepProgress | None:
+        """``progress(label, k, steps)`` as a run's ``progress(k, steps)``."""
+        progress = self.progress
+        if progress is None:
+            return None
+
+        def step(k: int, steps: int) -> None:
+            progress(label, k, steps)
+
+        return step
 
     def run_peer(self, kind: str, solvers: Sequence[str]) -> None:
         if not peer_installed(kind):
