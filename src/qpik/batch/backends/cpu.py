@@ -82,10 +82,11 @@ class CpuBackend(KinematicsBackend):
         self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
 
     def _field(self, name: str) -> np.ndarray:
-        """A bound output field, registered on first use (current from the next forward:
-        the caller registers what it reads before the step's forward, see Robot)."""
+        """A bound output field, registered on first use (and then filled at once: the
+        batch copies a field out only after a call made once it was bound)."""
         if name not in self._fields:
             self._fields[name] = self._batch.bind(name)
+            self.forward()
         return self._fields[name]
 
     def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
