@@ -41,12 +41,19 @@ _EQ = mujoco.mjtEq
 MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
 
 
-def default_threads() -> int:
-    """The CPUs this process may run on (MuJoCo's pool uses that many by default)."""
+# Worlds per MuJoCo thread by default: waking a thread costs more than a few hundred
+# small worlds' kinematics, more so on a busy machine.
+WORLDS_PER_THREAD = 512
+
+
+def default_threads(nworld: int) -> int:
+    """One MuJoCo thread per ``WORLDS_PER_THREAD`` worlds, at most the CPUs this process
+    may run on."""
     try:
-        return len(os.sched_getaffinity(0))
+        cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, nworld // WORLDS_PER_THREAD))
 
 
 class CpuBackend(KinematicsBackend):
@@ -55,7 +62,7 @@ class CpuBackend(KinematicsBackend):
     Args:
         model: the model (copied: the back-end never writes it).
         nworld: N.
-        nthread: MuJoCo threads (default: the CPUs this process may use).
+        nthread: MuJoCo threads (default: :func:`default_threads`).
     """
 
     name = "cpu"
@@ -63,7 +70,7 @@ class CpuBackend(KinematicsBackend):
     def __init__(self, model: mujoco.MjModel, nworld: int, nthread: int | None = None):
         self.model = model
         self.nworld = int(nworld)
-        self.nthread = default_threads() if nthread is None else int(nthread)
+        self.nthread = default_threads(self.nworld) if nthread is None else int(nthread)
         kinematic = _copy(model)
         kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
         self._kinematic_model = kinematic  # the batch copies it; kept for the geometry tables
