@@ -15,7 +15,10 @@ Problems (one control step = set the moving targets, solve, integrate; dt = 2 ms
 Contestants, per N, block-interleaved in one process (benchmarks/timing.py: blocks of a
 few steps, the order rotated, ``--repeats`` fresh runs):
 
-- ``qpik.batch``: one batched step of all N worlds (``mujoco.batch`` on all CPUs);
+- ``qpik.batch``: one batched step of all N worlds (``mujoco.batch``, its default
+  thread count: one per 512 worlds, at most the CPUs); where that is more than one,
+  ``qpik.batch (1 thread)`` as well (on a busy machine a second thread can cost more
+  than it brings);
 - ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
   other, per robot-step; ``qpik serial (1 robot)``: one robot stepped again and again,
   its data always in the caches — the serial loop's best case, the conservative
@@ -90,14 +93,15 @@ def circle(n: int, steps: int, radius: float, axes=(0, 1), seed: int = 0):
     return offset, velocity
 
 
-def build(lib, name: str, n: int):
+def build(lib, name: str, n: int, **options):
     """(robots, tasks, limits, mover) of a problem in ``lib`` (qpik.batch, or qpik with n=1:
-    then ``robots`` is a serial Robot). ``mover(offset, velocity)`` sets the moving targets."""
+    then ``robots`` is a serial Robot). ``mover(offset, velocity)`` sets the moving targets;
+    ``options`` go to the batched robots' back-end (``nthread``)."""
     from qpik.models import pusher_arm
 
     serial = lib.__name__ == "qpik"
     make = (lambda model, **kw: lib.Robot.load(model, **kw)) if serial else \
-        (lambda model, **kw: lib.Robot.load(model, n, **kw))
+        (lambda model, **kw: lib.Robot.load(model, n, **kw, **options))
     if name == "arm":
         robots = make("arm")
         robots.set_q(np.array([np.pi / 2, -0.4, 0.6, 0.5]))
@@ -118,7 +122,7 @@ def build(lib, name: str, n: int):
         limits = [lib.JointPositionLimit(robots), lib.JointVelocityLimit(robots)]
         return robots, tasks, limits, lambda off, vel: pose.set_target(home + off, rotation, vel)
     model = pusher_arm()
-    robots = lib.Robot(model, name="pusher_arm") if serial else lib.Robot(model, n, name="pusher_arm")
+    robots = lib.Robot(model, name="pusher_arm") if serial else lib.Robot(model, n, name="pusher_arm", **options)
     robots.set_q(PUSHER_START)
     robots.ensure_kinematics()
     hand = lib.FrameTask(robots, "tips_arm", "body", position_gain=500.0, orientation_gain=500.0)
@@ -135,10 +139,11 @@ def run_steps(n: int) -> int:
 class BatchRun:
     failures = ()
 
-    def __init__(self, name: str, n: int, steps: int):
+    def __init__(self, name: str, n: int, steps: int, nthread: int | None = None):
         from qpik import batch
 
-        self.robots, tasks, limits, self.mover = build(batch, name, n)
+        options = {} if nthread is None else {"nthread": nthread}
+        self.robots, tasks, limits, self.mover = build(batch, name, n, **options)
         self.controller = batch.QPController(self.robots, tasks, limits, dt=DT)
         self.offset, self.velocity = circle(n, steps, RADIUS[name], axes=(0, 2) if name == "pusher" else (0, 1))
         self.steps = steps
@@ -314,11 +319,15 @@ def batch_accuracy(name: str, n: int = 32, steps: int = 500) -> dict:
 def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
     from timing import Contestant, interleave
 
+    from qpik.batch.backends.cpu import default_threads
+
     rows = []
     for n in sizes:
         steps = run_steps(n)
         block = max(1, steps // 8)
         contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)),
+                       *([Contestant("qpik.batch (1 thread)", lambda n=n, s=steps: BatchRun(robot, n, s, nthread=1))]
+                         if default_threads(n) > 1 else []),
                        Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s)),
                        Contestant("qpik serial (1 robot)", lambda n=n, s=steps: SerialRun(robot, n, s, count=1, inner=SERIAL_ROBOTS))]
         if mink_warp:
@@ -326,7 +335,7 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
                             Contestant("mink-warp constrained", lambda n=n, s=steps: MinkWarpRun("constrained", n, s))]
         timing = interleave(contestants, repeats=repeats, block=block)
         per_step = {c.label: c.repeat_medians_us for c in timing.contestants.values()}
-        robots_per_step = {"qpik.batch": n, "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+        robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
                            "mink-warp dls": n, "mink-warp constrained": n}
         row = {"n": n, "steps": steps}
         for label, medians in per_step.items():
@@ -334,7 +343,7 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
                           "step_us_per_repeat": [float(m) for m in medians]}
         batch_rate = per_step["qpik.batch"] / n
         for label in per_step:
-            if label != "qpik.batch":
+            if not label.startswith("qpik.batch"):
                 other = per_step[label] / robots_per_step[label]
                 ratios = other / batch_rate
                 row[f"speedup vs {label}"] = {"median": float(np.median(ratios)), "min": float(ratios.min()),
@@ -381,12 +390,12 @@ def figure(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, len(robots), figsize=(5 * len(robots), 4), squeeze=False)
     for ax, robot in zip(axes[0], robots):
         rows = results["throughput"][robot]["rows"]
-        sizes = [r["n"] for r in rows]
-        for label, style in (("qpik.batch", "o-"), ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
+        for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
                              ("mink-warp dls", "^:"),
                              ("mink-warp constrained", "v-.")):
-            if label in rows[0]:
-                ax.plot(sizes, [r[label]["robot_steps_per_s"] for r in rows], style, label=label)
+            points = [(r["n"], r[label]["robot_steps_per_s"]) for r in rows if label in r]
+            if points:
+                ax.plot(*zip(*points), style, label=label)
         ax.set_xscale("log", base=2)
         ax.set_yscale("log")
         ax.set_xlabel("worlds N")
@@ -409,13 +418,13 @@ def markdown(results: dict) -> str:
              f"{results['machine']['load_before']}, after {results['machine']['load_after']}.", ""]
     for robot, data in results["throughput"].items():
         rows = data["rows"]
-        labels = [k for k in rows[0] if k not in ("n", "steps") and not k.startswith("speedup")]
+        labels = list(dict.fromkeys(k for r in rows for k in r if k not in ("n", "steps") and not k.startswith("speedup")))
         speedups = [k for k in rows[0] if k.startswith("speedup")]
         lines += [f"## {robot}", "", "| N | " + " | ".join(f"{k} (robot-steps/s)" for k in labels) + " | "
                   + " | ".join(f"{k} (median, range)" for k in speedups) + " |",
                   "|" + "---|" * (1 + len(labels) + len(speedups))]
         for r in rows:
-            cells = [f"{r[k]['robot_steps_per_s']:.3g}" for k in labels]
+            cells = [f"{r[k]['robot_steps_per_s']:.3g}" if k in r else "" for k in labels]
             cells += [f"{r[k]['median']:.2f} ({r[k]['min']:.2f}–{r[k]['max']:.2f})" for k in speedups]
             lines.append(f"| {r['n']} | " + " | ".join(cells) + " |")
         acc = results["accuracy"].get(robot)
