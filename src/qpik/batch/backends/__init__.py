@@ -1,0 +1,1 @@
+"""Batched back-ends: the interfaces (:mod:`.base`) and the CPU one (:mod:`.cpu`)."""
