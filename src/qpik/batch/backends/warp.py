@@ -373,19 +373,21 @@ def _kernel(scalar):
     return _KERNELS[scalar]
 
 
-def _answers_hold(x, A, b, lb, ub) -> np.ndarray:
-    """Per world: x finite, hard rows to 1e-9 (1 + |b|), bounds to 1e-9 (1 + |bound|)."""
+def _answers_hold(x, A, b, lb, ub, box_tolerance: float = TOLERANCE) -> np.ndarray:
+    """Per world: x finite, hard rows to 1e-9 (1 + |b|), bounds to ``box_tolerance``
+    (1 + |bound|) (the caller then clips x into the box)."""
     ok = np.isfinite(x).all(axis=1)
     if A.shape[1]:
         residual = np.abs(np.einsum("nij,nj->ni", A, x) - b)
         ok &= (residual <= TOLERANCE * (1.0 + np.abs(b))).all(axis=1)
     with np.errstate(invalid="ignore"):
-        ok &= (x >= lb - TOLERANCE * (1.0 + np.abs(lb))).all(axis=1)
-        ok &= (x <= ub + TOLERANCE * (1.0 + np.abs(ub))).all(axis=1)
+        ok &= (x >= lb - box_tolerance * (1.0 + np.abs(lb))).all(axis=1)
+        ok &= (x <= ub + box_tolerance * (1.0 + np.abs(ub))).all(axis=1)
     return ok
 
 
 _DAQP_INF = 1e30
+DAQP_PRIMAL_TOLERANCE = 1e-6
 
 
 def _daqp(H, c, A, b, lb, ub) -> tuple[np.ndarray, int, str]:
@@ -402,6 +404,10 @@ def _daqp(H, c, A, b, lb, ub) -> tuple[np.ndarray, int, str]:
     x = np.asarray(x, dtype=np.float64)
     if exitflag in (-1, -2):  # DAQP's infeasible and overdetermined initial active set
         return np.zeros(n), QPStatus.INFEASIBLE, "no point meets the hard rows inside the box (DAQP)"
+    # DAQP meets the bounds to its primal tolerance, 1e-6: such a point is clipped into the
+    # box, as the serial solver layer does, and must then still meet the hard rows.
+    if exitflag >= 1 and _answers_hold(x[None], A[None], b[None], lb[None], ub[None], DAQP_PRIMAL_TOLERANCE)[0]:
+        x = np.clip(x, lb, ub)
     if exitflag < 1 or not _answers_hold(x[None], A[None], b[None], lb[None], ub[None])[0]:
         return np.zeros(n), QPStatus.FAILED, f"neither the device active set nor DAQP (exit {exitflag}) solved it"
     return x, QPStatus.SOLVED, ""
