@@ -283,7 +283,7 @@ class WarpQP(BatchQP):
         n, rows = self.nv, max(1, self.meq)
         f8 = wp.float64
         with wp.ScopedDevice(self.device):
-            self._kernel = _kernel(f8)
+            self._kernel = warp_qp.dual_active_set_kernel(f8)
             self._H = wp.zeros((nworld, n, n), dtype=f8)
             self._H_shared = wp.zeros((1, n, n), dtype=f8)
             self._c, self._lb, self._ub, self._x = (wp.zeros((nworld, n), dtype=f8) for _ in range(4))
@@ -362,15 +362,6 @@ class WarpQP(BatchQP):
         device_status = self._status.numpy()
         status[mask] = device_status[mask]
         return self._x.numpy().astype(np.float64, copy=True)
-
-
-_KERNELS: dict = {}
-
-
-def _kernel(scalar):
-    if scalar not in _KERNELS:
-        _KERNELS[scalar] = warp_qp.dual_active_set_kernel(scalar)
-    return _KERNELS[scalar]
 
 
 def _answers_hold(x, A, b, lb, ub, box_tolerance: float = TOLERANCE) -> np.ndarray:
