@@ -81,6 +81,8 @@ __all__ = sorted(_EXPORTS) + ["__version__"]
 
 
 def __getattr__(name: str):
+    if name == "batch":  # the batched engine, a subpackage: loaded on first use
+        return importlib.import_module("qpik.batch")
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'qpik' has no attribute {name!r}")

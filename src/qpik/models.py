@@ -94,3 +94,22 @@ def third_party(name: str) -> Path:
         raise ModelError(f"the installed {entry.distribution} has no {entry.path} (looked in {path.parent}); "
                          f"pip install -e \".[{EXTRA}]\" from qpik's clone installs a version that has it")
     return path
+
+
+def pusher_arm():
+    """The 7-DoF arm of gymnasium's pusher (PR2's right arm: shoulder pan, lift, upper-arm
+    roll, elbow flex, forearm roll, wrist flex, wrist roll; the tip body ``tips_arm``), its
+    puck and goal bodies (four slide joints) removed: a third-party 7-DoF arm alone.
+
+    Returns:
+        The compiled ``mujoco.MjModel``.
+
+    Raises:
+        ModelError: gymnasium is not installed (see :func:`third_party`).
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec.from_file(str(third_party("pusher")))
+    for body in ("object", "goal"):
+        spec.delete(spec.body(body))
+    return spec.compile()

@@ -1,0 +1,323 @@
+r"""The CPU back-end: MuJoCo's own thread pool (``mujoco.batch.Batch``) and NumPy.
+
+Kinematics: one ``Batch.forward(stage=mjSTAGE_POS)`` per control step computes every
+world's kinematics on MuJoCo's threads; the poses, ``cdof`` and the centres of mass are
+bound (copied out by the batch after each call). Contacts and constraints are disabled in
+the kinematic copy of the model: a control step needs neither, and collision detection
+would dominate the call.
+
+Jacobians are then formed across worlds from ``cdof``, as ``mj_jac`` forms them: for a
+point p on body b and each dof j on b's chain,
+
+.. math::
+    J_r[:, j] = \mathrm{cdof}_j^{\omega},\qquad
+    J_p[:, j] = \mathrm{cdof}_j^{v} + \mathrm{cdof}_j^{\omega} \times (p - c_{root(b)}),
+
+with :math:`c_{root}` the subtree centre of mass of b's root body (``subtree_com``).
+``Batch.jac`` would run the kinematics again per call; this costs one NumPy pass and
+equals ``mj_jac`` to rounding (tests/batch/test_backend_cpu.py).
+
+Physics: a second batch on the unmodified model, stepped with ``Batch.step``.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+import mujoco.batch
+import numpy as np
+
+from ..errors import NotBatched
+from .base import KinematicsBackend
+
+_D = mujoco.mjtDisableBit
+# The kinematic copy computes no contact and no constraint: a forward to the position
+# stage then skips collision detection and constraint assembly.
+_KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
+_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
+_J = mujoco.mjtJoint
+_EQ = mujoco.mjtEq
+MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
+
+
+def default_threads() -> int:
+    """The CPUs this process may run on (MuJoCo's pool uses that many by default)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+class CpuBackend(KinematicsBackend):
+    """N worlds on ``mujoco.batch.Batch``.
+
+    Args:
+        model: the model (copied: the back-end never writes it).
+        nworld: N.
+        nthread: MuJoCo threads (default: the CPUs this process may use).
+    """
+
+    name = "cpu"
+
+    def __init__(self, model: mujoco.MjModel, nworld: int, nthread: int | None = None):
+        self.model = model
+        self.nworld = int(nworld)
+        self.nthread = default_threads() if nthread is None else int(nthread)
+        kinematic = _copy(model)
+        kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
+        self._kinematic_model = kinematic  # the batch copies it; kept for the geometry tables
+        self._batch = mujoco.batch.Batch(kinematic, self.nworld, self.nthread, persistent=False)
+        self.qpos = self._batch.bind("qpos")
+        self._cdof = self._batch.bind("cdof").reshape(self.nworld, model.nv, 6)
+        self._subtree_com = self._batch.bind("subtree_com").reshape(self.nworld, model.nbody, 3)
+        self._fields: dict[str, np.ndarray] = {}
+        self._chains: dict[int, np.ndarray] = {}
+        self._subtrees: dict[int, np.ndarray] = {}
+        self._physics = None
+        self._integration = _Integration(model)
+
+    # -- kinematics ------------------------------------------------------------------
+    def forward(self) -> None:
+        self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
+
+    def _field(self, name: str) -> np.ndarray:
+        """A bound output field, registered on first use (and then filled at once: the
+        batch copies a field out only after a call made once it was bound)."""
+        if name not in self._fields:
+            self._fields[name] = self._batch.bind(name)
+            self.forward()
+        return self._fields[name]
+
+    def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
+        position, rotation = _FRAME_FIELDS[frame_type]
+        xpos = self._field(position).reshape(self.nworld, -1, 3)
+        xmat = self._field(rotation).reshape(self.nworld, -1, 3, 3)
+        return xpos[:, frame_id], xmat[:, frame_id]
+
+    def chain(self, body: int) -> np.ndarray:
+        """The dofs on ``body``'s chain to the world (``mj_jac``'s loop), ascending."""
+        if body not in self._chains:
+            m = self.model
+            while body and not m.body_dofnum[body]:
+                body = int(m.body_parentid[body])
+            dofs = []
+            if body:
+                dof = int(m.body_dofadr[body] + m.body_dofnum[body] - 1)
+                while dof >= 0:
+                    dofs.append(dof)
+                    dof = int(m.dof_parentid[dof])
+            self._chains[body] = np.array(sorted(dofs), dtype=np.int64)
+        return self._chains[body]
+
+    def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
+                 out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        n, nv = self.nworld, self.model.nv
+        jacp = np.zeros((n, 3, nv)) if out_p is None else out_p
+        jacr = np.zeros((n, 3, nv)) if out_r is None else out_r
+        root = int(self.model.body_rootid[body])
+        offset = points - self._subtree_com[:, root]
+        dofs = self.chain(body)
+        if len(dofs) < nv:
+            jacp.fill(0.0)
+            jacr.fill(0.0)
+        if not len(dofs):
+            return jacp, jacr
+        cdof = self._cdof if len(dofs) == nv else self._cdof[:, dofs]
+        angular, linear = cdof[:, :, :3], cdof[:, :, 3:]
+        moment = np.cross(angular, offset[:, None, :])  # mju_cross's component formulas
+        moment += linear
+        if len(dofs) == nv:
+            jacp[:] = moment.transpose(0, 2, 1)
+            jacr[:] = angular.transpose(0, 2, 1)
+        else:
+            jacp[:, :, dofs] = moment.transpose(0, 2, 1)
+            jacr[:, :, dofs] = angular.transpose(0, 2, 1)
+        return jacp, jacr
+
+    def subtree_com(self, body: int) -> np.ndarray:
+        return self._subtree_com[:, body]
+
+    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
+        m = self.model
+        if body not in self._subtrees:
+            members = [body] + [b for b in range(body + 1, m.nbody) if _descends(m, b, body)]
+            self._subtrees[body] = np.array(members, dtype=np.int64)
+        xipos = self._field("xipos").reshape(self.nworld, -1, 3)
+        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
+        total.fill(0.0)
+        jacp = np.zeros((self.nworld, 3, m.nv))
+        jacr = np.zeros((self.nworld, 3, m.nv))
+        for b in self._subtrees[body]:
+            if m.body_mass[b] == 0.0:
+                continue
+            self.jacobian(int(b), xipos[:, b], jacp, jacr)
+            jacp *= m.body_mass[b]
+            total += jacp
+        total *= 1.0 / m.body_subtreemass[body]
+        return total
+
+    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        residuals, jacobians = [], []
+        for eq in np.asarray(equalities, dtype=np.int64):
+            kind = int(self.model.eq_type[eq])
+            if kind == int(_EQ.mjEQ_CONNECT):
+                r, j = self._connect_rows(int(eq))
+            elif kind == int(_EQ.mjEQ_JOINT):
+                r, j = self._joint_rows(int(eq))
+            else:
+                name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, int(eq)) or f"#{eq}"
+                raise NotBatched(f"equality {name!r} is a {_EQ(kind).name}: the batched engine writes rows for "
+                                 "connect and joint equalities only (weld and tendon equalities run in the serial "
+                                 "qpik.EqualityTask)")
+            residuals.append(r)
+            jacobians.append(j)
+        return np.concatenate(residuals, axis=1), np.concatenate(jacobians, axis=1)
+
+    def _anchor(self, eq: int, side: int) -> tuple[int, np.ndarray]:
+        """(body, world point) of one side of a connect equality (as mj_makeConstraint)."""
+        m = self.model
+        obj = int(m.eq_obj1id[eq] if side == 0 else m.eq_obj2id[eq])
+        if int(m.eq_objtype[eq]) == int(mujoco.mjtObj.mjOBJ_SITE):
+            return int(m.site_bodyid[obj]), self._field("site_xpos").reshape(self.nworld, -1, 3)[:, obj]
+        xpos = self._field("xpos").reshape(self.nworld, -1, 3)[:, obj]
+        xmat = self._field("xmat").reshape(self.nworld, -1, 3, 3)[:, obj]
+        local = m.eq_data[eq, 3 * side:3 * side + 3]
+        return obj, np.einsum("nij,j->ni", xmat, local) + xpos
+
+    def _connect_rows(self, eq: int) -> tuple[np.ndarray, np.ndarray]:
+        body0, point0 = self._anchor(eq, 0)
+        body1, point1 = self._anchor(eq, 1)
+        jac0 = self.jacobian(body0, point0)[0]
+        jac1 = self.jacobian(body1, point1)[0]
+        return point0 - point1, jac0 - jac1
+
+    def _joint_rows(self, eq: int) -> tuple[np.ndarray, np.ndarray]:
+        m = self.model
+        data = m.eq_data[eq]
+        joint0, joint1 = int(m.eq_obj1id[eq]), int(m.eq_obj2id[eq])
+        q0 = self.qpos[:, m.jnt_qposadr[joint0]] - m.qpos0[m.jnt_qposadr[joint0]]
+        jac = np.zeros((self.nworld, 1, m.nv))
+        jac[:, 0, m.jnt_dofadr[joint0]] = 1.0
+        if joint1 < 0:
+            return (q0 - data[0])[:, None], jac
+        q1 = self.qpos[:, m.jnt_qposadr[joint1]] - m.qpos0[m.jnt_qposadr[joint1]]
+        residual = q0 - data[0] - (data[1] * q1 + data[2] * q1 * q1 + data[3] * q1 * q1 * q1
+                                   + data[4] * q1 * q1 * q1 * q1)
+        jac[:, 0, m.jnt_dofadr[joint1]] = -(data[1] + 2 * data[2] * q1 + 3 * data[3] * q1 * q1
+                                            + 4 * data[4] * q1 * q1 * q1)
+        return residual[:, None], jac
+
+    # -- state -------------------------------------------------------------------------
+    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
+        if ids is None:
+            self._integration.apply(self.qpos, qvel, dt)
+        else:
+            qpos = self.qpos[ids]
+            self._integration.apply(qpos, qvel, dt)
+            self.qpos[ids] = qpos
+
+    # -- physics -----------------------------------------------------------------------
+    def physics_reset(self, qpos: np.ndarray, ctrl: np.ndarray) -> None:
+        if self._physics is None:
+            self._physics = mujoco.batch.Batch(self.model, self.nworld, self.nthread, persistent=True)
+            self._physics_qpos = self._physics.bind("qpos")
+            self._physics_ctrl = self._physics.bind("ctrl")
+        batch = self._physics
+        batch.reset(stage=int(mujoco.mjtStage.mjSTAGE_NONE))
+        self._physics_qpos[:] = qpos
+        self._physics_ctrl[:] = ctrl
+        batch.forward()
+        self._warnings = batch.warning[:, :, 0].copy()
+
+    def physics_step(self, ctrl: np.ndarray, nstep: int) -> tuple[np.ndarray, np.ndarray]:
+        batch = self._physics
+        self._physics_ctrl[:] = ctrl
+        batch.step(nstep=int(nstep))
+        counts = batch.warning[:, :, 0]
+        unstable = (counts != self._warnings).any(axis=1)
+        self._warnings = counts.copy()
+        return self._physics_qpos, unstable
+
+
+def _copy(model: mujoco.MjModel) -> mujoco.MjModel:
+    import copy
+
+    return copy.deepcopy(model)
+
+
+def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > ancestor:
+        body = int(model.body_parentid[body])
+    return body == ancestor
+
+
+class _Integration:
+    """``mj_integratePos`` across worlds: scalar joints add q̇Δt, ball and free joints
+    integrate their quaternion (``mju_quatIntegrate``) in NumPy."""
+
+    def __init__(self, model: mujoco.MjModel):
+        scalar_q, scalar_v, linear_q, linear_v, quat_q, quat_v = [], [], [], [], [], []
+        for j in range(model.njnt):
+            kind, qadr, vadr = int(model.jnt_type[j]), int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+            if kind in (int(_J.mjJNT_HINGE), int(_J.mjJNT_SLIDE)):
+                scalar_q.append(qadr)
+                scalar_v.append(vadr)
+            elif kind == int(_J.mjJNT_FREE):
+                linear_q += [qadr, qadr + 1, qadr + 2]
+                linear_v += [vadr, vadr + 1, vadr + 2]
+                quat_q.append(qadr + 3)
+                quat_v.append(vadr + 3)
+            else:  # ball
+                quat_q.append(qadr)
+                quat_v.append(vadr)
+        self.scalar_q = np.array(scalar_q + linear_q, dtype=np.int64)
+        self.scalar_v = np.array(scalar_v + linear_v, dtype=np.int64)
+        self.quat_q = np.array(quat_q, dtype=np.int64)
+        self.quat_v = np.array(quat_v, dtype=np.int64)
+        self._contiguous = len(self.quat_q) == 0 and np.array_equal(self.scalar_q, np.arange(model.nq)) \
+            and np.array_equal(self.scalar_v, np.arange(model.nv))
+
+    def apply(self, qpos: np.ndarray, qvel: np.ndarray, dt: float) -> None:
+        if self._contiguous:
+            qpos += qvel * dt
+            return
+        qpos[:, self.scalar_q] += qvel[:, self.scalar_v] * dt
+        for qadr, vadr in zip(self.quat_q, self.quat_v):
+            quat = qpos[:, qadr:qadr + 4]
+            qpos[:, qadr:qadr + 4] = quat_integrate(quat, qvel[:, vadr:vadr + 3], dt)
+
+
+def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
+    """``mju_quatIntegrate`` across worlds: quat ⊗ exp(velocity·scale), normalised."""
+    norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
+    small = norm < MINVAL
+    axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
+    axis[small] = (1.0, 0.0, 0.0)
+    angle = scale * np.where(small, 0.0, norm)
+    half = 0.5 * angle
+    rotation = np.empty_like(quat)
+    rotation[:, 0] = np.cos(half)
+    rotation[:, 1:] = axis * np.sin(half)[:, None]
+    rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
+    product = quat_multiply(quat, rotation)
+    return quat_normalize(product)
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``mju_mulQuat`` across worlds."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 0] * b[:, 0] - a[:, 1] * b[:, 1] - a[:, 2] * b[:, 2] - a[:, 3] * b[:, 3]
+    out[:, 1] = a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0] + a[:, 2] * b[:, 3] - a[:, 3] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 2] - a[:, 1] * b[:, 3] + a[:, 2] * b[:, 0] + a[:, 3] * b[:, 1]
+    out[:, 3] = a[:, 0] * b[:, 3] + a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
+    return out
+
+
+def quat_normalize(quat: np.ndarray) -> np.ndarray:
+    """``mju_normalize4`` across worlds (a zero quaternion becomes the identity)."""
+    norm = np.sqrt(np.einsum("ni,ni->n", quat, quat))
+    small = norm < MINVAL
+    out = quat / np.where(small, 1.0, norm)[:, None]
+    out[small] = (1.0, 0.0, 0.0, 0.0)
+    return out

@@ -1,0 +1,225 @@
+"""Robot: N worlds of one MuJoCo model, their configurations ``q`` (N, nq) and kinematics.
+
+The model is checked and its limits are read by a serial :class:`qpik.Robot` (the
+*template*, at the start configuration): the batched robot has the same names, joint
+ranges, velocity limits and start checks. The worlds' states and kinematics live in a
+back-end (:mod:`qpik.batch.backends`): ``"cpu"`` by default.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from ..errors import InvalidInput, UnknownName
+from ..robot import BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot
+from .errors import InvalidWorlds
+
+BACKENDS = ("cpu", "warp")
+MAX_WORLDS_LISTED = 8
+
+
+def make_backend(name: str, model: mujoco.MjModel, n: int, **options):
+    """The kinematics back-end called ``name`` for N worlds of ``model``."""
+    if name == "cpu":
+        from .backends.cpu import CpuBackend
+
+        return CpuBackend(model, n, **options)
+    if name == "warp":
+        try:
+            from .backends.warp import WarpBackend  # the GPU back-end, when installed
+        except ImportError as exc:
+            from ..errors import MissingExtra
+
+            raise MissingExtra(f"the warp back-end is not available here ({exc})") from None
+        return WarpBackend(model, n, **options)
+    raise UnknownName(f"unknown batch back-end {name!r}; known: {list(BACKENDS)}")
+
+
+def listed(worlds) -> str:
+    """``worlds`` for a message: the first few ids, and how many more."""
+    worlds = [int(w) for w in worlds]
+    shown = ", ".join(map(str, worlds[:MAX_WORLDS_LISTED]))
+    return shown + (f" and {len(worlds) - MAX_WORLDS_LISTED} more" if len(worlds) > MAX_WORLDS_LISTED else "")
+
+
+class Frame:
+    """A site, body or geom in every world: ``position`` (N, 3) and ``rotation`` (N, 3, 3)
+    are the back-end's arrays (current after each kinematics update, read-only)."""
+
+    __slots__ = ("name", "type", "id", "body", "position", "rotation")
+
+    def __init__(self, robots: Robot, name: str, frame_type: str = "site"):
+        serial = robots.template.frame(name, frame_type)  # checks the type and the name
+        self.name, self.type, self.id = name, frame_type, serial.id
+        m = robots.model
+        self.body = {"site": lambda: int(m.site_bodyid[self.id]), "geom": lambda: int(m.geom_bodyid[self.id]),
+                     "body": lambda: self.id}[frame_type]()
+        self.position, self.rotation = robots.backend.frame_pose(frame_type, self.id)
+        robots.kinematics_stale()
+
+    def jacobian(self, robots: Robot, out_p=None, out_r=None) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3, nv) translational and rotational Jacobians of the frame's origin."""
+        return robots.backend.jacobian(self.body, self.position, out_p, out_r)
+
+    def __repr__(self) -> str:
+        return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
+
+
+class Robot:
+    """N worlds of one model.
+
+    Args:
+        model: a compiled ``mujoco.MjModel`` or an ``mujoco.MjSpec``.
+        n: the number of worlds N (>= 1).
+        name: a label (default: the model's name).
+        keyframe: the keyframe every world starts at (default: ``qpos0``).
+        backend: ``"cpu"`` (``mujoco.batch`` and NumPy) or ``"warp"`` (MuJoCo Warp).
+        allow_outside_limits: accept starts outside the joint ranges (as
+            :class:`qpik.Robot`).
+        options: for the back-end, e.g. ``nthread`` on the CPU.
+
+    Raises:
+        InvalidInput: N not a positive integer.
+        ModelError, UnknownName, OutsideJointLimits: as :class:`qpik.Robot`.
+    """
+
+    def __init__(self, model, n: int, name: str | None = None, keyframe: str | None = None, *,
+                 backend: str = "cpu", allow_outside_limits: bool = False, **options):
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise InvalidInput(f"the number of worlds n must be an integer >= 1, got {n!r}")
+        self.template = SerialRobot(model, name=name, keyframe=keyframe, allow_outside_limits=allow_outside_limits)
+        self.model = self.template.model
+        self.name = self.template.name
+        self.n, self.nq, self.nv = int(n), self.model.nq, self.model.nv
+        self.allow_outside_limits = bool(allow_outside_limits)
+        self.backend = make_backend(backend, self.model, self.n, **options)
+        self.backend.qpos[:] = self.template.q
+        self._snapshot = None  # q at the last kinematics update (None: update needed)
+        self._start_unchecked = keyframe is None
+
+    @classmethod
+    def load(cls, scene: str | Path | mujoco.MjModel | mujoco.MjSpec, n: int,
+             keyframe: str | None = BUNDLED_HOME, **kwargs) -> Robot:
+        """Load a bundled robot (``"arm"``, ``"hexapod"``), an MJCF/URDF path or a model,
+        N worlds of it; ``keyframe`` as :meth:`qpik.Robot.load` (``"home"`` for a bundled
+        robot by default)."""
+        serial = SerialRobot.load(scene, keyframe=keyframe, allow_outside_limits=True)
+        chosen = None
+        if keyframe is BUNDLED_HOME:
+            chosen = "home" if isinstance(scene, (str, Path)) and serial.name == str(scene) else None
+        elif keyframe is not None:
+            chosen = keyframe
+        return cls(serial.model, n, name=serial.name, keyframe=chosen, **kwargs)
+
+    # -- configuration -----------------------------------------------------------------
+    @property
+    def q(self) -> np.ndarray:
+        """The worlds' configurations (N, nq): the back-end's array (writing it moves
+        the worlds; the next step updates their kinematics)."""
+        return self.backend.qpos
+
+    @property
+    def joint_limits(self):
+        return self.template.joint_limits
+
+    @property
+    def velocity_limits(self) -> np.ndarray:
+        return self.template.velocity_limits
+
+    def set_q(self, q) -> None:
+        """Set every world's configuration: an (N, nq) array, or one (nq,) for all.
+
+        Raises:
+            InvalidInput: a wrong shape.
+            InvalidWorlds: NaN/inf in some worlds, or (unless ``allow_outside_limits``)
+                joints outside their ranges; ``worlds`` lists them. Nothing is written.
+        """
+        try:
+            values = np.asarray(q, dtype=float)
+        except (TypeError, ValueError):
+            raise InvalidInput(f"configurations must be numbers, got {q!r}") from None
+        if values.shape == (self.nq,):
+            values = np.broadcast_to(values, (self.n, self.nq))
+        if values.shape != (self.n, self.nq):
+            raise InvalidInput(f"configurations must have shape ({self.n}, {self.nq}) or ({self.nq},), "
+                               f"got {values.shape}")
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if len(bad):
+            raise InvalidWorlds(f"the configurations of worlds {listed(bad)} contain NaN or inf", bad)
+        self._check_inside(values, "set_q")
+        self.backend.qpos[:] = values
+        self._start_unchecked = False
+
+    def _check_inside(self, values: np.ndarray, what: str) -> None:
+        if self.allow_outside_limits:
+            return
+        limits = self.joint_limits
+        if not len(limits.names):
+            return
+        joint_q = values[:, limits.qpos_index]
+        excess = np.maximum(limits.lower - joint_q, joint_q - limits.upper)
+        outside = np.flatnonzero((excess > KEYFRAME_TOLERANCE).any(axis=1))
+        if len(outside):
+            first = int(outside[0])
+            joints = [limits.names[j] for j in np.flatnonzero(excess[first] > KEYFRAME_TOLERANCE)]
+            raise InvalidWorlds(f"{what}: worlds {listed(outside)} lie outside the joint ranges (world {first}: "
+                                f"{joints}); give configurations inside them, or allow_outside_limits=True", outside)
+
+    def integrate(self, qdot, dt: float) -> None:
+        """q ← q ⊕ q̇·dt in every world (``mj_integratePos``'s rule).
+
+        Raises:
+            InvalidInput: a wrong shape or a step that is not positive and finite.
+            InvalidWorlds: non-finite velocities in some worlds (nothing is moved).
+        """
+        try:
+            step = float(dt)
+        except (TypeError, ValueError):
+            raise InvalidInput(f"integration step dt must be a number, got {dt!r}") from None
+        if not (0.0 < step < math.inf):
+            raise InvalidInput(f"integration step dt must be positive and finite, got {dt!r}")
+        velocity = np.asarray(qdot, dtype=float)
+        if velocity.shape != (self.n, self.nv):
+            raise InvalidInput(f"joint velocities must have shape ({self.n}, {self.nv}), got {velocity.shape}")
+        if not math.isfinite(float(velocity.sum())):
+            bad = np.flatnonzero(~np.isfinite(velocity).all(axis=1))
+            raise InvalidWorlds(f"the joint velocities of worlds {listed(bad)} contain NaN or inf", bad)
+        self.backend.integrate(velocity, step)
+
+    # -- kinematics --------------------------------------------------------------------
+    def frame(self, name: str, frame_type: str = "site") -> Frame:
+        """A site, body or geom in every world (see :class:`Frame`)."""
+        return Frame(self, name, frame_type)
+
+    def kinematics_stale(self) -> None:
+        """Make the next :meth:`ensure_kinematics` update (a new array was bound)."""
+        self._snapshot = None
+
+    def update_kinematics(self) -> None:
+        """Every world's kinematics at its current q (one back-end call)."""
+        self.backend.forward()
+        self._snapshot = self.backend.qpos.copy()
+
+    def ensure_kinematics(self) -> None:
+        """Update the kinematics if some world's q changed since the last update; the first
+        call checks the start configurations against the joint ranges."""
+        if self._start_unchecked:
+            self._check_inside(self.backend.qpos, "the start configuration")
+            self._start_unchecked = False
+        if self._snapshot is None or not np.array_equal(self._snapshot, self.backend.qpos):
+            self.update_kinematics()
+
+    def world(self, index: int) -> SerialRobot:
+        """A serial :class:`qpik.Robot` of the same model at world ``index``'s configuration
+        (a new object: for comparisons and per-world fallbacks)."""
+        robot = SerialRobot(self.model, name=self.name, allow_outside_limits=True)
+        robot.data.qpos[:] = self.backend.qpos[index]
+        robot.update_kinematics()
+        return robot
+
+    def __repr__(self) -> str:
+        return f"batch.Robot({self.name!r}, n={self.n}, nq={self.nq}, nv={self.nv}, backend={self.backend.name!r})"

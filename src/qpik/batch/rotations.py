@@ -1,0 +1,105 @@
+"""MuJoCo's quaternion routines across worlds (leading axis N), as the serial tasks call them.
+
+Each function is the vectorised form of one MuJoCo routine (named in its docstring), with
+the same branches, so that a batched task's rotation error equals the serial task's to
+rounding (tests/batch/test_rotations.py compares them one by one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MINVAL = 1e-15  # mjMINVAL
+
+
+def mat2quat(R: np.ndarray) -> np.ndarray:
+    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3)."""
+    m = R.reshape(-1, 9)
+    q = np.empty((len(m), 4))
+    trace = m[:, 0] + m[:, 4] + m[:, 8]
+    cases = [trace > 0,
+             (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]),
+             m[:, 4] > m[:, 8]]
+    branch = np.select(cases, [0, 1, 2], default=3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, (lead, others) in enumerate([
+            ((0, 1.0, 1.0, 1.0), ((1, 7, 5, -1), (2, 2, 6, -1), (3, 3, 1, -1))),
+            ((1, 1.0, -1.0, -1.0), ((0, 7, 5, -1), (2, 1, 3, 1), (3, 2, 6, 1))),
+            ((2, -1.0, 1.0, -1.0), ((0, 2, 6, -1), (1, 1, 3, 1), (3, 5, 7, 1))),
+            ((3, -1.0, -1.0, 1.0), ((0, 3, 1, -1), (1, 2, 6, 1), (2, 5, 7, 1))),
+        ]):
+            rows = branch == k
+            if not rows.any():
+                continue
+            mk = m[rows]
+            index, s0, s4, s8 = lead
+            main = 0.5 * np.sqrt(1.0 + s0 * mk[:, 0] + s4 * mk[:, 4] + s8 * mk[:, 8])
+            q[rows, index] = main
+            for target, a, bb, sign in others:
+                q[rows, target] = 0.25 * (mk[:, a] + sign * mk[:, bb]) / main
+    return normalize4(q)
+
+
+def normalize4(q: np.ndarray) -> np.ndarray:
+    """``mju_normalize4`` (a quaternion of norm < mjMINVAL becomes the identity)."""
+    norm = np.sqrt(np.einsum("ni,ni->n", q, q))
+    small = norm < MINVAL
+    out = q / np.where(small, 1.0, norm)[:, None]
+    out[small] = (1.0, 0.0, 0.0, 0.0)
+    return out
+
+
+def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``mju_mulQuat``."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 0] * b[:, 0] - a[:, 1] * b[:, 1] - a[:, 2] * b[:, 2] - a[:, 3] * b[:, 3]
+    out[:, 1] = a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0] + a[:, 2] * b[:, 3] - a[:, 3] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 2] - a[:, 1] * b[:, 3] + a[:, 2] * b[:, 0] + a[:, 3] * b[:, 1]
+    out[:, 3] = a[:, 0] * b[:, 3] + a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
+    return out
+
+
+def quat2vel(q: np.ndarray, dt: float = 1.0) -> np.ndarray:
+    """``mju_quat2Vel``: the rotation vector (over dt) of unit quaternions."""
+    axis = q[:, 1:].copy()
+    sin_half = np.sqrt(np.einsum("ni,ni->n", axis, axis))
+    small = sin_half < MINVAL
+    axis = axis / np.where(small, 1.0, sin_half)[:, None]
+    axis[small] = (1.0, 0.0, 0.0)
+    speed = 2.0 * np.arctan2(sin_half, q[:, 0])
+    speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
+    return axis * (speed / dt)[:, None]
+
+
+def sub(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """``mju_subQuat``: v with qb * exp(v) = qa, in qb's frame."""
+    conj = qb * np.array([1.0, -1.0, -1.0, -1.0])
+    return quat2vel(mul(conj, qa))
+
+
+def quat2mat(q: np.ndarray) -> np.ndarray:
+    """``mju_quat2Mat`` (N, 4) -> (N, 3, 3)."""
+    w, x, y, z = q.T
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0] = ww + xx - yy - zz
+    R[:, 1, 1] = ww - xx + yy - zz
+    R[:, 2, 2] = ww - xx - yy + zz
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    return R
+
+
+def rotation_error_local(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """e in the current frame's axes with R_current exp([e]) = R_desired (the serial
+    ``RotationError.compute``)."""
+    return sub(mat2quat(desired), mat2quat(current))
+
+
+def rotation_error_world(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """The same error in world axes (the serial ``RotationError.world``): R_current e."""
+    return np.einsum("nij,nj->ni", current, rotation_error_local(desired, current))
