@@ -19,10 +19,11 @@ import pytest
 pytest.importorskip("mujoco_warp", reason="the warp back-end needs the gpu extra (pip install -e \".[gpu]\")")
 
 import qpik  # noqa: E402
+from qpik import batch  # noqa: E402
 from qpik.batch.backends.base import QPStatus  # noqa: E402
-from qpik.batch.backends.cpu import CpuBackend  # noqa: E402
 from qpik.batch.backends.warp import WarpBackend, WarpQP  # noqa: E402
-from qpik.errors import InvalidInput  # noqa: E402
+from qpik.errors import InvalidInput, ModelError  # noqa: E402
+from qpik.models import pusher_arm  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location("warp_rollouts", Path(__file__).with_name("warp_rollouts.py"))
 rollouts = importlib.util.module_from_spec(_spec)
@@ -181,50 +182,63 @@ def test_shared_hessian_equals_per_world_hessians():
 
 
 @pytest.fixture(scope="module")
-def problems(pusher_path):
-    return rollouts.problems(N, str(pusher_path))
+def pusher_model():
+    try:
+        return pusher_arm()
+    except ModelError as exc:
+        pytest.skip(str(exc))
 
 
 @pytest.mark.parametrize("name", ["arm", "hexapod", "pusher"])
-def test_rollouts_equal_the_cpu_back_end_and_cross_no_limit(name, problems):
-    problem = problems[name]
-    template = problem.serial_robot()
-    m = template.model
-    meq = 3 * m.neq if problem.equality else 0
+def test_rollouts_equal_the_cpu_back_end_and_cross_no_limit(name, pusher_model):
+    robots, ctrl = rollouts.controller(name, N, pusher_model)
+    reference = rollouts.rollout(robots, ctrl, STEPS)
 
-    reference = rollouts.rollout(problem, CpuBackend(m, N), lambda *qp: (rollouts.quadprog_solve(*qp), False),
-                                 template, STEPS)
-    # The assembly is the serial controller's problem: the anchor of what follows.
-    for w in range(N):
-        np.testing.assert_allclose(rollouts.serial_rollout(problem, w, STEPS), reference["q"][:, w], atol=1e-9)
+    # The device QP on the CPU back-end's kinematics: the same trajectory (it is exact).
+    robots, ctrl = rollouts.controller(name, N, pusher_model)
+    ctrl.qp = WarpQP(N, robots.nv, ctrl.meq, device="cpu")
+    exact = rollouts.rollout(robots, ctrl, STEPS)
+    np.testing.assert_allclose(exact["q"], reference["q"], rtol=0, atol=1e-9)
 
-    qp = WarpQP(N, m.nv, meq, device="cpu")
-
-    def device_solve(*data):
-        result = qp.solve(*data)
-        assert (result.status == QPStatus.SOLVED).all(), result.reasons
-        return result.x, not result.closed_form.all()
-
-    exact = rollouts.rollout(problem, CpuBackend(m, N), device_solve, template, STEPS)
-    np.testing.assert_allclose(exact["q"], reference["q"], atol=1e-9)  # the device QP is exact
-    qp.reset()
-    warp = rollouts.rollout(problem, WarpBackend(m, N, device="cpu"), device_solve, template, STEPS)
+    # The whole warp back-end: float32 kinematics, the device QP.
+    robots, ctrl = rollouts.controller(name, N, pusher_model, backend="warp", device="cpu")
+    assert isinstance(ctrl.qp, WarpQP)
+    warp = rollouts.rollout(robots, ctrl, STEPS)
     assert warp["bound_steps"] > STEPS // 5  # limits bound on many steps
-    np.testing.assert_allclose(warp["q"], reference["q"], atol=ROLLOUT_TOLERANCE[name])
+    np.testing.assert_allclose(warp["q"], reference["q"], rtol=0, atol=ROLLOUT_TOLERANCE[name])
 
-    limits = template.joint_limits
+    limits = robots.joint_limits
     q = warp["q"][..., limits.qpos_index]
     assert (q >= limits.lower - 1e-9).all() and (q <= limits.upper + 1e-9).all()
-    vmax = warp["assembly"].vmax
-    assert (np.abs(warp["qdot"]) <= vmax * (1 + 1e-12)).all()
-    for qdot, (lb, ub) in zip(warp["qdot"], warp["bounds"]):
+    for qdot, (lb, ub) in zip(warp["qdot"], warp["boxes"]):
         assert (qdot >= lb).all() and (qdot <= ub).all()
-    if problem.equality:  # the loops stay closed
-        serial = qpik.Robot(m, allow_outside_limits=True)
+    if name == "hexapod":  # the loops stay closed
+        serial = qpik.Robot(robots.model, allow_outside_limits=True)
         task = qpik.EqualityTask(serial)
         for w in range(N):
             serial.data.qpos[:] = warp["q"][-1, w]
             assert task.max_residual(serial) < 1e-5
+
+
+def test_a_nan_target_fails_its_world_only():
+    robots = batch.Robot.load("arm", 3, backend="warp", device="cpu")
+    task = batch.PositionTask(robots, "end_effector", "site", axes="xy", gain=50.0)
+    ctrl = batch.QPController(robots, [task, batch.DampingTask(robots)],
+                              [batch.JointPositionLimit(robots), batch.JointVelocityLimit(robots)], dt=rollouts.DT)
+    targets = np.array([[1.0, 1.0], [np.nan, 1.0], [0.5, 1.5]])
+    with pytest.raises(batch.WorldsFailed) as failed:
+        task.set_target(targets)
+        ctrl.compute_velocity()
+    assert failed.value.worlds.tolist() == [1]
+    cpu_robots = batch.Robot.load("arm", 3)
+    cpu_task = batch.PositionTask(cpu_robots, "end_effector", "site", axes="xy", gain=50.0)
+    cpu_task.set_target(targets[[0, 0, 2]])
+    cpu = batch.QPController(cpu_robots, [cpu_task, batch.DampingTask(cpu_robots)],
+                             [batch.JointPositionLimit(cpu_robots), batch.JointVelocityLimit(cpu_robots)],
+                             dt=rollouts.DT).compute_velocity()
+    qdot = failed.value.qdot
+    assert not qdot[1].any() and np.isfinite(qdot).all()
+    np.testing.assert_allclose(qdot[[0, 2]], cpu[[0, 2]], rtol=0, atol=1e-5)
 
 
 def test_physics_on_the_device_follows_mujoco():
@@ -247,4 +261,4 @@ def test_physics_on_the_device_follows_mujoco():
 
 def test_unknown_device_is_a_typed_error():
     with pytest.raises(InvalidInput, match="unknown Warp device 'cuda:7'"):
-        WarpBackend(qpik.Robot.load("arm").model, 1, device="cuda:7")
+        batch.Robot.load("arm", 2, backend="warp", device="cuda:7")

@@ -237,9 +237,10 @@ class WarpBackend(KinematicsBackend):
         return qpos, unstable
 
     # -- the QP ------------------------------------------------------------------------
-    def make_qp(self, nv: int, meq: int) -> WarpQP:
-        """The batched QP solver on this back-end's device."""
-        return WarpQP(self.nworld, nv, meq, device=str(self.device))
+    def make_qp(self, nv: int, meq: int, max_iterations: int | None = None) -> WarpQP:
+        """The batched QP solver on this back-end's device (what ``batch.QPController``
+        uses with this back-end)."""
+        return WarpQP(self.nworld, nv, meq, device=str(self.device), max_iterations=max_iterations)
 
 
 def _inner(field) -> tuple:
