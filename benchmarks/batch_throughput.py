@@ -17,7 +17,10 @@ few steps, the order rotated, ``--repeats`` fresh runs):
 
 - ``qpik.batch``: one batched step of all N worlds (``mujoco.batch`` on all CPUs);
 - ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
-  other, per robot-step;
+  other, per robot-step; ``qpik serial (1 robot)``: one robot stepped again and again,
+  its data always in the caches — the serial loop's best case, the conservative
+  baseline (a loop over many robots runs with colder caches, as the batched steps
+  between its blocks leave them);
 - ``mink-warp dls`` / ``mink-warp constrained`` (pusher only): mink-warp 0.1 on Warp's
   CPU device, pose + posture (mink's costs), its ``ConstrainedSolver`` with mink's
   ``ConfigurationLimit`` and ``VelocityLimit``. mink-warp runs in a throwaway virtual
@@ -67,6 +70,8 @@ PUSHER_START = np.array([0.2, 0.3, -0.2, -1.0, 0.3, -0.5, 0.2])
 PUSHER_SPEED = 2.0
 RADIUS = {"arm": 0.05, "hexapod": 0.01, "pusher": 0.05}
 PERIOD = 2.0
+TITLES = {"arm": "planar RRR+P arm (bundled)", "hexapod": "6-PUS hexapod, loops closed (bundled)",
+          "pusher": "7-DoF arm (gymnasium pusher's PR2 arm)"}
 ROBOT_STEPS_PER_RUN = 60_000  # steps of a batched run: about this many robot-steps, 8 to 200
 
 
@@ -151,21 +156,23 @@ class SerialRun:
 
     failures = ()
 
-    def __init__(self, name: str, n: int, steps: int):
+    def __init__(self, name: str, n: int, steps: int, count: int | None = None, inner: int = 1):
         import qpik
 
-        self.count = min(n, SERIAL_ROBOTS)
+        self.count = min(n, SERIAL_ROBOTS) if count is None else count
+        self.inner = inner  # control steps of each robot per timed step
         self.items = []
-        offset, velocity = circle(self.count, steps, RADIUS[name], axes=(0, 2) if name == "pusher" else (0, 1))
+        offset, velocity = circle(self.count, steps * inner, RADIUS[name], axes=(0, 2) if name == "pusher" else (0, 1))
         for i in range(self.count):
             robot, tasks, limits, mover = build(qpik, name, 1)
             self.items.append((robot, qpik.QPController(robot, tasks, limits, dt=DT), mover))
         self.offset, self.velocity, self.steps = offset, velocity, steps
 
     def step(self, k: int) -> None:
-        for i, (robot, controller, mover) in enumerate(self.items):
-            mover(self.offset[k, i], self.velocity[k, i])
-            robot.integrate(controller.compute_velocity(), DT)
+        for j in range(k * self.inner, (k + 1) * self.inner):
+            for i, (robot, controller, mover) in enumerate(self.items):
+                mover(self.offset[j, i], self.velocity[j, i])
+                robot.integrate(controller.compute_velocity(), DT)
 
     def after(self, k: int) -> None:
         pass
@@ -312,14 +319,15 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
         steps = run_steps(n)
         block = max(1, steps // 8)
         contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)),
-                       Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s))]
+                       Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s)),
+                       Contestant("qpik serial (1 robot)", lambda n=n, s=steps: SerialRun(robot, n, s, count=1, inner=SERIAL_ROBOTS))]
         if mink_warp:
             contestants += [Contestant("mink-warp dls", lambda n=n, s=steps: MinkWarpRun("dls", n, s)),
                             Contestant("mink-warp constrained", lambda n=n, s=steps: MinkWarpRun("constrained", n, s))]
         timing = interleave(contestants, repeats=repeats, block=block)
         per_step = {c.label: c.repeat_medians_us for c in timing.contestants.values()}
-        robots_per_step = {"qpik.batch": n, "qpik serial": min(n, SERIAL_ROBOTS), "mink-warp dls": n,
-                           "mink-warp constrained": n}
+        robots_per_step = {"qpik.batch": n, "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+                           "mink-warp dls": n, "mink-warp constrained": n}
         row = {"n": n, "steps": steps}
         for label, medians in per_step.items():
             row[label] = {"robot_steps_per_s": float(np.median(robots_per_step[label] / medians * 1e6)),
@@ -374,7 +382,8 @@ def figure(results: dict, path: Path) -> None:
     for ax, robot in zip(axes[0], robots):
         rows = results["throughput"][robot]["rows"]
         sizes = [r["n"] for r in rows]
-        for label, style in (("qpik.batch", "o-"), ("qpik serial", "s--"), ("mink-warp dls", "^:"),
+        for label, style in (("qpik.batch", "o-"), ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
+                             ("mink-warp dls", "^:"),
                              ("mink-warp constrained", "v-.")):
             if label in rows[0]:
                 ax.plot(sizes, [r[label]["robot_steps_per_s"] for r in rows], style, label=label)
@@ -382,10 +391,11 @@ def figure(results: dict, path: Path) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("worlds N")
         ax.set_ylabel("robot-steps / s")
-        ax.set_title(robot)
+        ax.set_title(TITLES[robot])
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"qpik.batch throughput ({results['machine']['cpus']} CPUs, load {results['machine']['load_before']})")
+    fig.suptitle(f"qpik.batch throughput, robot-steps/s ({results['machine']['cpus']} CPUs; load average "
+                 f"{results['machine']['load_before']} before, {results['machine']['load_after']} after)")
     fig.tight_layout()
     from qpik.io import save_figure
 

@@ -115,24 +115,26 @@ class CpuBackend(KinematicsBackend):
         n, nv = self.nworld, self.model.nv
         jacp = np.zeros((n, 3, nv)) if out_p is None else out_p
         jacr = np.zeros((n, 3, nv)) if out_r is None else out_r
-        root = int(self.model.body_rootid[body])
-        offset = points - self._subtree_com[:, root]
         dofs = self.chain(body)
-        if len(dofs) < nv:
+        every = len(dofs) == nv
+        if not every and (out_p is not None or out_r is not None):
             jacp.fill(0.0)
             jacr.fill(0.0)
         if not len(dofs):
             return jacp, jacr
-        cdof = self._cdof if len(dofs) == nv else self._cdof[:, dofs]
-        angular, linear = cdof[:, :, :3], cdof[:, :, 3:]
-        moment = np.cross(angular, offset[:, None, :])  # mju_cross's component formulas
-        moment += linear
-        if len(dofs) == nv:
-            jacp[:] = moment.transpose(0, 2, 1)
-            jacr[:] = angular.transpose(0, 2, 1)
-        else:
-            jacp[:, :, dofs] = moment.transpose(0, 2, 1)
-            jacr[:, :, dofs] = angular.transpose(0, 2, 1)
+        root = int(self.model.body_rootid[body])
+        offset = points - self._subtree_com[:, root]
+        cdof = self._cdof if every else self._cdof[:, dofs]  # (N, k, 6): [ω; v] per dof
+        ox, oy, oz = offset[:, 0:1], offset[:, 1:2], offset[:, 2:3]
+        wx, wy, wz = cdof[:, :, 0], cdof[:, :, 1], cdof[:, :, 2]
+        columns = slice(None) if every else dofs
+        # mju_cross(ω, offset) + v, component by component
+        jacp[:, 0, columns] = cdof[:, :, 3] + (wy * oz - wz * oy)
+        jacp[:, 1, columns] = cdof[:, :, 4] + (wz * ox - wx * oz)
+        jacp[:, 2, columns] = cdof[:, :, 5] + (wx * oy - wy * ox)
+        jacr[:, 0, columns] = wx
+        jacr[:, 1, columns] = wy
+        jacr[:, 2, columns] = wz
         return jacp, jacr
 
     def subtree_com(self, body: int) -> np.ndarray:
