@@ -29,6 +29,8 @@ EXTRAS = {
     "placo": ("placo", "peers"),
     "dm_control": ("dm-control", "models"),
     "gymnasium": ("gymnasium", "models"),
+    "warp": ("warp-lang", "gpu"),
+    "mujoco_warp": ("mujoco-warp", "gpu"),
 }
 
 

@@ -102,7 +102,10 @@ class QPController:
             if limit.constant:
                 limit.apply(self.dt, self._lb0, self._ub0)
         self._dynamic = [lim for lim in self.limits if not lim.constant]
-        self.qp = ActiveSetQP(n, nv, self.meq, max_iterations)
+        # A device back-end solves the QPs where its kinematics live (make_qp); the CPU's
+        # are solved in NumPy.
+        make_qp = getattr(robots.backend, "make_qp", None)
+        self.qp = make_qp(nv, self.meq, max_iterations) if make_qp else ActiveSetQP(n, nv, self.meq, max_iterations)
         self.qdot = np.zeros((n, nv))
         self.result = None  # the last step's QPResult
 

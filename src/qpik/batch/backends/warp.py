@@ -1,0 +1,405 @@
+r"""The GPU back-end: MuJoCo Warp for kinematics, Jacobians and constraint rows, and a
+dual active-set QP per world, on a Warp device (``"cuda:0"``, or ``"cpu"``: the same
+kernels on the CPU, slowly, which is how the test suite checks this back-end).
+
+What runs where:
+
+- the N configurations live on the host in float64 (``qpos``, as the interface asks)
+  and are copied to the device before each :meth:`WarpBackend.forward`;
+- MuJoCo Warp computes the kinematics (``kinematics``, ``com_pos``), the Jacobians
+  (``jac``) and the equality-constraint rows (``make_constraint``, its own rows: loop
+  closures are never rebuilt on the host) on the device, in float32, MuJoCo Warp's only
+  precision; the host reads them as float64;
+- :class:`WarpQP` solves the N QPs on the device in float64
+  (:mod:`qpik.batch.backends.warp_qp`) and checks each answer on the host, as the CPU
+  back-end does; a world the device method could not settle goes to DAQP.
+
+Install with the ``gpu`` extra: ``pip install -e ".[gpu]"``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import mujoco
+import numpy as np
+
+from ...errors import InvalidInput, ModelError
+from ...extras import require
+from ..errors import NotBatched
+from .base import BatchQP, KinematicsBackend, QPResult, QPStatus
+from .cpu import _Integration
+
+wp = require("warp", "the warp batch back-end", extra="gpu")
+mjw = require("mujoco_warp", "the warp batch back-end", extra="gpu")
+from . import warp_qp  # noqa: E402  (needs warp, imported just above)
+
+_D = mujoco.mjtDisableBit
+# The kinematic copy makes equality rows only: no contact, joint-limit or friction rows.
+_KINEMATIC_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)
+_KINEMATIC_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
+_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
+_EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+# Hard rows and bounds are checked to this (relative to 1 + |value|), as the CPU back-end.
+TOLERANCE = 1e-9
+
+
+def warp_device(device: str | None):
+    """The Warp device called ``device`` (default: Warp's preferred one, a GPU when there
+    is one), or InvalidInput naming the devices this machine has."""
+    names = [str(d) for d in wp.get_devices()]
+    if device is None:
+        return wp.get_preferred_device()
+    if str(device) not in names:
+        raise InvalidInput(f"unknown Warp device {device!r}; this machine has {names}")
+    return wp.get_device(str(device))
+
+
+def _quiet() -> None:
+    """Warp logs a line per loaded module (and its banner) at its default level."""
+    wp.config.quiet = True
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+
+
+def _kinematic_copy(model: mujoco.MjModel) -> mujoco.MjModel:
+    import copy
+
+    kinematic = copy.deepcopy(model)
+    flags = int(kinematic.opt.disableflags)
+    kinematic.opt.disableflags = (flags | _KINEMATIC_DISABLE) & ~_KINEMATIC_ENABLE
+    return kinematic
+
+
+def _equality_row_count(model: mujoco.MjModel) -> int:
+    """MuJoCo's own count of the kinematic copy's constraint rows (equalities only)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    if model.ntendon:
+        mujoco.mj_tendon(model, data)
+    mujoco.mj_makeConstraint(model, data)
+    return int(data.nefc)
+
+
+class WarpBackend(KinematicsBackend):
+    """N worlds on a Warp device through MuJoCo Warp.
+
+    Args:
+        model: the model (copied: the back-end never writes it).
+        nworld: N.
+        device: a Warp device name, ``"cuda:0"`` or ``"cpu"`` (default: Warp's preferred
+            device).
+
+    Raises:
+        MissingExtra: warp or mujoco_warp is not installed (the ``gpu`` extra).
+        InvalidInput: an unknown device.
+        NotBatched: a model MuJoCo Warp cannot load (its message is kept).
+    """
+
+    name = "warp"
+
+    def __init__(self, model: mujoco.MjModel, nworld: int, device: str | None = None):
+        _quiet()
+        self.model = model
+        self.nworld = int(nworld)
+        self.device = warp_device(device)
+        kinematic = _kinematic_copy(model)
+        self._nefc = _equality_row_count(kinematic)
+        with wp.ScopedDevice(self.device):
+            try:
+                self._m = mjw.put_model(kinematic)
+                self._d = mjw.put_data(kinematic, mujoco.MjData(kinematic), nworld=self.nworld, nconmax=0,
+                                       njmax=max(1, self._nefc))
+            except (NotImplementedError, ValueError) as exc:
+                raise NotBatched(f"MuJoCo Warp cannot load this model: {exc}") from None
+            self._body_ids = wp.zeros(self.nworld, dtype=int)
+            self._points = wp.zeros(self.nworld, dtype=wp.vec3)
+            self._jacp = wp.zeros((self.nworld, 3, model.nv), dtype=float)
+            self._jacr = wp.zeros((self.nworld, 3, model.nv), dtype=float)
+        self.qpos = np.zeros((self.nworld, model.nq))
+        self.qpos[:] = model.qpos0
+        self._host: dict[str, np.ndarray] = {}  # device field -> float64 host mirror
+        self._rows_current = False
+        self._integration = _Integration(model)
+        self._physics = None
+
+    # -- kinematics ------------------------------------------------------------------
+    def forward(self) -> None:
+        with wp.ScopedDevice(self.device):
+            self._d.qpos.assign(self.qpos.astype(np.float32))
+            mjw.kinematics(self._m, self._d)
+            mjw.com_pos(self._m, self._d)
+        for name, host in self._host.items():
+            host.reshape(self.nworld, -1)[:] = getattr(self._d, name).numpy().reshape(self.nworld, -1)
+        self._rows_current = False
+
+    def _mirror(self, name: str) -> np.ndarray:
+        """The float64 host copy of a device field, refreshed by every :meth:`forward`."""
+        if name not in self._host:
+            field = getattr(self._d, name)
+            self._host[name] = field.numpy().astype(np.float64).reshape(field.shape + _inner(field))
+        return self._host[name]
+
+    def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
+        position, rotation = _FRAME_FIELDS[frame_type]
+        return self._mirror(position)[:, frame_id], self._mirror(rotation)[:, frame_id]
+
+    def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
+                 out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        with wp.ScopedDevice(self.device):
+            self._body_ids.fill_(int(body))
+            self._points.assign(np.ascontiguousarray(points, dtype=np.float32))
+            mjw.jac(self._m, self._d, self._jacp, self._jacr, self._points, self._body_ids)
+        jacp = np.empty((self.nworld, 3, self.model.nv)) if out_p is None else out_p
+        jacr = np.empty((self.nworld, 3, self.model.nv)) if out_r is None else out_r
+        jacp[:] = self._jacp.numpy()
+        jacr[:] = self._jacr.numpy()
+        return jacp, jacr
+
+    def subtree_com(self, body: int) -> np.ndarray:
+        return self._mirror("subtree_com")[:, body]
+
+    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
+        m = self.model
+        xipos = self._mirror("xipos")
+        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
+        total.fill(0.0)
+        jacp = np.empty((self.nworld, 3, m.nv))
+        jacr = np.empty((self.nworld, 3, m.nv))
+        for b in _subtree(m, body):
+            if m.body_mass[b] > 0.0:
+                self.jacobian(b, xipos[:, b], jacp, jacr)
+                total += m.body_mass[b] * jacp
+        total *= 1.0 / m.body_subtreemass[body]
+        return total
+
+    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        equalities = np.asarray(equalities, dtype=np.int64)
+        self._make_rows()
+        kind = self._efc_type[0, : self._nefc]
+        ids = self._efc_id[0, : self._nefc]
+        rows = [np.flatnonzero((kind == _EQUALITY_ROW) & (ids == eq)) for eq in equalities]
+        missing = [int(eq) for eq, r in zip(equalities, rows) if not len(r)]
+        if missing:
+            names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, e) or f"#{e}" for e in missing]
+            raise ModelError(f"MuJoCo Warp made no constraint rows for equalities {names} (inactive, or acting "
+                             "on no dof)")
+        index = np.concatenate(rows)
+        residual = self._d.efc.pos.numpy()[:, index].astype(np.float64)
+        jacobian = self._d.efc.J.numpy()[:, index, : self.model.nv].astype(np.float64)
+        return residual, jacobian
+
+    def _make_rows(self) -> None:
+        """MuJoCo Warp's constraint rows at the current kinematics (once per forward)."""
+        if self._rows_current:
+            return
+        with wp.ScopedDevice(self.device):
+            if self.model.ntendon:
+                mjw.tendon(self._m, self._d)
+            mjw.make_constraint(self._m, self._d)
+        nefc = self._d.nefc.numpy()
+        if np.any(nefc != self._nefc):
+            raise ModelError(f"MuJoCo Warp made {sorted(set(nefc.tolist()))} constraint rows where MuJoCo makes "
+                             f"{self._nefc}: the worlds' active equalities differ")
+        self._efc_type = self._d.efc.type.numpy()
+        self._efc_id = self._d.efc.id.numpy()
+        self._rows_current = True
+
+    # -- state -------------------------------------------------------------------------
+    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
+        if ids is None:
+            self._integration.apply(self.qpos, qvel, dt)
+        else:
+            qpos = self.qpos[ids]
+            self._integration.apply(qpos, qvel, dt)
+            self.qpos[ids] = qpos
+
+    # -- physics -----------------------------------------------------------------------
+    def physics_reset(self, qpos: np.ndarray, ctrl: np.ndarray) -> None:
+        with wp.ScopedDevice(self.device):
+            if self._physics is None:
+                self._physics = (mjw.put_model(self.model),
+                                 mjw.put_data(self.model, mujoco.MjData(self.model), nworld=self.nworld))
+            m, d = self._physics
+            mjw.reset_data(m, d)
+            d.qpos.assign(np.asarray(qpos, dtype=np.float32))
+            d.ctrl.assign(np.asarray(ctrl, dtype=np.float32))
+            mjw.forward(m, d)
+
+    def physics_step(self, ctrl: np.ndarray, nstep: int) -> tuple[np.ndarray, np.ndarray]:
+        m, d = self._physics
+        with wp.ScopedDevice(self.device):
+            d.ctrl.assign(np.asarray(ctrl, dtype=np.float32))
+            for _ in range(int(nstep)):
+                mjw.step(m, d)
+        qpos = d.qpos.numpy().astype(np.float64)
+        unstable = ~(np.isfinite(qpos).all(axis=1) & np.isfinite(d.qvel.numpy()).all(axis=1))
+        return qpos, unstable
+
+    # -- the QP ------------------------------------------------------------------------
+    def make_qp(self, nv: int, meq: int, max_iterations: int | None = None) -> WarpQP:
+        """The batched QP solver on this back-end's device (what ``batch.QPController``
+        uses with this back-end)."""
+        return WarpQP(self.nworld, nv, meq, device=str(self.device), max_iterations=max_iterations)
+
+
+def _inner(field) -> tuple:
+    """The shape of one element of a Warp array (vec3 -> (3,), mat33 -> (3, 3))."""
+    return tuple(getattr(field.dtype, "_shape_", ()))
+
+
+def _subtree(model: mujoco.MjModel, body: int) -> list[int]:
+    members = []
+    for b in range(body, model.nbody):
+        a = b
+        while a > body:
+            a = int(model.body_parentid[a])
+        if a == body:
+            members.append(b)
+    return members
+
+
+class WarpQP(BatchQP):
+    r"""N QPs on a Warp device, float64: one dual active set per world
+    (:mod:`qpik.batch.backends.warp_qp`), warm-started from the world's last active
+    bounds. Every answer is checked on the host (hard rows to ``1e-9 (1 + |b|)``, bounds
+    to 1e-9, then clipped into the box); a world the device method left FAILED, or whose
+    answer misses the check, or that it found INFEASIBLE, is solved again by DAQP
+    (``fallback``), so that a numerical stall on the device never decides a world.
+
+    Args:
+        nworld, nv, meq: as :class:`~qpik.batch.backends.base.BatchQP`.
+        device: the Warp device.
+        max_iterations: the device method's cap on active-set changes per world.
+    """
+
+    name = "warp"
+    scalar = "float64"
+
+    def __init__(self, nworld: int, nv: int, meq: int, device: str | None = None, max_iterations: int | None = None):
+        super().__init__(nworld, nv, meq)
+        _quiet()
+        self.device = warp_device(device)
+        self.max_iterations = int(max_iterations or 10 * (nv + meq) + 20)
+        n, rows = self.nv, max(1, self.meq)
+        f8 = wp.float64
+        with wp.ScopedDevice(self.device):
+            self._kernel = warp_qp.dual_active_set_kernel(f8)
+            self._H = wp.zeros((nworld, n, n), dtype=f8)
+            self._H_shared = wp.zeros((1, n, n), dtype=f8)
+            self._c, self._lb, self._ub, self._x = (wp.zeros((nworld, n), dtype=f8) for _ in range(4))
+            self._A = wp.zeros((nworld, rows, n), dtype=f8)
+            self._b = wp.zeros((nworld, rows), dtype=f8)
+            self._mask = wp.zeros(nworld, dtype=int)
+            self._warm = wp.zeros((nworld, n), dtype=int)
+            self._n_warm = wp.zeros(nworld, dtype=int)
+            self._status, self._iterations, self._n_bound = (wp.zeros(nworld, dtype=int) for _ in range(3))
+            self._work3 = [wp.zeros((nworld, n, n), dtype=f8) for _ in range(4)]
+            self._work2 = [wp.zeros((nworld, n), dtype=f8) for _ in range(5)]
+            self._act = wp.zeros((nworld, n), dtype=int)
+        self.x = np.zeros((nworld, n))
+
+    def reset(self) -> None:
+        self._n_warm.zero_()
+
+    def solve(self, H, c, A, b, lb, ub, active=None) -> QPResult:
+        N, n = self.nworld, self.nv
+        H = np.asarray(H, dtype=np.float64)
+        mask = np.ones(N, dtype=bool) if active is None else np.asarray(active, dtype=bool).copy()
+        status = np.full(N, QPStatus.SKIPPED, dtype=np.int8)
+        reasons: dict[int, str] = {}
+        self._refuse_bad_worlds(H, c, A, b, lb, ub, mask, status, reasons)
+        x = self._device_solve(H, c, A, b, lb, ub, mask, status)
+        fallback = np.zeros(N, dtype=bool)
+        unsure = np.flatnonzero(mask & ((status != QPStatus.SOLVED) | ~_answers_hold(x, A, b, lb, ub)))
+        for w in unsure:
+            fallback[w] = True
+            hessian = H if H.ndim == 2 else H[w]
+            x[w], status[w], why = _daqp(hessian, c[w], A[w], b[w], lb[w], ub[w])
+            if why:
+                reasons[int(w)] = why
+        solved = status == QPStatus.SOLVED
+        x[~solved] = 0.0
+        np.clip(x, lb, ub, out=x, where=solved[:, None])
+        self.x[:] = x
+        closed = solved & (self._n_bound.numpy() == 0) & ~fallback
+        iterations = int(self._iterations.numpy()[mask].max()) if mask.any() else 0
+        return QPResult(self.x, status, reasons, closed, fallback, iterations)
+
+    def _refuse_bad_worlds(self, H, c, A, b, lb, ub, mask, status, reasons) -> None:
+        """Worlds whose data no solver should see: non-finite numbers, an empty box."""
+        finite = np.isfinite(c).all(axis=1) & np.isfinite(b).all(axis=1) & np.isfinite(A).all(axis=(1, 2))
+        finite &= ~np.isnan(lb).any(axis=1) & ~np.isnan(ub).any(axis=1)
+        if H.ndim == 3:
+            finite &= np.isfinite(H).all(axis=(1, 2))
+        elif not np.isfinite(H).all():
+            finite[:] = False
+        empty = (lb > ub).any(axis=1)
+        for w in np.flatnonzero(mask & ~finite):
+            status[w], reasons[int(w)] = QPStatus.FAILED, "NaN or inf in the QP's data"
+        for w in np.flatnonzero(mask & finite & empty):
+            j = int(np.flatnonzero(lb[w] > ub[w])[0])
+            status[w] = QPStatus.INFEASIBLE
+            reasons[int(w)] = f"empty box on variable {j}: lower {lb[w, j]:.6g} > upper {ub[w, j]:.6g}"
+        mask &= finite & ~empty
+
+    def _device_solve(self, H, c, A, b, lb, ub, mask, status) -> np.ndarray:
+        N, n = self.nworld, self.nv
+        with wp.ScopedDevice(self.device):
+            shared = H.ndim == 2
+            hessian = self._H_shared if shared else self._H
+            hessian.assign(H.reshape(hessian.shape))
+            self._c.assign(c)
+            if self.meq:
+                self._A.assign(A)
+                self._b.assign(b)
+            self._lb.assign(lb)
+            self._ub.assign(ub)
+            self._mask.assign(mask.astype(np.int32))
+            wp.launch(self._kernel, dim=N,
+                      inputs=[hessian, 0 if shared else 1, self._c, self._A, self._b, self._lb, self._ub, self._mask,
+                              self.meq, n, self.max_iterations, self._warm, self._n_warm, self._x, self._status,
+                              self._iterations, self._n_bound, *self._work3, *self._work2, self._act])
+        device_status = self._status.numpy()
+        status[mask] = device_status[mask]
+        return self._x.numpy().astype(np.float64, copy=True)
+
+
+def _answers_hold(x, A, b, lb, ub, box_tolerance: float = TOLERANCE) -> np.ndarray:
+    """Per world: x finite, hard rows to 1e-9 (1 + |b|), bounds to ``box_tolerance``
+    (1 + |bound|) (the caller then clips x into the box)."""
+    ok = np.isfinite(x).all(axis=1)
+    if A.shape[1]:
+        residual = np.abs(np.einsum("nij,nj->ni", A, x) - b)
+        ok &= (residual <= TOLERANCE * (1.0 + np.abs(b))).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= (x >= lb - box_tolerance * (1.0 + np.abs(lb))).all(axis=1)
+        ok &= (x <= ub + box_tolerance * (1.0 + np.abs(ub))).all(axis=1)
+    return ok
+
+
+_DAQP_INF = 1e30
+DAQP_PRIMAL_TOLERANCE = 1e-6
+
+
+def _daqp(H, c, A, b, lb, ub) -> tuple[np.ndarray, int, str]:
+    """One world by DAQP: (x, status, reason), checked as the device answers are."""
+    import daqp
+
+    n, m = len(c), len(b)
+    rows = np.vstack([A, np.eye(n)])
+    upper = np.concatenate([b, np.minimum(ub, _DAQP_INF)])
+    lower = np.concatenate([b, np.maximum(lb, -_DAQP_INF)])
+    sense = np.zeros(m + n, dtype=ctypes.c_int)
+    sense[:m] = 5  # DAQP's "equality, immutable"
+    x, _, exitflag, _ = daqp.solve(np.ascontiguousarray(H), np.ascontiguousarray(c), rows, upper, lower, sense)
+    x = np.asarray(x, dtype=np.float64)
+    if exitflag in (-1, -2):  # DAQP's infeasible and overdetermined initial active set
+        return np.zeros(n), QPStatus.INFEASIBLE, "no point meets the hard rows inside the box (DAQP)"
+    # DAQP meets the bounds to its primal tolerance, 1e-6: such a point is clipped into the
+    # box, as the serial solver layer does, and must then still meet the hard rows.
+    if exitflag >= 1 and _answers_hold(x[None], A[None], b[None], lb[None], ub[None], DAQP_PRIMAL_TOLERANCE)[0]:
+        x = np.clip(x, lb, ub)
+    if exitflag < 1 or not _answers_hold(x[None], A[None], b[None], lb[None], ub[None])[0]:
+        return np.zeros(n), QPStatus.FAILED, f"neither the device active set nor DAQP (exit {exitflag}) solved it"
+    return x, QPStatus.SOLVED, ""
