@@ -29,6 +29,7 @@ EXTRAS = {
     "placo": ("placo", "peers"),
     "dm_control": ("dm-control", "models"),
     "gymnasium": ("gymnasium", "models"),
+    "ray": ("ray", "ray"),  # qpik sweep --ray
 }
 
 
