@@ -14,7 +14,7 @@ Two kinds:
   rows are ranges over BLAS kernels, compared with their recording (scenarios_table.py).
 - *recorded* (``step-time``, ``peers-arm``, ``peers-hexapod``, ``monte-carlo-arm``,
   ``monte-carlo-hexapod``, ``third-party``, ``hierarchy-timing``, ``rollout-speed``,
-  ``fuzz``, ``placo-solve``): timings and hour-long sweeps; the table is rendered from the
+  ``fuzz``, ``placo-solve``, ``sweep-arm``): timings and hour-long sweeps; the table is rendered from the
   JSON the benchmark wrote under benchmarks/results/ (re-run the benchmark to refresh
   it), and the check compares the README with that rendering.
 """
@@ -303,6 +303,12 @@ def scenarios_table() -> str:
     return to_markdown(compute_rows(progress=wanted()), load_chaotic())
 
 
+def sweep_table(robot: str) -> str:
+    from qpik.app.sweep.report import table
+
+    return table(_recorded(f"sweep_{robot}/summary.json"))
+
+
 @dataclass(frozen=True)
 class Table:
     render: Callable[[], str]
@@ -323,6 +329,7 @@ TABLES = {
     "rollout-speed": Table(rollout_speed_table, 1, False),
     "fuzz": Table(fuzz_table, 1, False),
     "placo-solve": Table(placo_solve_table, 1, False),
+    "sweep-arm": Table(lambda: sweep_table("arm"), 1, False),
 }
 
 

@@ -74,12 +74,12 @@ def plan(robot: str, seed: int, targets: int, chunk: int, controllers: list[str]
             for start in range(0, targets, chunk) for controller in controllers]
 
 
-def write_chunk(folder: Path, chunk: Chunk, result: dict[str, np.ndarray]) -> int:
-    """Write a chunk's result whole; returns the file's size in bytes."""
+def write_chunk(folder: Path, chunk: Chunk, result: dict[str, np.ndarray], seconds: float = float("nan")) -> int:
+    """Write a chunk's result whole (with its compute time); returns the file's size in bytes."""
     path = chunk.path(folder)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, _key=np.array(json.dumps(chunk.key(), sort_keys=True)), **result)
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+        np.savez_compressed(handle, _key=np.array(json.dumps(chunk.key(), sort_keys=True)),
+                            _compute_s=np.array(seconds), **result)
     return path.stat().st_size
 
 
@@ -92,9 +92,18 @@ def read_chunk(folder: Path, chunk: Chunk) -> dict[str, np.ndarray] | None:
         with np.load(path, allow_pickle=False) as data:
             if json.loads(str(data["_key"])) != json.loads(json.dumps(chunk.key(), sort_keys=True)):
                 return None
-            return {name: data[name] for name in data.files if name != "_key"}
+            return {name: data[name] for name in data.files if not name.startswith("_")}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
         return None
+
+
+def compute_seconds(folder: Path, chunk: Chunk) -> float:
+    """The compute time recorded with a finished chunk (s; NaN if none)."""
+    try:
+        with np.load(chunk.path(folder), allow_pickle=False) as data:
+            return float(data["_compute_s"]) if "_compute_s" in data.files else float("nan")
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
+        return float("nan")
 
 
 def finished(folder: Path, chunks: list[Chunk]) -> set[Chunk]:

@@ -18,6 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ...errors import InvalidInput
 from .studies import CONTROLLERS, DT, HOLD, MOVE, STUDIES
 
@@ -149,7 +151,7 @@ def cmd_sweep(args) -> int:
               f"finished, kept in {folder / 'chunks'}: the same command resumes from them", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     progress.close()
-    timing = log.timing(args, runner, latency, time.perf_counter() - begin, len(chunks))
+    timing = log.timing(args, runner, latency, time.perf_counter() - begin, chunks)
     written = finish(folder, args, chunks, timing)
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
@@ -179,20 +181,25 @@ class Log:
     def record(self, chunk, result, seconds: float) -> None:
         from .chunks import write_chunk
 
-        size = write_chunk(self.folder, chunk, result)
+        size = write_chunk(self.folder, chunk, result, seconds)
         self.kept += 1
         self.rows.append({"controller": chunk.controller, "start": chunk.start, "stop": chunk.stop,
                           "steps": chunk.steps, "compute_s": seconds, "file_bytes": size,
                           "result_bytes": int(sum(v.nbytes for v in result.values()))})
 
-    def timing(self, args, runner, latency: dict, wall: float, total: int) -> dict:
+    def timing(self, args, runner, latency: dict, wall: float, chunks: list) -> dict:
+        from .chunks import compute_seconds
+
         computed = sum((r["stop"] - r["start"]) * r["steps"] for r in self.rows)
+        recorded = [compute_seconds(self.folder, c) for c in chunks]
         for row in self.rows:
             key = [c for c in latency if (c.controller, c.start) == (row["controller"], row["start"])]
             if key:
                 row["latency_s"] = latency[key[0]]
         return {"runner": "in-process" if runner is None else "ray", "ray": args.ray, "workers": args.workers,
-                "chunk": args.chunk, "chunks": total, "chunks_computed": len(self.rows),
+                "chunk": args.chunk, "chunks": len(chunks), "chunks_computed": len(self.rows),
+                "compute_s_every_chunk": float(np.nansum(recorded)),  # whichever run computed it
+                "robot_steps": sum(c.worlds * c.steps for c in chunks),
                 "wall_s": wall, "robot_steps_computed": computed,
                 "robot_steps_per_s": computed / wall if wall > 0 else None,
                 "load_average": list(os.getloadavg()), "cpus": os.cpu_count(), "per_chunk": self.rows}

@@ -123,15 +123,10 @@ def _span(stats: dict | None, keys=("p50", "p99", "max"), fmt="{:.1e}") -> str:
     return "-" if stats is None else " / ".join(fmt.format(stats[k]) for k in keys)
 
 
-def to_markdown(summary: dict) -> str:
+def table(summary: dict) -> str:
+    """The per-controller table (markdown)."""
     hexapod = summary["robot"] == "hexapod"
-    study = summary["study"]
-    lines = [f"qpik sweep {summary['robot']}: {summary['targets']} targets (seed {summary['seed']}), "
-             f"quintic segment {study['move_s']:g} s + hold {study['hold_s']:g} s at {study['dt'] * 1e3:g} ms, "
-             f"K log-uniform in [{study['gain_range'][0]:g}, {study['gain_range'][1]:g}] 1/s. Reached: final error "
-             f"≤ {study['reach_tolerance_m']:g} m; limits kept: no range or speed excess over "
-             f"{summary['violation_tolerance']:g}.", "",
-             "| controller | reached | limits kept | both | stopped | tracking error p50 / p99 / max [m] | "
+    lines = ["| controller | reached | limits kept | succeeded (both) | stopped | tracking error p50 / p99 / max [m] | "
              "range viol. worlds / max | speed viol. worlds / max | peak speed / limit p50 / p99 / max | "
              "converge time p50 / p95 [s] |" + (" loop residual p50 / p99 / max [m] |" if hexapod else ""),
              "|---|---:|---:|---:|---:|---|---|---|---|---|" + ("---|" if hexapod else "")]
@@ -145,6 +140,17 @@ def to_markdown(summary: dict) -> str:
         if hexapod:
             row += f" {_span(a['loop_residual_m'])} |"
         lines.append(row)
+    return "\n".join(lines) + "\n"
+
+
+def to_markdown(summary: dict) -> str:
+    """What the sweep was, its table, and each QP–law comparison world by world."""
+    study = summary["study"]
+    lines = [f"qpik sweep {summary['robot']}: {summary['targets']} targets (seed {summary['seed']}), "
+             f"quintic segment {study['move_s']:g} s + hold {study['hold_s']:g} s at {study['dt'] * 1e3:g} ms, "
+             f"K log-uniform in [{study['gain_range'][0]:g}, {study['gain_range'][1]:g}] 1/s. Reached: final error "
+             f"≤ {study['reach_tolerance_m']:g} m; limits kept: no range or speed excess over "
+             f"{summary['violation_tolerance']:g}.", "", table(summary).rstrip("\n")]
     for pair, counts in summary["comparisons"].items():
         lines += ["", f"{pair}, world by world: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items())]
     return "\n".join(lines) + "\n"

@@ -92,7 +92,9 @@ class RayRunner:
                     chunk = queue.pop(0)
                     pending[task.remote(chunk)] = chunk
                     submitted[chunk] = time.perf_counter()
-                ready, _ = ray.wait(list(pending), num_returns=1)
+                refs = list(pending)
+                ray.wait(refs, num_returns=1)  # one ready, then every other already ready too
+                ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
                 for ref in ready:
                     chunk = pending.pop(ref)
                     result, seconds = ray.get(ref)
