@@ -146,8 +146,8 @@ class QPController:
         lm_total = np.zeros(n)
         for task in self._general:
             weighted = task.weight[None, :, None] * task.jacobian
-            H += np.einsum("nki,nkj->nij", task.jacobian, weighted)
-            c -= np.einsum("nk,nkj->nj", task.target_velocity, weighted)
+            H += np.matmul(task.jacobian.transpose(0, 2, 1), weighted)
+            c -= np.matmul(task.target_velocity[:, None, :], weighted)[:, 0]
             if task.lm_damping:
                 lm = task.lm_damping * np.einsum("nk,k,nk->n", task.error, task.weight, task.error)
                 H[:, np.arange(nv), np.arange(nv)] += lm[:, None]

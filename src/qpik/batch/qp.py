@@ -74,9 +74,9 @@ def rows_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> n
     """Per world, whether |Ax − b| <= tolerance (1 + |b|) (Euclidean), as the serial check."""
     if A.shape[1] == 0:
         return np.ones(len(x), dtype=bool)
-    residual = np.einsum("kij,kj->ki", A, x) - b
-    miss = np.einsum("ki,ki->k", residual, residual)
-    return miss <= tolerance * tolerance * (1.0 + np.einsum("ki,ki->k", b, b))
+    residual = np.matmul(A, x[:, :, None])[:, :, 0] - b
+    miss = (residual * residual).sum(axis=1)
+    return miss <= tolerance * tolerance * (1.0 + (b * b).sum(axis=1))
 
 
 def reduced_kkt(H: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, fixed: np.ndarray,
@@ -197,12 +197,27 @@ class ActiveSetQP(BatchQP):
         todo &= ~empty
 
     def _closed_form(self, H, c, A, b) -> tuple[np.ndarray, np.ndarray]:
+        """The equality-constrained minimiser of every world (no bound held): H⁻¹[Aᵀ c] in
+        one product when H is shared, one stacked solve otherwise; then S λ = −r."""
         k, nv = c.shape
-        if self.meq == nv:  # a single feasible point: x = A⁻¹b
+        meq = self.meq
+        if meq == nv:  # a single feasible point: x = A⁻¹b
             xs, ok = stacked_solve(A, b[:, :, None])
             x = xs[:, :, 0]
         else:
-            x, _, ok = reduced_kkt(H, c, A, b, np.zeros((k, nv), dtype=bool), np.zeros((k, nv)))
+            rhs = np.concatenate([A.transpose(0, 2, 1), c[:, :, None]], axis=2)
+            if H.ndim == 2:
+                scaled, ok = np.matmul(np.linalg.inv(H), rhs), np.ones(k, dtype=bool)
+            else:
+                scaled, ok = stacked_solve(H, rhs)
+            if meq:
+                S = np.matmul(A, scaled[:, :, :meq])
+                r = b + np.matmul(A, scaled[:, :, meq:])[:, :, 0]
+                lam, ok_s = stacked_solve(S, -r[:, :, None])
+                ok &= ok_s
+                x = -scaled[:, :, meq] - np.matmul(scaled[:, :, :meq], lam)[:, :, 0]
+            else:
+                x = -scaled[:, :, 0]
         ok &= np.isfinite(x).all(axis=1) & rows_met(A, x, b, CLOSED_FORM_TOLERANCE)
         return x, ok
 

@@ -65,8 +65,8 @@ def world_rotations(robots: Robot, value, what: str = "target rotation") -> np.n
     mats = world_values(robots, arr, (3, 3), what)
     finite = np.isfinite(mats).all(axis=(1, 2))
     safe = np.where(finite[:, None, None], mats, np.eye(3))
-    deviation = np.abs(np.einsum("nki,nkj->nij", safe, safe) - np.eye(3)).max(axis=(1, 2))
-    bad = (deviation > 1e-6) | (np.linalg.det(safe) < 0)
+    deviation = np.abs(np.matmul(safe.transpose(0, 2, 1), safe) - np.eye(3)).max(axis=(1, 2))
+    bad = (deviation > 1e-6) | ((np.cross(safe[:, :, 0], safe[:, :, 1]) * safe[:, :, 2]).sum(axis=1) < 0)
     if bad.any():
         raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))} is not a rotation matrix", np.flatnonzero(bad))
     return mats

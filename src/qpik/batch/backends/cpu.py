@@ -41,12 +41,19 @@ _EQ = mujoco.mjtEq
 MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
 
 
-def default_threads() -> int:
-    """The CPUs this process may run on (MuJoCo's pool uses that many by default)."""
+# Worlds per MuJoCo thread by default: waking a thread costs more than a few hundred
+# small worlds' kinematics, more so on a busy machine.
+WORLDS_PER_THREAD = 512
+
+
+def default_threads(nworld: int) -> int:
+    """One MuJoCo thread per ``WORLDS_PER_THREAD`` worlds, at most the CPUs this process
+    may run on."""
     try:
-        return len(os.sched_getaffinity(0))
+        cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, nworld // WORLDS_PER_THREAD))
 
 
 class CpuBackend(KinematicsBackend):
@@ -55,7 +62,7 @@ class CpuBackend(KinematicsBackend):
     Args:
         model: the model (copied: the back-end never writes it).
         nworld: N.
-        nthread: MuJoCo threads (default: the CPUs this process may use).
+        nthread: MuJoCo threads (default: :func:`default_threads`).
     """
 
     name = "cpu"
@@ -63,7 +70,7 @@ class CpuBackend(KinematicsBackend):
     def __init__(self, model: mujoco.MjModel, nworld: int, nthread: int | None = None):
         self.model = model
         self.nworld = int(nworld)
-        self.nthread = default_threads() if nthread is None else int(nthread)
+        self.nthread = default_threads(self.nworld) if nthread is None else int(nthread)
         kinematic = _copy(model)
         kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
         self._kinematic_model = kinematic  # the batch copies it; kept for the geometry tables
@@ -115,24 +122,26 @@ class CpuBackend(KinematicsBackend):
         n, nv = self.nworld, self.model.nv
         jacp = np.zeros((n, 3, nv)) if out_p is None else out_p
         jacr = np.zeros((n, 3, nv)) if out_r is None else out_r
-        root = int(self.model.body_rootid[body])
-        offset = points - self._subtree_com[:, root]
         dofs = self.chain(body)
-        if len(dofs) < nv:
+        every = len(dofs) == nv
+        if not every and (out_p is not None or out_r is not None):
             jacp.fill(0.0)
             jacr.fill(0.0)
         if not len(dofs):
             return jacp, jacr
-        cdof = self._cdof if len(dofs) == nv else self._cdof[:, dofs]
-        angular, linear = cdof[:, :, :3], cdof[:, :, 3:]
-        moment = np.cross(angular, offset[:, None, :])  # mju_cross's component formulas
-        moment += linear
-        if len(dofs) == nv:
-            jacp[:] = moment.transpose(0, 2, 1)
-            jacr[:] = angular.transpose(0, 2, 1)
-        else:
-            jacp[:, :, dofs] = moment.transpose(0, 2, 1)
-            jacr[:, :, dofs] = angular.transpose(0, 2, 1)
+        root = int(self.model.body_rootid[body])
+        offset = points - self._subtree_com[:, root]
+        cdof = self._cdof if every else self._cdof[:, dofs]  # (N, k, 6): [ω; v] per dof
+        ox, oy, oz = offset[:, 0:1], offset[:, 1:2], offset[:, 2:3]
+        wx, wy, wz = cdof[:, :, 0], cdof[:, :, 1], cdof[:, :, 2]
+        columns = slice(None) if every else dofs
+        # mju_cross(ω, offset) + v, component by component
+        jacp[:, 0, columns] = cdof[:, :, 3] + (wy * oz - wz * oy)
+        jacp[:, 1, columns] = cdof[:, :, 4] + (wz * ox - wx * oz)
+        jacp[:, 2, columns] = cdof[:, :, 5] + (wx * oy - wy * ox)
+        jacr[:, 0, columns] = wx
+        jacr[:, 1, columns] = wy
+        jacr[:, 2, columns] = wz
         return jacp, jacr
 
     def subtree_com(self, body: int) -> np.ndarray:
