@@ -119,6 +119,11 @@ def test_a_changed_parameter_never_reuses_a_chunk(tmp_path, monkeypatch):
     assert chunk.path(tmp_path) != path and read_chunk(tmp_path, chunk) is None
     path.rename(chunk.path(tmp_path))
     assert read_chunk(tmp_path, chunk) is None
+    # Other code (an edited qpik, another MuJoCo): other files.
+    monkeypatch.setattr(module, "STUDY_VERSION", module.STUDY_VERSION - 1)
+    write_chunk(tmp_path, chunk, {"x": np.arange(3.0)})
+    monkeypatch.setattr(module, "code_fingerprint", lambda: "0123456789abcdef")
+    assert read_chunk(tmp_path, chunk) is None
 
 
 def test_a_world_has_the_same_sample_whatever_the_chunk_size():

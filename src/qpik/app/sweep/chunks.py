@@ -2,8 +2,9 @@
 
 A chunk is one controller over a contiguous range of worlds [start, stop). Its file
 name carries a hash of everything its result depends on — the robot, the seed, the
-range, the controller and the study's definition (:func:`study_key`: the durations, the
-gains' range, the tolerances, a version) — and the file holds
+range, the controller, the study's definition (:func:`study_key`: the durations, the
+gains' range, the tolerances, a version) and the code (:func:`code_fingerprint`) — and
+the file holds
 that key too, checked on reading: a sweep run again with the same arguments finds its
 finished chunks and computes only the rest; a changed parameter names other files, so an
 old result is never taken for a new one. Files are written to a temporary name and
@@ -16,6 +17,8 @@ import hashlib
 import json
 import zipfile
 from dataclasses import dataclass
+from functools import lru_cache
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +29,26 @@ from .studies import DT, GAIN_RANGE, HOLD, MOVE, SAMPLE_BLOCK, steps_of
 
 # Bump when what a chunk computes changes (a study's tasks, limits, sampling, metrics).
 STUDY_VERSION = 1
+NUMERICAL_PACKAGES = ("mujoco", "numpy", "daqp")
+
+
+@lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """A digest of the code a chunk's result comes from: every source file of qpik, the
+    bundled scenes, and the versions of MuJoCo, NumPy and DAQP. A result computed by
+    other code (an edited qpik, an upgraded MuJoCo) may differ in its last bits, so it is
+    not mixed into a sweep run with this code."""
+    import qpik
+    import qpik.scenes
+
+    digest = hashlib.sha256()
+    for root in (Path(qpik.__file__).parent, Path(qpik.scenes.__file__).parent):
+        for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".xml") and p.is_file()):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    for name in NUMERICAL_PACKAGES:
+        digest.update(f"{name}=={metadata.version(name)}".encode())
+    return digest.hexdigest()[:16]
 
 
 def study_key(move: float = MOVE, hold: float = HOLD) -> dict:
@@ -57,7 +80,7 @@ class Chunk:
 
     def key(self) -> dict:
         return {"robot": self.robot, "seed": self.seed, "start": self.start, "stop": self.stop,
-                "controller": self.controller, "study": study_key(self.move, self.hold)}
+                "controller": self.controller, "study": study_key(self.move, self.hold), "code": code_fingerprint()}
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(self.key(), sort_keys=True).encode()).hexdigest()[:16]

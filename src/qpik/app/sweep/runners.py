@@ -22,7 +22,8 @@ from functools import cache
 
 import numpy as np
 
-from .chunks import Chunk
+from ...errors import InvalidInput
+from .chunks import NUMERICAL_PACKAGES, Chunk
 from .rollout import run_chunk
 from .studies import study
 
@@ -51,8 +52,11 @@ def run_in_process(chunks: list[Chunk], done: Done) -> None:
         done(chunk, result, seconds)
 
 
-def _ray_task(chunk: Chunk) -> tuple[dict[str, np.ndarray], float]:
-    return compute(chunk, nthread=1)  # one CPU per task: Ray runs one task per CPU
+def _ray_task(chunk: Chunk) -> tuple[dict[str, np.ndarray], float, str]:
+    from .chunks import code_fingerprint
+
+    result, seconds = compute(chunk, nthread=1)  # one CPU per task: Ray runs one task per CPU
+    return result, seconds, code_fingerprint()
 
 
 class RayRunner:
@@ -83,8 +87,11 @@ class RayRunner:
 
     def run(self, chunks: list[Chunk], done: Done) -> dict:
         """Run ``chunks``; returns the driver-side latency of each (submit to result, s)."""
+        from .chunks import code_fingerprint
+
         ray = self.ray
         task = ray.remote(num_cpus=1, max_retries=TASK_RETRIES)(_ray_task)
+        ours = code_fingerprint()
         queue, pending, submitted, latency = list(chunks), {}, {}, {}
         try:
             while queue or pending:
@@ -97,7 +104,10 @@ class RayRunner:
                 ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
                 for ref in ready:
                     chunk = pending.pop(ref)
-                    result, seconds = ray.get(ref)
+                    result, seconds, theirs = ray.get(ref)
+                    if theirs != ours:
+                        raise InvalidInput(f"a Ray worker runs other code than this driver (qpik's sources or "
+                                           f"{', '.join(NUMERICAL_PACKAGES)} differ): install the same on every node")
                     latency[chunk] = time.perf_counter() - submitted[chunk]
                     done(chunk, result, seconds)
         finally:
