@@ -31,6 +31,7 @@ EXTRAS = {
     "gymnasium": ("gymnasium", "models"),
     "warp": ("warp-lang", "gpu"),
     "mujoco_warp": ("mujoco-warp", "gpu"),
+    "ray": ("ray", "ray"),  # qpik sweep --ray
 }
 
 

@@ -6,6 +6,8 @@
     qpik compare ROBOT --scenario NAME [--solvers daqp,osqp,...] [--mode M] [--out DIR]
              [--plot] [--video FILE] [--quiet]
     qpik calibrate [...]           (see ``qpik calibrate --help``)
+    qpik sweep ROBOT --targets N [--controllers qp,pinv] [--seed S] [--out DIR] [--ray ADDRESS|auto]
+             [--chunk K] [--workers W] [--quiet]   (see :mod:`qpik.app.sweep`)
     qpik --version
 
 Contract: bad input gives one line on stderr and exit code 2, never a traceback, and
@@ -156,6 +158,12 @@ def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
     add_arguments(p)
 
 
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
+    from .sweep.command import add_arguments
+
+    add_arguments(p)
+
+
 def _bars(args):
     from .progress import StepBars, wanted
 
@@ -284,6 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
                    populate=_compare_arguments)
     sub.add_parser("calibrate", help="identify the hexapod's geometric errors from strokes",
                    populate=_calibrate_arguments)
+    sub.add_parser("sweep", help="a Monte-Carlo study over the workspace, as chunks of batched worlds",
+                   populate=_sweep_arguments)
     for register in EXTRA_COMMANDS:
         register(sub)
     return parser

@@ -10,7 +10,7 @@ Two kinds:
   compared with their recording (:mod:`qpik.app.scenarios_table`).
 - *recorded* (``step-time``, ``peers-arm``, ``peers-hexapod``, ``monte-carlo-arm``,
   ``monte-carlo-hexapod``, ``third-party``, ``hierarchy-timing``, ``rollout-speed``,
-  ``fuzz``, ``placo-solve``): timings and hour-long sweeps; the table is rendered from the
+  ``fuzz``, ``placo-solve``, ``sweep-arm``): timings and hour-long sweeps; the table is rendered from the
   JSON a benchmark wrote into a results folder (re-run the benchmark to refresh it), and
   the check compares the README with that rendering.
 
@@ -315,6 +315,12 @@ def scenarios_table(results: Path) -> str:
     return to_markdown(compute_rows(progress=wanted()), load_chaotic(Path(results) / "scenarios_chaotic.json"))
 
 
+def sweep_table(results: Path, robot: str) -> str:
+    from .sweep.report import table
+
+    return table(_recorded(results, f"sweep_{robot}/summary.json"))
+
+
 @dataclass(frozen=True)
 class Table:
     """A README table: how it is rendered from a results folder, how many leading columns
@@ -338,6 +344,7 @@ TABLES = {
     "rollout-speed": Table(rollout_speed_table, 1, False),
     "fuzz": Table(fuzz_table, 1, False),
     "placo-solve": Table(placo_solve_table, 1, False),
+    "sweep-arm": Table(lambda results: sweep_table(results, "arm"), 1, False),
 }
 
 
