@@ -88,18 +88,16 @@ random arm states under a tight speed box it reaches a linear program's optimum 
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import math
+from typing import Sequence
 
 import numpy as np
 
 from .. import linalg
 from ..errors import DivergenceError, InvalidInput
-from ..limits import order_limits
-from ..robot import JointLimits, Robot, check_same_robot
+from ..problem import Problem, Stack, check_dt, group_levels
+from ..robot import Robot
 from ..tasks import Task
-from .levels import StackedLevel, check_dt, group_levels
 
 # Products below use ndarray.dot: `@` costs twice as much at these sizes.
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
@@ -158,6 +156,68 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool,
     return vt[:rank].T.dot(u[:, :rank].T / s[:rank, None]), rank, vt
 
 
+class _NullSpace:
+    """The null space of the levels done, of dimension ``free``: all of joint space
+    (``F`` None), an orthonormal basis Z (``F``), or, ``projector``, P = Z Zᵀ itself."""
+
+    def __init__(self, nv: int):
+        self.F, self.projector, self.free = None, False, nv
+
+    @property
+    def closed(self) -> bool:
+        """Whether one or two rows are solved in closed form here (joint space, or a projector's)."""
+        return self.F is None or self.projector
+
+    def mapped(self, pinv: np.ndarray) -> np.ndarray:
+        """(J Z)^# mapped back to joint space (Z (J Z)^#); as it is in joint space or a projector's."""
+        return pinv if self.closed else self.F.dot(pinv)
+
+    def hold(self, critical: int, target: float, shifted: np.ndarray, rows: np.ndarray, held: list):
+        """Joint ``critical`` held at ``target``: (q̇ shifted, the task's rows without the
+        direction that costs; None where this null space cannot hold the joint).
+        ``held``: the directions of the joints held before (appended to)."""
+        F = self.F
+        if self.projector:  # along d = P̄ e_i, P̄ = P less the joints already held
+            d = F[critical]
+            for e, norm in held:
+                d = d - e * (e[critical] / norm)
+            norm_sq = float(d[critical])  # ‖P̄ e_i‖²
+            if norm_sq <= _RANK_TOLERANCE**2:
+                return None
+            shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
+            held.append((d, norm_sq))
+            # J P̄: the task without d
+            return shifted, rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                                    (rows.dot(d) / norm_sq)[:, None] * d)
+        # Within the basis, as close as it allows: along h, the joint's row of Z less its
+        # part along the joints already held.
+        h = F[critical]
+        for u in held:
+            h = h - u.dot(h) * u
+        norm_sq = float(h.dot(h))
+        if norm_sq <= _RANK_TOLERANCE**2:
+            return None
+        shifted = shifted + F.dot(h * ((target - shifted[critical]) / norm_sq))
+        u = h / math.sqrt(norm_sq)
+        held.append(u)
+        return shifted, rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
+
+    def reduce(self, rank: int, pinv: np.ndarray, X: np.ndarray, vt: np.ndarray | None, eye: np.ndarray) -> None:
+        """The null space left after a level of this ``rank`` (X = J F its rows, ``pinv``
+        their pseudoinverse, ``vt`` their SVD's Vᵀ or None)."""
+        self.free -= rank
+        if self.closed and vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
+            self.F, self.projector = (eye if self.F is None else self.F) - pinv.dot(X), True
+            return
+        if self.projector:
+            self.F = self.F - pinv.dot(X)
+            return
+        if vt is None:  # one row: decompose now
+            vt = linalg.dgesvd(X)[2]
+        null = vt[rank:].T
+        self.F = null if self.F is None else self.F.dot(null)
+
+
 class SNSController:
     """Saturation in the Null Space: the prioritised pseudoinverse law inside joint bounds.
 
@@ -189,35 +249,22 @@ class SNSController:
             raise InvalidInput("SNSController needs a robot with at least one degree of freedom; "
                                "this model has none")
         grouped = group_levels(robot, tasks, levels, "SNSController")
-        check_same_robot(robot, (), limits, "SNSController")  # tasks: group_levels checks them
-        self.robot = robot
-        self.dt = float(dt)
-        self.levels = [StackedLevel(robot, level, weighted=True) for level in grouped]
-        self.tasks = [t for level in grouped for t in level]
-        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
-        for task in self.tasks:
-            task.attach(self.dt)
-        self.limits = order_limits(limits)
-        rows = [type(lim).__name__ for lim in self.limits if lim.inequality_rows]
+        rows = [type(lim).__name__ for lim in limits if lim.inequality_rows]
         if rows:
             raise InvalidInput(f"SNS saturates joints inside a velocity box; it cannot keep general rows "
                                f"({', '.join(rows)}): use the QP or the hierarchy for those")
-        nv = robot.nv
-        self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
-        for limit in self.limits:
-            if limit.constant:
-                limit.apply(self.dt, self._lb0, self._ub0)
-        self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
+        self.tasks = [t for level in grouped for t in level]
+        self.problem = Problem(robot, self.tasks, limits, dt, "SNSController")
+        self.robot, self.dt, self.limits = robot, self.problem.dt, self.problem.limits
+        self.levels = [Stack(robot.nv, level, weighted=True) for level in grouped]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self._braking = self._braking_terms(max_acceleration)
-        self._zero = np.zeros(nv)
-        self._eye = np.eye(nv)
-        # The box as lists of floats (the loop reads it joint by joint): the constant part,
-        # and the last step's
-        self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
-        self._lower, self._upper = list(self._lower0), list(self._upper0)
+        self._zero = np.zeros(robot.nv)
+        self._eye = np.eye(robot.nv)
+        self._lower, self._upper = [], []  # the step's box as lists of floats (the loops read it joint by joint)
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
-        self.qdot = np.zeros(nv)
+        self.qdot = np.zeros(robot.nv)
 
     def _braking_terms(self, max_acceleration):
         if max_acceleration is None:
@@ -227,7 +274,7 @@ class SNSController:
             np.asarray(max_acceleration, dtype=float)
         if amax.shape != (nv,) or np.any(np.isnan(amax)) or np.any(amax <= 0):
             raise InvalidInput(f"max_acceleration must be positive (inf for none), one number or shape ({nv},)")
-        ranges = [lim.limits for lim in self.limits if isinstance(getattr(lim, "limits", None), JointLimits)]
+        ranges = [lim.ranges for lim in self.limits if lim.ranges is not None]
         if not ranges:
             raise InvalidInput("max_acceleration needs a joint position limit among the limits "
                                "(the ranges to brake before)")
@@ -248,25 +295,20 @@ class SNSController:
         return np.array(self._upper)
 
     def _bounds(self) -> None:
-        lower, upper = self._lower0.copy(), self._upper0.copy()
-        for limit in self._dynamic_limits:
-            limit.apply_to_lists(self.dt, lower, upper)
+        """The step's box as lists, with the braking bounds."""
+        lb, ub = self.problem.inequalities.lb, self.problem.inequalities.ub
         if self._braking:
-            lb, ub = np.array(lower), np.array(upper)
             q = self.robot.q
             for qpos, dofs, low, high, amax in self._braking:
                 up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
                 down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
                 ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
                 lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
-            lower, upper = lb.tolist(), ub.tolist()
-        self._lower, self._upper = lower, upper
+        self._lower, self._upper = lb.tolist(), ub.tolist()
 
     def compute_velocity(self) -> np.ndarray:
-        """Update every task and bound, then run SNS level by level."""
-        self.robot.ensure_kinematics()
-        for task in self.tasks:
-            task.update()
+        """Fill the step's problem (tasks, bounds), then run SNS level by level."""
+        self.problem.fill()
         for level in self.levels:
             level.stack()
         self._bounds()
@@ -274,12 +316,10 @@ class SNSController:
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
         zero = max(lower) <= 0.0 <= min(upper)
         qdot = self._zero if zero else np.array([min(max(0.0, lo), hi) for lo, hi in zip(lower, upper)])
-        # The null space of the levels done: all (None), a basis Z or a projector P, its dimension
-        space, projector, free = None, False, self.robot.nv
+        space = _NullSpace(self.robot.nv)
         last = len(self.levels) - 1
         for k, level in enumerate(self.levels):
-            qdot, self.task_scale[k], self.saturated[k], space, projector, free = \
-                self._level(level, qdot, zero, space, projector, free, k < last)
+            qdot, self.task_scale[k], self.saturated[k] = self._level(level, qdot, zero, space, k < last)
             zero = False
         # Clipped to the box (rounding only: every pass ends inside it), on floats.
         clipped = [hi if x > hi else lo if x < lo else x for x, lo, hi in zip(qdot.tolist(), lower, upper)]
@@ -288,38 +328,43 @@ class SNSController:
         self.qdot[:] = clipped
         return self.qdot
 
-    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, F: np.ndarray | None,
-               projector: bool, free: int, more: bool):
-        """SNS for one level in the null space of the levels above (``F``: None, all of
-        joint space; an orthonormal basis Z; or, ``projector``, P = Z Zᵀ itself), of
-        dimension ``free``, whose velocity is ``above``. Returns (q̇, scale, saturated
-        joints, and the null space left for the levels below as (F, projector, free):
-        computed only when ``more`` levels follow)."""
+    def _level(self, level: Stack, above: np.ndarray, above_zero: bool, space: _NullSpace, more: bool):
+        """SNS for one level in the null space of the levels above, whose velocity is
+        ``above``. Returns (q̇, scale, saturated joints); ``space`` is left as the null
+        space for the levels below (computed only when ``more`` levels follow)."""
         J, v = level.J, level.v
-        if free == 0 or J.shape[0] == 0:
-            return above, 0.0, 0, F, projector, free
-        lower, upper = self._lower, self._upper
-        identity = level.identity  # J = I: no decomposition needed
-        vt = size = None
-        if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
-            X = None
-            pinv, rank = (self._eye if F is None else F if projector else F.dot(F.T)), free
+        if space.free == 0 or J.shape[0] == 0:
+            return above, 0.0, 0
+        if level.identity:  # J = I: no decomposition needed; (J F)^# mapped back: F Fᵀ, or P itself
+            F = space.F
+            X = vt = size = None
+            pinv, rank = (self._eye if F is None else F if space.projector else F.dot(F.T)), space.free
         else:
             # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
             # singular value). Two rows in joint space or in a projector's: closed form.
-            X = J if F is None else J.dot(F)
-            size = None if F is None else math.sqrt(float(np.vdot(J, J)))
-            pinv, rank, vt = _solve(X, size, F is None or projector)
+            X = J if space.F is None else J.dot(space.F)
+            size = None if space.F is None else math.sqrt(float(np.vdot(J, J)))
+            pinv, rank, vt = _solve(X, size, space.closed)
             if rank == 0:  # the levels above took every direction this task moves
-                return above, 0.0, 0, F, projector, free
-            if F is not None and not projector:
-                pinv = F.dot(pinv)
+                return above, 0.0, 0
+            pinv = space.mapped(pinv)
         # The unsaturated pass: the prioritised pseudoinverse law.
-        if above_zero:
-            qdot = pinv.dot(v)
+        qdot = pinv.dot(v) if above_zero else above + pinv.dot(v - (above if level.identity else J.dot(above)))
+        qdot, scale, saturated = self._saturate(level, above, qdot, pinv, rank, size, space, X, above_zero)
+        if qdot is None:  # no scale in [0, 1] fits: not executed
+            return above, 0.0, saturated
+        if not more or level.identity:
+            space.free -= rank
         else:
-            qdot = above + pinv.dot(v - (above if identity else J.dot(above)))
-        task_pinv, task_X, task_vt = pinv, X, vt
+            space.reduce(rank, pinv, X, vt, self._eye)
+        return qdot, scale, saturated
+
+    def _saturate(self, level: Stack, above: np.ndarray, qdot: np.ndarray, pinv: np.ndarray, rank: int,
+                  size: float | None, space: _NullSpace, X: np.ndarray | None, above_zero: bool):
+        """The saturation passes from the unsaturated q̇ (``X``: the task's rows J F):
+        (q̇, scale, saturated joints), q̇ None when no scale fits."""
+        J, v = level.J, level.v
+        lower, upper = self._lower, self._upper
         saturated: list[int] = []
         held: list = []  # joints held within F: unit directions u (basis) or (d, ‖d‖²) (projector)
         shifted, rows = above, X
@@ -327,90 +372,51 @@ class SNSController:
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             q_list = qdot.tolist()
-            for x, lo, hi in zip(q_list, lower, upper):
-                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
-                    break
-            else:  # inside the box
-                scale = 1.0
-                break
+            if _inside(q_list, lower, upper):
+                return qdot, 1.0, len(saturated)
             # q̇(s) = s a + b: a the task's share, b = q̇ − a the saturated joints' and the
             # levels above' (taken joint by joint where needed; None: b = 0)
             if first is None:
-                a = pinv.dot(v)
-                whole = qdot
+                a, whole = pinv.dot(v), qdot
                 s, critical = self._scaling(a.tolist(), q_list, saturated)
             else:  # a = q̇, b = 0
                 a, whole, first = first, None, None
                 s, critical = self._scaling(q_list, None, saturated)
             if s > best_scale:
                 best_scale, best = s, (a, whole)
-            scale = -1.0
             # One more saturated joint leaves free − len(saturated) − 1 directions: if that
             # is fewer than the task needs, it would cost the task one: scale it now.
-            if critical < 0 or free - len(saturated) - 1 < rank:
+            if critical < 0 or space.free - len(saturated) - 1 < rank:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
             target = upper[critical] if q_list[critical] > upper[critical] else lower[critical]
-            if F is None:  # in joint space: the saturated joints are simply set, and the
+            if space.F is None:  # in joint space: the saturated joints are simply set, and the
                 # task keeps the other columns (zeroed columns: the same singular values as
                 # J without them, and a pseudoinverse with zero rows there)
                 if shifted is above:
                     shifted, rows = above.copy(), J.copy()
                 shifted[critical] = target
                 rows[:, critical] = 0.0
-            elif projector:  # along d = P̄ e_i, P̄ = P less the joints already held
-                d = F[critical]
-                for e, norm in held:
-                    d = d - e * (e[critical] / norm)
-                norm_sq = float(d[critical])  # ‖P̄ e_i‖²
-                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
+            else:
+                moved = space.hold(critical, target, shifted, rows, held)
+                if moved is None:  # that null space cannot hold this joint
                     break
-                shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
-                held.append((d, norm_sq))
-                # J P̄: the task without d
-                rows = rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
-                               (rows.dot(d) / norm_sq)[:, None] * d)
-            else:  # within the basis, as close as it allows: along h, the joint's row of Z
-                # less its part along the joints already held
-                h = F[critical]
-                for u in held:
-                    h = h - u.dot(h) * u
-                norm_sq = float(h.dot(h))
-                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
-                    break
-                shifted = shifted + F.dot(h * ((target - shifted[critical]) / norm_sq))
-                u = h / math.sqrt(norm_sq)
-                held.append(u)
-                rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
+                shifted, rows = moved
             # The rank tolerance of these passes scales with ‖J‖, never with the task scale s
             # (which is −1 when no scale fits: a negative threshold counted zero singular
             # values as a rank and divided by them).
             if size is None:
                 size = math.sqrt(float(np.vdot(J, J)))
-            pinv, pass_rank, _ = _solve(rows, size, F is None or projector, _PASS_RANK_TOLERANCE)
+            pinv, pass_rank, _ = _solve(rows, size, space.closed, _PASS_RANK_TOLERANCE)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
-            if F is not None and not projector:
-                pinv = F.dot(pinv)
+            pinv = space.mapped(pinv)
             qdot = shifted + pinv.dot(v - J.dot(shifted))
-        if scale < 0.0:
-            if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
-                return above, 0.0, len(saturated), F, projector, free
-            a, b = best[0], self._zero if best[1] is None else best[1] - best[0]
-            scale, qdot = best_scale, b if best_scale == 0.0 else best_scale * a + b
-        if not more or identity:
-            return qdot, scale, len(saturated), F, projector, free - rank
-        if F is None or projector:
-            if task_vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
-                return qdot, scale, len(saturated), (self._eye if F is None else F) - task_pinv.dot(task_X), \
-                    True, free - rank
-            if projector:
-                return qdot, scale, len(saturated), F - task_pinv.dot(task_X), True, free - rank
-        if task_vt is None:  # one row: decompose now
-            task_vt = linalg.dgesvd(task_X)[2]
-        null = task_vt[rank:].T
-        return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
+        if best is None or best_scale < 0.0:
+            return None, 0.0, len(saturated)
+        a, b = best[0], self._zero if best[1] is None else best[1] - best[0]
+        return (b if best_scale == 0.0 else best_scale * a + b), best_scale, len(saturated)
 
     def _scaling(self, a_list: list[float], q_list: list[float] | None, saturated: list[int]) -> tuple[float, int]:
         """For q̇ = a + b outside the box (``q_list``: q̇; None: b = 0): the largest s in
@@ -446,3 +452,11 @@ class SNSController:
     def report(self) -> dict[str, np.ndarray]:
         """The last step's task scale of each level (1: met in full)."""
         return {"task_scale": self.task_scale.copy()}
+
+
+def _inside(q: list[float], lower: list[float], upper: list[float]) -> bool:
+    """Whether q̇ is in the box, up to rounding (``_BOUND_TOLERANCE``)."""
+    for x, lo, hi in zip(q, lower, upper):
+        if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+            return False
+    return True

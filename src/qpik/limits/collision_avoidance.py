@@ -71,7 +71,6 @@ class CollisionAvoidanceLimit(Limit):
         InvalidInput: no pair left, or parameters out of range.
     """
 
-    box = False
 
     def __init__(self, robot: Robot, geom_pairs: Sequence[tuple[GeomGroup, GeomGroup]],
                  minimum_distance: float = 0.005, detection_distance: float = 0.1, gain: float = 0.85,
@@ -103,7 +102,9 @@ class CollisionAvoidanceLimit(Limit):
         self._jac1 = np.zeros((3, robot.nv))
         self._jac2 = np.zeros((3, robot.nv))
 
-    def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G: np.ndarray | None = None,
+              h: np.ndarray | None = None) -> None:
+        """Write one row per pair into G (pairs x nv) and h (the box is left as it is)."""
         flags = self.robot.model.opt.disableflags
         if not flags & NATIVE_CCD_OFF:
             self._fill(dt, G, h)

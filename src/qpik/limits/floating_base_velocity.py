@@ -48,7 +48,7 @@ class FloatingBaseVelocityLimit(Limit):
         self.dofs = np.arange(first, first + 6)
         self.max_velocity = np.concatenate([_bounds(linear, "linear"), _bounds(angular, "angular")])
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         dofs = self.dofs
         lb[dofs] = np.maximum(lb[dofs], -self.max_velocity)
         ub[dofs] = np.minimum(ub[dofs], self.max_velocity)

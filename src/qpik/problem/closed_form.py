@@ -26,9 +26,10 @@ closures) the feasible set is the single point :math:`A^{-1}b`: one LU solve.
 
 from __future__ import annotations
 
-import math
+from typing import Callable
 
 import numpy as np
+
 from .. import linalg
 from ..solvers.base import equalities_met, equalities_met_in_floats
 
@@ -73,36 +74,65 @@ class ClosedFormPause:
         self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
 
 
-class ClosedFormStep:
-    """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot.
+def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
+    """The closed-form solve for a problem of ``nv`` dofs and ``meq`` equality rows,
+    chosen once: A⁻¹b when the rows are as many as the dofs; else through H⁻¹, kept when
+    ``H0`` (the Hessian when it is the same every step, else None) is a positive
+    diagonal (a scalar when uniform), factorised every step otherwise."""
+    if meq and meq == nv:
+        return SquareRows(meq)
+    if H0 is not None:
+        diagonal = np.diag(H0)
+        if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
+            inverse = 1.0 / diagonal
+            if np.all(inverse == inverse[0]):
+                return ScaledIdentity(meq, float(inverse[0]))
+            return DiagonalHessian(meq, inverse)
+    return FactorisedHessian(meq)
 
-    Args:
-        H0: the Hessian when it is the same every step, else None (factorised per call).
-        meq: number of equality rows.
-    """
 
-    def __init__(self, H0: np.ndarray | None, meq: int):
+class KKTStep:
+    """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot
+    (H not positive definite, S singular, or x misses the equalities by more than
+    ``EQUALITY_TOLERANCE``: a nearly singular H or S loses digits no cheaper test
+    foresees; the solver then decides). ``Ac`` stacks the equality rows A (meq x nv) and
+    the cost vector cᵀ as its last row."""
+
+    def __init__(self, meq: int):
         self.meq = meq
-        self._dinv = None
-        self._uniform = None  # H = I/d: the scalar d, one product less
-        if H0 is not None:
-            diagonal = np.diag(H0)
-            if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
-                self._dinv = 1.0 / diagonal
-                if np.all(self._dinv == self._dinv[0]):
-                    self._uniform = float(self._dinv[0])
         self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
         self._tail[meq] = -1.0
-        if self._uniform is not None and 0 < meq <= 2 and meq < H0.shape[0]:
-            self.solve = self._solve_uniform_small  # the general method's branch, chosen once
 
-    def _solve_uniform_small(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """:meth:`solve` for H = I/d and one or two rows: its branch for them, alone."""
-        return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self._uniform, Ac, Ac)
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        raise NotImplementedError
+
+    def _eliminate(self, scaled: np.ndarray, Ac: np.ndarray, b: np.ndarray, d: float) -> np.ndarray | None:
+        """x from ``scaled`` = [A H⁻¹; cᵀH⁻¹] (or [A; cᵀ] with H = I/d, the scalar d
+        applied to S, A H⁻¹c and x here)."""
+        meq = self.meq
+        if not meq:
+            return -d * scaled[0]
+        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d); np.dot: cheaper than @
+        if meq <= 2:  # in floats: cheaper than any call
+            return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
+        # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
+        rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
+        rhs += b
+        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
+        if info != 0:
+            return None
+        pivots = factor.diagonal().tolist()
+        if max(pivots) > SINGULAR_RATIO * min(pivots):
+            return None
+        tail = self._tail
+        tail[:meq] = z
+        tail[meq] = -d
+        x = np.dot(tail, scaled)
+        return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
 
     def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
-        """The end of :meth:`solve` for one or two rows, in floats: ``rows`` is M as lists;
-        x checked against the rows as :meth:`solve` checks it, in floats."""
+        """The end of :meth:`_eliminate` for one or two rows, in floats: ``rows`` is M as
+        lists; x checked against the rows as there, in floats."""
         tail = self._tail
         if self.meq == 1:
             s = d * rows[0][0]
@@ -121,75 +151,75 @@ class ClosedFormStep:
         x = np.dot(tail, scaled)
         return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """x of the KKT system, or None (H not positive definite, S singular, or x misses
-        the equalities by more than ``EQUALITY_TOLERANCE``: a nearly singular H or S loses
-        digits no cheaper test foresees; the solver then decides).
 
-        ``Ac`` stacks the equality rows A (meq x nv) and the cost vector cᵀ as its last row.
-        """
-        meq = self.meq
-        if meq == len(b) and meq == Ac.shape[1]:  # as many independent rows as dofs: x = A⁻¹b
-            lu, _, x, info = linalg.dgesv(Ac[:meq], b)
-            if info != 0:
-                return None
-            pivots = np.abs(lu.diagonal()).tolist()
-            if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
-                return None
-            return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
-        if self._uniform is not None:
-            scaled = Ac  # H⁻¹ = d I: the scalar d is applied to S, A H⁻¹c and x below
-        elif self._dinv is not None:
-            scaled = Ac * self._dinv  # rows: A H⁻¹, cᵀ H⁻¹
-        else:
-            factor, scaled_t, info = linalg.dposv(H, Ac.T)  # H⁻¹ [Aᵀ c] in one LAPACK call
-            if info != 0:
-                return None
-            scaled = scaled_t.T
-        # With H = I/d, scaled is A, c unscaled: S = d A Aᵀ, A H⁻¹c = d A c, and x = d Acᵀ[y; −1].
-        d = 1.0 if self._uniform is None else self._uniform
-        tail = self._tail
-        if not meq:
-            return -d * scaled[0]
-        # np.dot, not @: ~0.3 µs less per call on arrays this small.
-        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
-        if meq <= 2:  # in floats: cheaper than any call
-            return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
-        # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
-        rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
-        rhs += b
-        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
+class SquareRows(KKTStep):
+    """As many independent hard rows as dofs: the feasible set is the point x = A⁻¹b (one LU)."""
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        A = Ac[: self.meq]
+        lu, _, x, info = linalg.dgesv(A, b)
         if info != 0:
             return None
-        pivots = factor.diagonal().tolist()
-        if max(pivots) > SINGULAR_RATIO * min(pivots):
+        pivots = np.abs(lu.diagonal()).tolist()
+        if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
             return None
-        tail[:meq] = z
-        tail[meq] = -d
-        x = np.dot(tail, scaled)
-        return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
+        return x if equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
 
 
+class ScaledIdentity(KKTStep):
+    """H = I/d, constant: no product with H⁻¹ at all (d applied to the scalars)."""
 
-def inside_limits(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, G: np.ndarray, h: np.ndarray) -> bool:
-    """x finite, in the box and under every general row (exact comparisons: a point on a
-    bound goes to the solver, which decides whether that bound is active)."""
-    if not inside_box(x.tolist(), lb.tolist(), ub.tolist()):
-        return False
-    if G.shape[0] and not (np.dot(G, x) <= h).all():
-        return False
-    return True
+    def __init__(self, meq: int, d: float):
+        super().__init__(meq)
+        self.d = d
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        if 0 < self.meq <= 2:
+            return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self.d, Ac, Ac)
+        return self._eliminate(Ac, Ac, b, self.d)
 
 
-def inside_box(x: list, lower: list, upper: list) -> bool:
-    """:func:`inside_limits` for a box alone, as lists of floats (x finite: an absent
-    bound admits ±inf, which is no answer)."""
-    if not math.isfinite(sum(x)):  # NaN or ±inf anywhere
-        return False
-    for value, low, high in zip(x, lower, upper):
-        if not low <= value <= high:
-            return False
-    return True
+class DiagonalHessian(KKTStep):
+    """H a constant positive diagonal: H⁻¹ is the vector ``inverse``."""
+
+    def __init__(self, meq: int, inverse: np.ndarray):
+        super().__init__(meq)
+        self.inverse = inverse
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        return self._eliminate(Ac * self.inverse, Ac, b, 1.0)
+
+
+class FactorisedHessian(KKTStep):
+    """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        factor, scaled_t, info = linalg.dposv(H, Ac.T)
+        if info != 0:
+            return None
+        return self._eliminate(scaled_t.T, Ac, b, 1.0)
+
+
+class ClosedForm:
+    """The closed form tried before the solver: its answer is kept when it meets every
+    limit (then it is the QP's solution); a limit that binds usually still binds next
+    step, so after a miss the next few steps go straight to the solver
+    (:class:`ClosedFormPause`)."""
+
+    def __init__(self, admits: Callable[[np.ndarray], bool]):
+        self.admits = admits
+        self.pause = ClosedFormPause()
+
+    def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
+        """``solve(*arguments)`` when it is tried this step and meets the limits, else None."""
+        if not self.pause.ready():
+            return None
+        x = solve(*arguments)
+        if x is not None and self.admits(x):
+            self.pause.succeeded()
+            return x
+        self.pause.failed()
+        return None
 
 
 def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,

@@ -1,0 +1,100 @@
+r"""The cost of a set of soft tasks, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`.
+
+.. math::
+    H = \epsilon I + \sum_{\text{joint-space}} W_i + \sum_{\text{general}} J_i^T W_i J_i
+        + \sum_{\text{general}} \mu_i e_i^T W_i e_i\, I,\qquad
+    c = -\sum_i J_i^T W_i v_i
+
+Joint-space tasks (J = I[dofs], as each says itself) put their weights on H's diagonal,
+once; each step only their share of c changes. The others add :math:`J^TWJ` every step.
+The Levenberg–Marquardt term (μ times the weighted squared error, as mink's
+``lm_damping``) grows with the error, so a soft task with a far target asks for less and
+less; past ``LM_RESCALE`` it dominates the cost and H and c are scaled down together (the
+same minimiser) so that no solver sees overflowing numbers.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InvalidInput
+from ..limits.limit import as_slice
+from ..tasks import Task
+
+LM_RESCALE = 1e6
+
+
+class Cost:
+    """H and c of the soft tasks ``soft``, with ``regularization`` ε on H's diagonal.
+
+    Attributes:
+        H0: the constant part of H (ε and the joint-space tasks' weights).
+        H, c: the step's, after :meth:`write` (H is H0 when no task has its own Jacobian).
+        diagonal, general: the joint-space tasks and the others.
+    """
+
+    def __init__(self, nv: int, soft: Sequence[Task], regularization: float, c: np.ndarray | None = None):
+        self.diagonal = [task for task in soft if task.joint_space]
+        self.general = [task for task in soft if not task.joint_space]
+        self.H0 = np.eye(nv) * regularization
+        dofs = [as_slice(task.dofs) for task in self.diagonal]
+        for task, where in zip(self.diagonal, dofs):
+            self.H0.reshape(-1)[:: nv + 1][where] += task.weight
+        self.H = self.H0.copy()
+        self.c = np.zeros(nv) if c is None else c
+        self._diag = self.H.reshape(-1)[:: nv + 1]
+        self._scratch = np.zeros(nv)
+        plan = [(task, -task.weight, where) for task, where in zip(self.diagonal, dofs)]
+        # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
+        self._first = plan.pop(0)[:2] if plan and isinstance(dofs[0], slice) and dofs[0] == slice(0, nv) else None
+        self._plan = plan
+
+    def write_diagonal(self) -> None:
+        """c of the joint-space tasks alone."""
+        c = self.c
+        if self._first is not None:
+            task, neg_weight = self._first
+            np.multiply(neg_weight, task.target_velocity, c)
+        else:
+            c.fill(0.0)
+        for task, neg_weight, dofs in self._plan:
+            scratch = self._scratch[: task.dim]
+            np.multiply(neg_weight, task.target_velocity, scratch)
+            c[dofs] += scratch
+
+    def write(self) -> None:
+        """The step's H and c: c of every task, and H = H0 + Σ JᵀWJ + the LM terms."""
+        self.write_diagonal()
+        if not self.general:
+            return
+        H, c = self.H, self.c
+        np.copyto(H, self.H0)
+        for task in self.general:
+            weighted = task.weight[:, None] * task.jacobian
+            H += np.dot(task.jacobian.T, weighted)  # np.dot: less overhead than @ on small arrays
+            c -= np.dot(task.target_velocity, weighted)
+        lm = self.levenberg_marquardt()
+        if lm:
+            self._diag += lm
+        if lm > LM_RESCALE:
+            scale = 1.0 / (1.0 + lm)
+            H *= scale
+            c *= scale
+
+    def levenberg_marquardt(self) -> float:
+        """Σ μ eᵀWe over the tasks with ``lm_damping``: the step's damping on every dof.
+
+        Raises:
+            InvalidInput: it overflows (a target absurdly far away).
+        """
+        total = 0.0
+        for task in self.general:
+            if task.lm_damping:
+                error = task.error
+                total += task.lm_damping * float(np.dot(error, task.weight * error))
+        if total > LM_RESCALE and not np.isfinite(total):
+            raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
+                               "check its target")
+        return total
