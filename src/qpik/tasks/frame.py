@@ -15,7 +15,6 @@ from .task import (
     target_vector,
     homogeneous_transform,
     mocap_pose,
-    positive,
     rotation_error,
     rotation_matrix,
 )
@@ -78,15 +77,13 @@ class FrameTask(Task):
         self.axes_frame = axes_frame
         local = check_axes_frame(axes_frame)
         n_position = len(self.position_rows)
-        super().__init__(robot, n_position + len(self.orientation_rows), weight, hard)
-        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
         self.frame = robot.frame(frame, frame_type)
         # Gains and the feed-forward twist live in one array each, the per-block names being
         # views: v = K e + ẋ_d is then two operations on all rows.
-        self._gain = np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
-                                     feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")])
-        self.position_gain, self.orientation_gain = self._gain[:n_position], self._gain[n_position:]
-        self._mark_dead_beat(self._gain)
+        self._use_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
+                                       feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
+        self.position_gain, self.orientation_gain = self.gain[:n_position], self.gain[n_position:]
         self.target_position = self.frame.position.copy()
         self.target_rotation = self.frame.rotation.copy()
         self._twist = np.zeros(6)
@@ -140,9 +137,6 @@ class FrameTask(Task):
         self.robot.ensure_kinematics()
         self.set_target(self.frame.position, self.frame.rotation)
 
-    def feedback_gains(self) -> np.ndarray:
-        return self._gain.copy()
-
     def update(self) -> None:
         if self._whole:
             self.frame.jacobian(self._jacp, self._jacr)
@@ -155,11 +149,9 @@ class FrameTask(Task):
         if not self._whole:
             self._rows.errors(self.target_position, self.target_rotation, self.target_linear_velocity,
                               self.target_angular_velocity, self.error, self._feedforward)
-            np.multiply(self._gain, self.error, out=self.target_velocity)
-            self.target_velocity += self._feedforward
+            self._track(self._feedforward)
             return
         np.subtract(self.target_position, self.frame.position, out=self.position_error)
         self._rotation_error.world_flat(self._target_flat, self._current_flat, self.frame.rotation,
                                         out=self.orientation_error)
-        np.multiply(self._gain, self.error, out=self.target_velocity)
-        self.target_velocity += self._twist
+        self._track(self._twist)

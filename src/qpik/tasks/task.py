@@ -320,16 +320,13 @@ class Task:
         self.hard = bool(hard)
         self.weight = positive(weight, self.dim, f"{self.name} weight", allow_zero=True)
         self.priority = priority
-        if lm_damping:
-            self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
+        self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
         self._allocate_jacobian()
         self.target_velocity = np.zeros(self.dim)
         self.error = np.zeros(self.dim)
         generic = self._computes_rows()
         if generic or gain is not None:
-            self.gain = feedback_gain(gain, self.dim, f"{self.name} gain")
-            self._gains = self.gain
-            self._mark_dead_beat(self.gain)
+            self._use_gain(feedback_gain(gain, self.dim, f"{self.name} gain"))
         self.target_rate = np.zeros(self.dim)  # ẋ_d (a built-in task may replace it)
 
     def _computes_rows(self) -> bool:
@@ -474,8 +471,18 @@ class Task:
             return
         error = self.compute_error(self.robot)
         self.error[...] = _checked_rows(error, (self.dim,), self.name, "compute_error")
-        np.multiply(self.gain, self.error, out=self.target_velocity)
-        self.target_velocity += self.target_rate
+        self._track(self.target_rate)
+
+    def _use_gain(self, gain: np.ndarray) -> None:
+        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`)."""
+        self.gain = self._gains = gain
+        self._mark_dead_beat(gain)
+
+    def _track(self, rate: np.ndarray) -> None:
+        """v = ẋ_d + K e, from ``error`` and the feed-forward ``rate`` (outputs passed by
+        position: a keyword costs more per call)."""
+        np.multiply(self.gain, self.error, self.target_velocity)
+        np.add(self.target_velocity, rate, self.target_velocity)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, hard={self.hard})"
