@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
-from ..problem import ClosedForm, Cost, Problem, Stack, check_dt, closed_form_step
+from ..problem import ClosedForm, Cost, HeldBounds, Problem, Stack, check_dt, closed_form_step
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
@@ -74,6 +74,7 @@ class QPController:
         self.cost = Cost(robot.nv, self.problem.soft, float(regularization), c=self._Ac[meq])
         constant_hessian = not self.cost.general
         self._step = closed_form_step(robot.nv, meq, self.cost.H0 if constant_hessian else None)
+        self._held = HeldBounds(self._step, self.problem.inequalities)
         self._closed_form = ClosedForm(self.problem.inequalities.admits) if fast_path else None
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.qdot = np.zeros(robot.nv)
@@ -85,8 +86,8 @@ class QPController:
     b = property(lambda self: self.hard_rows.v, doc="The hard rows' target velocities (meq,) of the last step.")
     H = property(lambda self: self.cost.H, doc="The Hessian (nv x nv) of the last step.")
     c = property(lambda self: self.cost.c, doc="The cost vector (nv,) of the last step.")
-    lb = property(lambda self: self._backend.lb, doc="The lower bound on q̇ (nv,) of the last step.")
-    ub = property(lambda self: self._backend.ub, doc="The upper bound on q̇ (nv,) of the last step.")
+    lb = property(lambda self: self.problem.inequalities.lb, doc="The lower bound on q̇ (nv,) of the last step.")
+    ub = property(lambda self: self.problem.inequalities.ub, doc="The upper bound on q̇ (nv,) of the last step.")
     G = property(lambda self: self._backend.G, doc="The general rows (mineq x nv) of the last step.")
     h = property(lambda self: self._backend.h, doc="Their bounds (mineq,) of the last step.")
 
@@ -96,7 +97,7 @@ class QPController:
         self.cost.write()
         self.hard_rows.stack()
         if self._closed_form is not None:
-            x = self._closed_form.attempt(self._step.solve, self.cost.H, self._Ac, self.hard_rows.v)
+            x = self._closed_form.attempt(self._held.solve, self.cost.H, self._Ac, self.hard_rows.v)
             if x is not None:
                 self.qdot = x
                 return x
@@ -109,11 +110,16 @@ class QPController:
         backend = self._backend
         backend.A[:] = self.A
         backend.b[:] = self.b
+        self.problem.inequalities.sync()  # the box into the back-end's arrays, where it was kept in floats
         try:
             self.qdot = self._guard.solve(self.H, self.c, hessian_changed=bool(self.cost.general))
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
                                     exc.variable) from None
+        if self._closed_form is not None and backend.exact:
+            # An active-set solver's active bounds, held by the next closed forms (a
+            # tolerance-based solver's answers stay its own: its runs are unchanged).
+            self._held.remember(self.qdot)
         return self.qdot
 
     @property

@@ -296,14 +296,16 @@ class SNSController:
 
     def _bounds(self) -> None:
         """The step's box as lists, with the braking bounds."""
-        lb, ub = self.problem.inequalities.lb, self.problem.inequalities.ub
-        if self._braking:
-            q = self.robot.q
-            for qpos, dofs, low, high, amax in self._braking:
-                up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
-                down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
-                ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
-                lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+        inequalities = self.problem.inequalities
+        if not self._braking:
+            self._lower, self._upper = inequalities.box()
+            return
+        lb, ub, q = inequalities.lb, inequalities.ub, self.robot.q
+        for qpos, dofs, low, high, amax in self._braking:
+            up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
+            down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
+            ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
+            lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
         self._lower, self._upper = lb.tolist(), ub.tolist()
 
     def compute_velocity(self) -> np.ndarray:

@@ -34,6 +34,7 @@ class JointPositionLimit(Limit):
     """
 
     constant = False  # depends on q: recomputed every step
+    takes_lists = True  # the box of a robot of a few dofs, in floats
 
     def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
                  influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
@@ -66,6 +67,8 @@ class JointPositionLimit(Limit):
         self._rate = damper_rate / influence if influence > 0 else 0.0
         self._factor = np.empty_like(self._bounds)
         self._near = np.empty(self._bounds.shape, dtype=bool)
+        self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
+                        zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
 
     @property
     def ranges(self) -> JointLimits:
@@ -74,6 +77,9 @@ class JointPositionLimit(Limit):
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
+        if type(lb) is list:
+            self._apply_to_floats(dt, lb, ub)
+            return
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
         positions = self._positions if self._positions is not None else self.robot.data.qpos[self._qpos]
         np.subtract(self._bounds, positions, out=steps)
@@ -99,6 +105,36 @@ class JointPositionLimit(Limit):
         if not isinstance(self._dofs, slice):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
+
+    def _apply_to_floats(self, dt: float, lbs: list, ubs: list) -> None:
+        """:meth:`apply` joint by joint in floats: the same operations in the same order."""
+        q = self.robot.data.qpos.tolist()
+        step_rate = self.gain / dt
+        influence = self.influence
+        damped = self._rate if self._rate < step_rate else step_rate
+        total = 0.0  # one finiteness test for all the joints, after the loop
+        for qi, di, lo, hi in self._joints:
+            x = q[qi]
+            total += x
+            low, high = lo - x, hi - x
+            if influence > 0.0:
+                low *= damped if abs(low) < influence else step_rate
+                high *= damped if abs(high) < influence else step_rate
+            else:
+                low *= step_rate
+                high *= step_rate
+            v_lo, v_hi = lbs[di], ubs[di]
+            # Recovery from outside the range never asks for more than the velocity box.
+            if low > v_hi:
+                low = v_hi
+            if high < v_lo:
+                high = v_lo
+            if low > v_lo:
+                lbs[di] = low
+            if high < v_hi:
+                ubs[di] = high
+        if not math.isfinite(total):
+            self._non_finite()
 
     def _non_finite(self) -> None:
         q = self.robot.data.qpos

@@ -29,16 +29,20 @@ class Limit:
         inequality_rows: how many rows :meth:`apply` writes into G and h.
         ranges: the joint ranges the limit keeps q inside (a
             :class:`~qpik.robot.JointLimits`: position limits), else None.
+        takes_lists: whether :meth:`apply` also takes the box as lists of floats (a
+            controller then keeps the box of a robot of a few dofs in floats).
     """
 
     constant = False
     inequality_rows = 0
     ranges = None
+    takes_lists = False
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G: np.ndarray | None = None,
               h: np.ndarray | None = None) -> None:
         """Write this limit for a step of ``dt`` seconds: tighten the box [lb, ub] (nv,)
-        in place, and/or write its rows G (inequality_rows x nv) and h (inequality_rows,)."""
+        in place (NumPy arrays; lists of floats too where ``takes_lists``), and/or write
+        its rows G (inequality_rows x nv) and h (inequality_rows,)."""
 
 
 def as_slice(index: np.ndarray):

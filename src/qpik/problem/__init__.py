@@ -9,11 +9,11 @@ exactness argument (:mod:`.closed_form`), the constant parts of H and of the box
 the small-problem checks in floats. The controllers only solve a filled problem.
 """
 
-from .closed_form import ClosedForm, closed_form_step, damped_least_squares_step
+from .closed_form import ClosedForm, HeldBounds, closed_form_step, damped_least_squares_step
 from .cost import Cost
 from .limits import Inequalities
 from .problem import Problem, check_dt
 from .rows import Stack, group_levels, row_slices
 
-__all__ = ["ClosedForm", "Cost", "Inequalities", "Problem", "Stack", "check_dt", "closed_form_step",
+__all__ = ["ClosedForm", "Cost", "HeldBounds", "Inequalities", "Problem", "Stack", "check_dt", "closed_form_step",
            "damped_least_squares_step", "group_levels", "row_slices"]

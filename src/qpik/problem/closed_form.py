@@ -100,15 +100,25 @@ class KKTStep:
 
     def __init__(self, meq: int):
         self.meq = meq
-        self._tail = np.zeros(meq + 1)  # [y; −1], the coefficients of x in [A H⁻¹; cᵀH⁻¹]ᵀ
+        self._tail = np.zeros(meq + 1)  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
         self._tail[meq] = -1.0
+        self._d = 1.0
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, free: np.ndarray | None = None) -> np.ndarray | None:
+        """x, or None; ``free``: the dofs of ``Ac``'s columns when the others are held
+        (their share already moved into c and b)."""
+        scaled = self._scale(H, Ac, free)
+        return None if scaled is None else self._eliminate(scaled, Ac, b, self._d)
+
+    def multipliers(self) -> np.ndarray:
+        """y of the last solve: Hx + c = Aᵀy."""
+        return self._tail[: self.meq] / self._d
+
+    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray | None:
+        """[A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the scalars)."""
         raise NotImplementedError
 
     def _eliminate(self, scaled: np.ndarray, Ac: np.ndarray, b: np.ndarray, d: float) -> np.ndarray | None:
-        """x from ``scaled`` = [A H⁻¹; cᵀH⁻¹] (or [A; cᵀ] with H = I/d, the scalar d
-        applied to S, A H⁻¹c and x here)."""
         meq = self.meq
         if not meq:
             return -d * scaled[0]
@@ -155,7 +165,9 @@ class KKTStep:
 class SquareRows(KKTStep):
     """As many independent hard rows as dofs: the feasible set is the point x = A⁻¹b (one LU)."""
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, free: np.ndarray | None = None) -> np.ndarray | None:
+        if free is not None:  # fewer dofs than rows: no point meets them in general
+            return None
         A = Ac[: self.meq]
         lu, _, x, info = linalg.dgesv(A, b)
         if info != 0:
@@ -171,12 +183,10 @@ class ScaledIdentity(KKTStep):
 
     def __init__(self, meq: int, d: float):
         super().__init__(meq)
-        self.d = d
+        self._d = d
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        if 0 < self.meq <= 2:
-            return self._small_rows(np.dot(Ac, Ac.T).tolist(), b.tolist(), self.d, Ac, Ac)
-        return self._eliminate(Ac, Ac, b, self.d)
+    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray:
+        return Ac
 
 
 class DiagonalHessian(KKTStep):
@@ -186,18 +196,64 @@ class DiagonalHessian(KKTStep):
         super().__init__(meq)
         self.inverse = inverse
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        return self._eliminate(Ac * self.inverse, Ac, b, 1.0)
+    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray:
+        return Ac * (self.inverse if free is None else self.inverse[free])
 
 
 class FactorisedHessian(KKTStep):
     """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
 
+    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray | None:
+        factor, scaled_t, info = linalg.dposv(H if free is None else H[np.ix_(free, free)], Ac.T)
+        return None if info != 0 else scaled_t.T
+
+
+class HeldBounds:
+    r"""The closed form with the bounds the last solver step found active held.
+
+    A limit that binds usually binds again at the next step, on the same joints. With
+    those bounds held (:math:`x_i` = this step's lb or ub: their columns moved into c and
+    b), the rest is the equality-constrained problem on the free dofs, solved in closed
+    form (its Hessian the free rows and columns of H). The answer meets the KKT
+    conditions of the whole QP when it is inside every limit and each held bound's
+    multiplier :math:`r_i = (Hx + c - A^Ty)_i` has the sign of an active bound (≥ 0 at a
+    lower bound, ≤ 0 at an upper one); the QP being strictly convex, it is then the
+    QP's unique minimiser. Otherwise (None) the solver decides.
+    """
+
+    def __init__(self, step: KKTStep, inequalities):
+        self.step = step
+        self.inequalities = inequalities
+        self._held = None  # (dofs held at a lower bound, at an upper bound, all held, the free ones)
+
+    def remember(self, x: np.ndarray) -> None:
+        """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
+        lb, ub = self.inequalities.lb, self.inequalities.ub
+        at_lower = np.isfinite(lb) & (np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb)))
+        at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
+        lower, upper, free = np.flatnonzero(at_lower), np.flatnonzero(at_upper), np.flatnonzero(~(at_lower | at_upper))
+        held = len(lower) + len(upper) and len(free) > self.step.meq
+        self._held = (lower, upper, np.concatenate([lower, upper]), free) if held else None
+
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        factor, scaled_t, info = linalg.dposv(H, Ac.T)
-        if info != 0:
+        """The closed form with the remembered bounds held (none: the plain closed form)."""
+        if self._held is None:
+            return self.step.solve(H, Ac, b)
+        lower, upper, held, free = self._held
+        meq = self.step.meq
+        values = np.concatenate([self.inequalities.lb[lower], self.inequalities.ub[upper]])
+        A = Ac[:meq]
+        reduced = Ac[:, free]
+        reduced[meq] += np.dot(H[np.ix_(free, held)], values)
+        x_free = self.step.solve(H, reduced, b - np.dot(A[:, held], values), free)
+        if x_free is None:
             return None
-        return self._eliminate(scaled_t.T, Ac, b, 1.0)
+        x = np.empty(len(Ac[meq]))
+        x[free], x[held] = x_free, values
+        if not equalities_met(A, x, b, EQUALITY_TOLERANCE):  # the hard rows, on the whole x
+            return None
+        r = np.dot(H[held], x) + Ac[meq, held] - np.dot(self.step.multipliers(), A[:, held])
+        return x if (r[: len(lower)] >= 0.0).all() and (r[len(lower):] <= 0.0).all() else None
 
 
 class ClosedForm:

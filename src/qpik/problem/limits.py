@@ -13,11 +13,16 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..limits.limit import Limit
+from ..limits.limit import Limit, order_limits
 from .rows import row_slices
 
-# Up to this many dofs a point is checked against the box in floats: NumPy's per-call
-# cost outweighs the loop (measured: 30 dofs 3.4 µs in floats, 4.0 in three calls).
+# A box of up to this many dofs (with no general rows) is written and checked in floats
+# when every limit that changes it takes lists (``Limit.takes_lists``): NumPy's per-call
+# cost exceeds the arithmetic on arrays this small (the arm's box and check: 1.4 µs in
+# floats, 5 in arrays).
+FLOAT_BOX_MAX_DOFS = 8
+# A point is checked against a box of up to this many dofs in floats (30 dofs: 3.4 µs,
+# 4.0 in three NumPy calls).
 FLOAT_CHECK_MAX_DOFS = 40
 
 
@@ -36,11 +41,12 @@ class Inequalities:
             the speed box).
         lower0, upper0: the constant box (nv,), written once.
         lb, ub, G, h: the step's box and rows, after :meth:`write`.
+        rows: the number of general rows.
         row_limits: (limit, its rows of G and h) for each limit that writes rows.
     """
 
     def __init__(self, nv: int, limits: Sequence[Limit], dt: float, out: tuple | None = None):
-        self.limits = sorted(limits, key=lambda limit: 0 if limit.constant else 1)
+        self.limits = order_limits(limits)
         self.dt = dt
         self.lower0, self.upper0 = np.full(nv, -np.inf), np.full(nv, np.inf)
         for limit in self.limits:
@@ -51,37 +57,70 @@ class Inequalities:
         changing = [limit for limit in self.limits if not limit.constant]
         sizes = [limit.inequality_rows for limit in changing]
         self.rows = sum(sizes)
-        self.lb, self.ub, self.G, self.h = out if out is not None else \
+        self._lb, self._ub, self.G, self.h = out if out is not None else \
             (np.zeros(nv), np.zeros(nv), np.zeros((self.rows, nv)), np.zeros(self.rows))
         self.row_limits = [(limit, rows) for limit, rows in zip(changing, row_slices(sizes)) if limit.inequality_rows]
-        lb, ub = self.lb, self.ub
-        self._scratch = np.zeros(nv)
-        self._in_floats = nv <= FLOAT_CHECK_MAX_DOFS
-        self._writes = [(limit.apply, (dt, lb, ub)) if not limit.inequality_rows else
-                        (limit.apply, (dt, lb, ub, self.G[rows], self.h[rows]))
+        self._writes = [(limit.apply, (dt, self._lb, self._ub) if not limit.inequality_rows else
+                         (dt, self._lb, self._ub, self.G[rows], self.h[rows]))
                         for limit, rows in zip(changing, row_slices(sizes))]
+        self._in_floats = nv <= FLOAT_BOX_MAX_DOFS and not self.rows and all(lim.takes_lists for lim in changing)
+        self._lower0, self._upper0 = self.lower0.tolist(), self.upper0.tolist()
+        self.lower, self.upper = list(self._lower0), list(self._upper0)  # the box in floats (small boxes)
+        self._stale = False  # whether lb and ub lag behind the box in floats
+        self._check_in_floats = nv <= FLOAT_CHECK_MAX_DOFS
+        self._scratch = np.zeros(nv)
 
     def write(self) -> None:
-        """The step's box into ``lb``, ``ub`` and rows into ``G``, ``h``."""
-        np.copyto(self.lb, self.lower0)
-        np.copyto(self.ub, self.upper0)
+        """The step's box and rows."""
+        dt = self.dt
+        if self._in_floats:
+            lower, upper = self._lower0.copy(), self._upper0.copy()
+            for apply, _ in self._writes:
+                apply(dt, lower, upper)
+            self.lower, self.upper, self._stale = lower, upper, True
+            return
+        np.copyto(self._lb, self.lower0)
+        np.copyto(self._ub, self.upper0)
         for apply, arguments in self._writes:
             apply(*arguments)
+
+    @property
+    def lb(self) -> np.ndarray:
+        """The step's lower bounds (nv,)."""
+        self.sync()
+        return self._lb
+
+    @property
+    def ub(self) -> np.ndarray:
+        """The step's upper bounds (nv,)."""
+        self.sync()
+        return self._ub
+
+    def sync(self) -> None:
+        """A box computed in floats written into ``lb`` and ``ub`` (which a solver reads)."""
+        if self._stale:
+            self._lb[:], self._ub[:] = self.lower, self.upper
+            self._stale = False
+
+    def box(self) -> tuple[list, list]:
+        """The step's box as lists of floats."""
+        return (self.lower, self.upper) if self._in_floats else (self._lb.tolist(), self._ub.tolist())
 
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if self._in_floats:
+        if self._in_floats or self._check_in_floats:
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            for value, low, high in zip(values, self.lb.tolist(), self.ub.tolist()):
+            lower, upper = self.box()
+            for value, low, high in zip(values, lower, upper):
                 if not low <= value <= high:
                     return False
         else:
             gap = self._scratch
-            np.subtract(x, self.lb, out=gap)
-            np.minimum(gap, self.ub - x, out=gap)  # NaN (a NaN x, or ±inf on an absent bound) fails
+            np.subtract(x, self._lb, gap)
+            np.minimum(gap, self._ub - x, gap)  # NaN (a NaN x, or ±inf on an absent bound) fails
             if not np.minimum.reduce(gap) >= 0.0:
                 return False
         return not self.rows or bool((np.dot(self.G, x) <= self.h).all())
