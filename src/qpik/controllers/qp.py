@@ -74,7 +74,12 @@ class QPController:
         self.cost = Cost(robot.nv, self.problem.soft, float(regularization), c=self._Ac[meq])
         constant_hessian = not self.cost.general
         self._step = closed_form_step(robot.nv, meq, self.cost.H0 if constant_hessian else None)
-        self._held = HeldBounds(self._step, self.problem.inequalities)
+        # With an active-set solver (DAQP, quadprog), the closed form also holds the bounds
+        # that bind (qpik.problem.closed_form.HeldBounds): the same minimiser, checked by its
+        # KKT conditions. A tolerance-based solver's answers stay its own (its runs unchanged).
+        self._held = HeldBounds(robot.nv, meq, self._step, self.problem.inequalities) \
+            if backend.exact and fast_path else None
+        self._solve_closed = self._step.solve if self._held is None else self._held.solve
         self._closed_form = ClosedForm(self.problem.inequalities.admits) if fast_path else None
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.qdot = np.zeros(robot.nv)
@@ -97,7 +102,7 @@ class QPController:
         self.cost.write()
         self.hard_rows.stack()
         if self._closed_form is not None:
-            x = self._closed_form.attempt(self._held.solve, self.cost.H, self._Ac, self.hard_rows.v)
+            x = self._closed_form.attempt(self._solve_closed, self.cost.H, self._Ac, self.hard_rows.v)
             if x is not None:
                 self.qdot = x
                 return x
@@ -116,10 +121,8 @@ class QPController:
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
                                     exc.variable) from None
-        if self._closed_form is not None and backend.exact:
-            # An active-set solver's active bounds, held by the next closed forms (a
-            # tolerance-based solver's answers stay its own: its runs are unchanged).
-            self._held.remember(self.qdot)
+        if self._held is not None:
+            self._held.remember(self.qdot)  # its active bounds, held by the next closed forms
         return self.qdot
 
     @property

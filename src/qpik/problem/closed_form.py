@@ -46,6 +46,8 @@ EQUALITY_TOLERANCE = 1e-10
 # this many steps, twice as many after each attempt that fails again, up to the maximum.
 CLOSED_FORM_PAUSE = 8
 CLOSED_FORM_PAUSE_MAX = 32
+# Closed forms a step may try with held bounds (HeldBounds) before the solver takes it.
+HELD_TRIES = 3
 
 
 class ClosedFormPause:
@@ -104,17 +106,16 @@ class KKTStep:
         self._tail[meq] = -1.0
         self._d = 1.0
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, free: np.ndarray | None = None) -> np.ndarray | None:
-        """x, or None; ``free``: the dofs of ``Ac``'s columns when the others are held
-        (their share already moved into c and b)."""
-        scaled = self._scale(H, Ac, free)
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """x, or None."""
+        scaled = self._scale(H, Ac)
         return None if scaled is None else self._eliminate(scaled, Ac, b, self._d)
 
     def multipliers(self) -> np.ndarray:
         """y of the last solve: Hx + c = Aᵀy."""
         return self._tail[: self.meq] / self._d
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray | None:
+    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
         """[A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the scalars)."""
         raise NotImplementedError
 
@@ -165,9 +166,7 @@ class KKTStep:
 class SquareRows(KKTStep):
     """As many independent hard rows as dofs: the feasible set is the point x = A⁻¹b (one LU)."""
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, free: np.ndarray | None = None) -> np.ndarray | None:
-        if free is not None:  # fewer dofs than rows: no point meets them in general
-            return None
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         A = Ac[: self.meq]
         lu, _, x, info = linalg.dgesv(A, b)
         if info != 0:
@@ -185,7 +184,7 @@ class ScaledIdentity(KKTStep):
         super().__init__(meq)
         self._d = d
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray:
+    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
         return Ac
 
 
@@ -196,64 +195,95 @@ class DiagonalHessian(KKTStep):
         super().__init__(meq)
         self.inverse = inverse
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray:
-        return Ac * (self.inverse if free is None else self.inverse[free])
+    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
+        return Ac * self.inverse
 
 
 class FactorisedHessian(KKTStep):
     """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray, free: np.ndarray | None) -> np.ndarray | None:
-        factor, scaled_t, info = linalg.dposv(H if free is None else H[np.ix_(free, free)], Ac.T)
+    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
+        factor, scaled_t, info = linalg.dposv(H, Ac.T)
         return None if info != 0 else scaled_t.T
 
 
 class HeldBounds:
     r"""The closed form with the bounds the last solver step found active held.
 
-    A limit that binds usually binds again at the next step, on the same joints. With
-    those bounds held (:math:`x_i` = this step's lb or ub: their columns moved into c and
-    b), the rest is the equality-constrained problem on the free dofs, solved in closed
-    form (its Hessian the free rows and columns of H). The answer meets the KKT
-    conditions of the whole QP when it is inside every limit and each held bound's
-    multiplier :math:`r_i = (Hx + c - A^Ty)_i` has the sign of an active bound (≥ 0 at a
-    lower bound, ≤ 0 at an upper one); the QP being strictly convex, it is then the
-    QP's unique minimiser. Otherwise (None) the solver decides.
+    A limit that binds usually binds again at the next step, on the same joints. Held at
+    this step's bound values, those dofs are equality rows :math:`x_i = v_i` beside the
+    hard rows, and the equality-constrained problem is solved by its KKT system
+    :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` (LU: accurate however small ε is). Each held
+    bound's multiplier is :math:`r_i = -\mu_i`. The answer meets the KKT conditions of
+    the whole QP when it is inside every limit, meets the hard rows, and every
+    :math:`r_i` has the sign of an active bound (≥ 0 at a lower bound, ≤ 0 at an upper
+    one): the QP being strictly convex, it is then the QP's unique minimiser. A bound
+    whose multiplier has the wrong sign is released, a free dof that crosses its bound
+    is held, and the system is solved again (a few primal-dual active-set steps,
+    ``HELD_TRIES`` at most); otherwise (None) the solver decides.
+
+    Args:
+        nv, meq: the problem's dofs and hard rows.
+        plain: the closed form with no bound held.
+        inequalities: the step's box.
     """
 
-    def __init__(self, step: KKTStep, inequalities):
-        self.step = step
-        self.inequalities = inequalities
-        self._held = None  # (dofs held at a lower bound, at an upper bound, all held, the free ones)
+    def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities):
+        self.nv, self.meq, self.plain, self.inequalities = nv, meq, plain, inequalities
+        self.lower, self.upper = [], []  # the dofs held at their lower and upper bounds
 
     def remember(self, x: np.ndarray) -> None:
         """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
         lb, ub = self.inequalities.lb, self.inequalities.ub
         at_lower = np.isfinite(lb) & (np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb)))
         at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
-        lower, upper, free = np.flatnonzero(at_lower), np.flatnonzero(at_upper), np.flatnonzero(~(at_lower | at_upper))
-        held = len(lower) + len(upper) and len(free) > self.step.meq
-        self._held = (lower, upper, np.concatenate([lower, upper]), free) if held else None
+        self.lower, self.upper = np.flatnonzero(at_lower).tolist(), np.flatnonzero(at_upper).tolist()
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """The closed form with the remembered bounds held (none: the plain closed form)."""
-        if self._held is None:
-            return self.step.solve(H, Ac, b)
-        lower, upper, held, free = self._held
-        meq = self.step.meq
-        values = np.concatenate([self.inequalities.lb[lower], self.inequalities.ub[upper]])
-        A = Ac[:meq]
-        reduced = Ac[:, free]
-        reduced[meq] += np.dot(H[np.ix_(free, held)], values)
-        x_free = self.step.solve(H, reduced, b - np.dot(A[:, held], values), free)
-        if x_free is None:
-            return None
-        x = np.empty(len(Ac[meq]))
-        x[free], x[held] = x_free, values
-        if not equalities_met(A, x, b, EQUALITY_TOLERANCE):  # the hard rows, on the whole x
-            return None
-        r = np.dot(H[held], x) + Ac[meq, held] - np.dot(self.step.multipliers(), A[:, held])
-        return x if (r[: len(lower)] >= 0.0).all() and (r[len(lower):] <= 0.0).all() else None
+        lower, upper = self.lower, self.upper
+        for _ in range(HELD_TRIES):
+            if lower or upper:
+                x, r = self._held_solve(H, Ac, b, lower, upper)
+            else:
+                x, r = self.plain.solve(H, Ac, b), np.zeros(0)
+            if x is None:
+                return None
+            lb, ub = self.inequalities.box()
+            values = x.tolist()
+            below = [i for i, value in enumerate(values) if value < lb[i]]
+            above = [i for i, value in enumerate(values) if value > ub[i]]
+            wrong = {i for i, ri in zip(lower, r[: len(lower)].tolist()) if ri < 0.0} | \
+                {i for i, ri in zip(upper, r[len(lower):].tolist()) if ri > 0.0}
+            if not (below or above or wrong):
+                self.lower, self.upper = lower, upper  # the working set, held again next step
+                return x
+            lower = [i for i in lower if i not in wrong] + below
+            upper = [i for i in upper if i not in wrong] + above
+        return None
+
+    def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
+        """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
+        nv, meq, held = self.nv, self.meq, len(lower)
+        rows = meq + held + len(upper)
+        if rows >= nv:  # no freedom left to weigh a multiplier
+            return None, None
+        kkt = np.zeros((nv + rows, nv + rows))
+        kkt[:nv, :nv] = H
+        kkt[nv:nv + meq, :nv] = Ac[:meq]
+        kkt[np.arange(nv + meq, nv + rows), lower + upper] = 1.0  # the held dofs' rows
+        kkt[:nv, nv:] = kkt[nv:, :nv].T
+        lb, ub = self.inequalities.lb, self.inequalities.ub
+        right = np.concatenate([-Ac[meq], b, lb[lower], ub[upper]])
+        lu, _, solution, info = linalg.dgesv(kkt, right)
+        pivots = np.abs(lu.diagonal()).tolist()
+        if info != 0 or max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
+            return None, None
+        x = solution[:nv]
+        x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
+        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
+            return None, None
+        return x, -solution[nv + meq:]
 
 
 class ClosedForm:

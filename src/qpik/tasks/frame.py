@@ -109,10 +109,17 @@ class FrameTask(Task):
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
         """
-        self.target_position[:] = target_vector(position, 3, "target position")
-        self.target_rotation[:] = rotation_matrix(rotation)
-        self.target_linear_velocity[:] = 0.0 if linear_velocity is None else target_vector(linear_velocity, 3, "target linear velocity")
-        self.target_angular_velocity[:] = 0.0 if angular_velocity is None else target_vector(angular_velocity, 3, "target angular velocity")
+        position = target_vector(position, 3, "target position")
+        rotation = rotation_matrix(rotation)
+        linear = None if linear_velocity is None else target_vector(linear_velocity, 3, "target linear velocity")
+        angular = None if angular_velocity is None else target_vector(angular_velocity, 3, "target angular velocity")
+        self.target_position[:] = position  # written once all four are checked
+        self.target_rotation[:] = rotation
+        if linear is None and angular is None:
+            self._twist.fill(0.0)
+            return
+        self.target_linear_velocity[:] = 0.0 if linear is None else linear
+        self.target_angular_velocity[:] = 0.0 if angular is None else angular
 
     def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].

@@ -92,8 +92,10 @@ class PositionTask(Task):
         Raises:
             InvalidInput: a wrong length, NaN or inf.
         """
-        self.target[:] = target_vector(position, self.target_dim, "target position")
-        self.target_rate[:] = 0.0 if velocity is None else target_vector(velocity, self.target_dim, "target velocity")
+        position = target_vector(position, self.target_dim, "target position")
+        rate = 0.0 if velocity is None else target_vector(velocity, self.target_dim, "target velocity")
+        self.target[:] = position  # written once both are checked
+        self.target_rate[:] = rate
 
     def set_target_from_configuration(self) -> None:
         """Desired position: the frame's position at the robot's current configuration."""
