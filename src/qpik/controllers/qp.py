@@ -80,7 +80,8 @@ class QPController:
         self._held = HeldBounds(robot.nv, meq, self._step, self.problem.inequalities) \
             if backend.exact and fast_path else None
         self._solve_closed = self._step.solve if self._held is None else self._held.solve
-        self._closed_form = ClosedForm(self.problem.inequalities.admits) if fast_path else None
+        self._closed_form = None if not fast_path else \
+            ClosedForm(self.problem.inequalities.admits if self._held is None else None)
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.qdot = np.zeros(robot.nv)
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)

@@ -104,22 +104,14 @@ class KKTStep:
         self.meq = meq
         self._tail = np.zeros(meq + 1)  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
         self._tail[meq] = -1.0
-        self._d = 1.0
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
-        scaled = self._scale(H, Ac)
-        return None if scaled is None else self._eliminate(scaled, Ac, b, self._d)
-
-    def multipliers(self) -> np.ndarray:
-        """y of the last solve: Hx + c = Aᵀy."""
-        return self._tail[: self.meq] / self._d
-
-    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
-        """[A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the scalars)."""
         raise NotImplementedError
 
     def _eliminate(self, scaled: np.ndarray, Ac: np.ndarray, b: np.ndarray, d: float) -> np.ndarray | None:
+        """x from ``scaled`` = [A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the
+        scalars S, A H⁻¹c and x here)."""
         meq = self.meq
         if not meq:
             return -d * scaled[0]
@@ -182,10 +174,10 @@ class ScaledIdentity(KKTStep):
 
     def __init__(self, meq: int, d: float):
         super().__init__(meq)
-        self._d = d
+        self.d = d
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
-        return Ac
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        return self._eliminate(Ac, Ac, b, self.d)
 
 
 class DiagonalHessian(KKTStep):
@@ -195,16 +187,16 @@ class DiagonalHessian(KKTStep):
         super().__init__(meq)
         self.inverse = inverse
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
-        return Ac * self.inverse
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        return self._eliminate(Ac * self.inverse, Ac, b, 1.0)
 
 
 class FactorisedHessian(KKTStep):
     """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
 
-    def _scale(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         factor, scaled_t, info = linalg.dposv(H, Ac.T)
-        return None if info != 0 else scaled_t.T
+        return None if info != 0 else self._eliminate(scaled_t.T, Ac, b, 1.0)
 
 
 class HeldBounds:
@@ -240,26 +232,28 @@ class HeldBounds:
         self.lower, self.upper = np.flatnonzero(at_lower).tolist(), np.flatnonzero(at_upper).tolist()
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """The closed form with the remembered bounds held (none: the plain closed form)."""
+        """The QP's minimiser by closed forms with bounds held, checked (None: the solver decides)."""
         lower, upper = self.lower, self.upper
+        if not (lower or upper):  # the plain closed form, kept when it meets the limits (most steps)
+            x = self.plain.solve(H, Ac, b)
+            if x is None or self.inequalities.admits(x):
+                return x
+            r = np.zeros(0)
+        else:
+            x, r = self._held_solve(H, Ac, b, lower, upper)
         for _ in range(HELD_TRIES):
-            if lower or upper:
-                x, r = self._held_solve(H, Ac, b, lower, upper)
-            else:
-                x, r = self.plain.solve(H, Ac, b), np.zeros(0)
             if x is None:
                 return None
-            lb, ub = self.inequalities.box()
-            values = x.tolist()
-            below = [i for i, value in enumerate(values) if value < lb[i]]
-            above = [i for i, value in enumerate(values) if value > ub[i]]
             wrong = {i for i, ri in zip(lower, r[: len(lower)].tolist()) if ri < 0.0} | \
                 {i for i, ri in zip(upper, r[len(lower):].tolist()) if ri > 0.0}
-            if not (below or above or wrong):
+            if not wrong and self.inequalities.admits(x):
                 self.lower, self.upper = lower, upper  # the working set, held again next step
                 return x
-            lower = [i for i in lower if i not in wrong] + below
-            upper = [i for i in upper if i not in wrong] + above
+            lb, ub = self.inequalities.box()
+            values = x.tolist()
+            lower = [i for i in lower if i not in wrong] + [i for i, value in enumerate(values) if value < lb[i]]
+            upper = [i for i in upper if i not in wrong] + [i for i, value in enumerate(values) if value > ub[i]]
+            x, r = self._held_solve(H, Ac, b, lower, upper) if lower or upper else (self.plain.solve(H, Ac, b), r[:0])
         return None
 
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
@@ -290,9 +284,10 @@ class ClosedForm:
     """The closed form tried before the solver: its answer is kept when it meets every
     limit (then it is the QP's solution); a limit that binds usually still binds next
     step, so after a miss the next few steps go straight to the solver
-    (:class:`ClosedFormPause`)."""
+    (:class:`ClosedFormPause`). ``admits``: the limits' check, None where the solve
+    checks them itself (:class:`HeldBounds`)."""
 
-    def __init__(self, admits: Callable[[np.ndarray], bool]):
+    def __init__(self, admits: Callable[[np.ndarray], bool] | None):
         self.admits = admits
         self.pause = ClosedFormPause()
 
@@ -301,7 +296,7 @@ class ClosedForm:
         if not self.pause.ready():
             return None
         x = solve(*arguments)
-        if x is not None and self.admits(x):
+        if x is not None and (self.admits is None or self.admits(x)):
             self.pause.succeeded()
             return x
         self.pause.failed()

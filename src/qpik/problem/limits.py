@@ -109,11 +109,11 @@ class Inequalities:
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if self._in_floats or self._check_in_floats:
+        if self._check_in_floats:
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            lower, upper = self.box()
+            lower, upper = (self.lower, self.upper) if self._in_floats else (self._lb.tolist(), self._ub.tolist())
             for value, low, high in zip(values, lower, upper):
                 if not low <= value <= high:
                     return False
