@@ -40,6 +40,8 @@ SINGULAR_RATIO = 1e6
 # checked against it (qpik.solvers.base.equalities_met, the solvers' check), since a
 # nearly singular H or S loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
+# Up to this many hard rows the closed form's answer is checked against them in floats.
+FLOAT_CHECK_ROWS = 8
 
 
 # After a step where the closed form crossed a limit, the solver is called directly for
@@ -131,6 +133,8 @@ class KKTStep:
         tail[:meq] = z
         tail[meq] = -d
         x = np.dot(tail, scaled)
+        if meq <= FLOAT_CHECK_ROWS:  # the same check, in floats (fewer NumPy calls)
+            return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
         return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
 
     def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:

@@ -19,8 +19,8 @@ from .rows import row_slices
 # A box of up to this many dofs (with no general rows) is written and checked in floats
 # when every limit that changes it takes lists (``Limit.takes_lists``): NumPy's per-call
 # cost exceeds the arithmetic on arrays this small (the arm's box and check: 1.4 µs in
-# floats, 5 in arrays).
-FLOAT_BOX_MAX_DOFS = 8
+# floats, 5 in arrays; the hexapod's 24 dofs: 4.5 against 8).
+FLOAT_BOX_MAX_DOFS = 32
 # A point is checked against a box of up to this many dofs in floats (30 dofs: 3.4 µs,
 # 4.0 in three NumPy calls).
 FLOAT_CHECK_MAX_DOFS = 40

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..robot import Robot
-from .task import Task, axis_rows, feedback_gain, target_vector
+from .task import Task, axis_rows, check_targets, feedback_gain, float_array
 
 
 class ComTask(Task):
@@ -68,10 +68,15 @@ class ComTask(Task):
             InvalidInput: a wrong length, NaN or inf, or a target so far away that the
                 feedback K·e would overflow.
         """
-        target = target_vector(position, self.dim, "target CoM")  # beyond 1e150 refused: K·e stays finite
-        rate = 0.0 if velocity is None else target_vector(velocity, self.dim, "target CoM velocity")
-        self.target[:] = target
-        self.target_rate[:] = rate
+        position = float_array(position, self.dim, "target CoM")  # beyond 1e150 refused: K·e stays finite
+        if velocity is None:
+            check_targets((position, "target CoM"))
+            self.target_rate.fill(0.0)
+        else:
+            velocity = float_array(velocity, self.dim, "target CoM velocity")
+            check_targets((position, "target CoM"), (velocity, "target CoM velocity"))
+            self.target_rate[:] = velocity
+        self.target[:] = position
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the robot's current configuration."""

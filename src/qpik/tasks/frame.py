@@ -12,7 +12,8 @@ from .task import (
     axis_rows,
     check_axes_frame,
     feedback_gain,
-    target_vector,
+    check_targets,
+    float_array,
     homogeneous_transform,
     mocap_pose,
     rotation_error,
@@ -20,6 +21,8 @@ from .task import (
 )
 
 __all__ = ["FrameTask", "rotation_error"]
+
+_ZERO3 = np.zeros(3)
 
 
 class FrameTask(Task):
@@ -109,17 +112,15 @@ class FrameTask(Task):
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
         """
-        position = target_vector(position, 3, "target position")
-        rotation = rotation_matrix(rotation)
-        linear = None if linear_velocity is None else target_vector(linear_velocity, 3, "target linear velocity")
-        angular = None if angular_velocity is None else target_vector(angular_velocity, 3, "target angular velocity")
-        self.target_position[:] = position  # written once all four are checked
-        self.target_rotation[:] = rotation
-        if linear is None and angular is None:
-            self._twist.fill(0.0)
-            return
-        self.target_linear_velocity[:] = 0.0 if linear is None else linear
-        self.target_angular_velocity[:] = 0.0 if angular is None else angular
+        position = float_array(position, 3, "target position")
+        linear = _ZERO3 if linear_velocity is None else float_array(linear_velocity, 3, "target linear velocity")
+        angular = _ZERO3 if angular_velocity is None else float_array(angular_velocity, 3, "target angular velocity")
+        check_targets((position, "target position"), (linear, "target linear velocity"),
+                      (angular, "target angular velocity"))
+        self.target_rotation[:] = rotation_matrix(rotation)  # every argument checked before the others are written
+        self.target_position[:] = position
+        self.target_linear_velocity[:] = linear
+        self.target_angular_velocity[:] = angular
 
     def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].

@@ -12,7 +12,8 @@ from .task import (
     check_axes_frame,
     contiguous_rows,
     feedback_gain,
-    target_vector,
+    check_targets,
+    float_array,
     mocap_pose,
 )
 
@@ -92,10 +93,16 @@ class PositionTask(Task):
         Raises:
             InvalidInput: a wrong length, NaN or inf.
         """
-        position = target_vector(position, self.target_dim, "target position")
-        rate = 0.0 if velocity is None else target_vector(velocity, self.target_dim, "target velocity")
-        self.target[:] = position  # written once both are checked
-        self.target_rate[:] = rate
+        n = len(self.target)
+        position = float_array(position, n, "target position")
+        if velocity is None:
+            check_targets((position, "target position"))
+            self.target_rate.fill(0.0)
+        else:
+            velocity = float_array(velocity, n, "target velocity")
+            check_targets((position, "target position"), (velocity, "target velocity"))
+            self.target_rate[:] = velocity
+        self.target[:] = position
 
     def set_target_from_configuration(self) -> None:
         """Desired position: the frame's position at the robot's current configuration."""

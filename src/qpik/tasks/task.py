@@ -79,8 +79,8 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     except (TypeError, ValueError):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {rotation!r}") from None
     if rot.shape == (4,):
-        return quaternion_matrix(rot, what)
-    if rot.shape != (3, 3):
+        rot = quaternion_matrix(rot, what)
+    elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
     # In floats (about 1 µs; RᵀR with NumPy reductions costs 4): columns of unit length,
     # pairwise orthogonal, determinant +1.
@@ -214,6 +214,23 @@ def _float_array(value, size: int, what: str) -> np.ndarray:
 # A target (or feed-forward velocity) entry beyond this is refused: no model is that large,
 # and it keeps K·e, its square and J q̇ − v finite for any gain with K·Δt <= 2 and Δt > 1e-150.
 TARGET_MAGNITUDE_LIMIT = 1e150
+
+
+def float_array(value, size: int, what: str) -> np.ndarray:
+    """``value`` as a float array of shape (size,) (its entries not checked), or InvalidInput."""
+    return _float_array(value, size, what)
+
+
+def check_targets(*named: tuple[np.ndarray, str]) -> None:
+    """Each (array, what) checked as :func:`target_vector` checks it, in one pass over all
+    of them (a step's targets: the pass is the check's cost)."""
+    values = []
+    for array, _ in named:
+        values += array.tolist()
+    if not (math.isfinite(sum(values)) and -TARGET_MAGNITUDE_LIMIT <= min(values)
+            and max(values) <= TARGET_MAGNITUDE_LIMIT):
+        for array, what in named:
+            target_vector(array, len(array), what)  # the culprit, named
 
 
 def target_vector(value, size: int, what: str) -> np.ndarray:
