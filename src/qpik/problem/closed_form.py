@@ -102,10 +102,11 @@ class KKTStep:
     foresees; the solver then decides). ``Ac`` stacks the equality rows A (meq x nv) and
     the cost vector cᵀ as its last row."""
 
-    def __init__(self, meq: int):
-        self.meq = meq
+    def __init__(self, meq: int, d: float = 1.0):
+        self.meq, self.d = meq, d
         self._tail = np.zeros(meq + 1)  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
-        self._tail[meq] = -1.0
+        self._tail[meq] = -d
+        self._y = self._tail[:meq]  # solved in place where LAPACK allows
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
@@ -121,7 +122,8 @@ class KKTStep:
         if meq <= 2:  # in floats: cheaper than any call
             return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
         # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
-        rhs = M[:meq, meq] * d if d != 1.0 else M[:meq, meq].copy()
+        rhs = self._y
+        np.multiply(M[:meq, meq], d, rhs)
         rhs += b
         factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
         if info != 0:
@@ -129,10 +131,9 @@ class KKTStep:
         pivots = factor.diagonal().tolist()
         if max(pivots) > SINGULAR_RATIO * min(pivots):
             return None
-        tail = self._tail
-        tail[:meq] = z
-        tail[meq] = -d
-        x = np.dot(tail, scaled)
+        if z is not rhs:
+            rhs[:] = z
+        x = np.dot(self._tail, scaled)
         if meq <= FLOAT_CHECK_ROWS:  # the same check, in floats (fewer NumPy calls)
             return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
         return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
@@ -145,7 +146,7 @@ class KKTStep:
             s = d * rows[0][0]
             if not s > 0.0:
                 return None
-            tail[:] = (d * (d * rows[0][1] + rhs[0]) / s, -d)
+            tail[0] = d * (d * rows[0][1] + rhs[0]) / s
         else:
             (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
             a, b_, d_ = d * a, d * b_, d * d_
@@ -154,7 +155,8 @@ class KKTStep:
                 return None
             r0 = d * r0 + rhs[0]
             r1 = d * r1 + rhs[1]
-            tail[:] = (d * (d_ * r0 - b_ * r1) / det, d * (a * r1 - b_ * r0) / det, -d)
+            tail[0] = d * (d_ * r0 - b_ * r1) / det
+            tail[1] = d * (a * r1 - b_ * r0) / det
         x = np.dot(tail, scaled)
         return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
@@ -175,10 +177,6 @@ class SquareRows(KKTStep):
 
 class ScaledIdentity(KKTStep):
     """H = I/d, constant: no product with H⁻¹ at all (d applied to the scalars)."""
-
-    def __init__(self, meq: int, d: float):
-        super().__init__(meq)
-        self.d = d
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         return self._eliminate(Ac, Ac, b, self.d)

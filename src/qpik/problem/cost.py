@@ -50,6 +50,10 @@ class Cost:
         # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
         self._first = plan.pop(0)[:2] if plan and isinstance(dofs[0], slice) and dofs[0] == slice(0, nv) else None
         self._plan = plan
+        # Each general task's W as a column (None: all ones, J itself); H0 is diagonal, so
+        # H = Σ JᵀWJ (the first product written into H) plus H0's diagonal.
+        self._weighted = [(task, None if np.all(task.weight == 1.0) else task.weight[:, None]) for task in self.general]
+        self._diag0 = np.diag(self.H0).copy()
 
     def write_diagonal(self) -> None:
         """c of the joint-space tasks alone."""
@@ -70,11 +74,15 @@ class Cost:
         if not self.general:
             return
         H, c = self.H, self.c
-        np.copyto(H, self.H0)
-        for task in self.general:
-            weighted = task.weight[:, None] * task.jacobian
-            H += np.dot(task.jacobian.T, weighted)  # np.dot: less overhead than @ on small arrays
+        for k, (task, column) in enumerate(self._weighted):
+            jacobian = task.jacobian
+            weighted = jacobian if column is None else column * jacobian
+            if k:
+                H += np.dot(jacobian.T, weighted)
+            else:
+                np.dot(jacobian.T, weighted, out=H)  # np.dot: less overhead than @ on small arrays
             c -= np.dot(task.target_velocity, weighted)
+        self._diag += self._diag0
         lm = self.levenberg_marquardt()
         if lm:
             self._diag += lm
