@@ -112,16 +112,14 @@ def test_damped_least_squares_step_refuses_an_answer_that_misses_the_equalities(
 
 
 def test_the_pause_doubles_after_each_failure_and_resets_after_a_success():
-    pause = closed_form.ClosedFormPause()
+    fast = closed_form.ClosedForm(admits=None)
     tried = []
     for step in range(200):  # every attempt fails: tried at 0, then after 8, 16, 32, 32, ... steps
-        if pause.ready():
-            tried.append(step)
-            pause.failed()
+        fast.attempt(lambda step=step: tried.append(step))  # None: a miss
     assert tried[:5] == [0, 9, 26, 59, 92]
     assert all(b - a == closed_form.CLOSED_FORM_PAUSE_MAX + 1 for a, b in zip(tried[3:], tried[4:]))
-    pause.skip = 0
-    assert pause.ready()
-    pause.succeeded()
-    pause.failed()
-    assert pause.skip == closed_form.CLOSED_FORM_PAUSE
+    fast.skip = 0
+    x = np.zeros(2)
+    assert fast.attempt(lambda: x) is x  # tried now, and a success
+    fast.attempt(lambda: None)
+    assert fast.skip == closed_form.CLOSED_FORM_PAUSE  # the pause after it back at its start

@@ -52,32 +52,6 @@ CLOSED_FORM_PAUSE_MAX = 32
 HELD_TRIES = 3
 
 
-class ClosedFormPause:
-    """When to try the closed form. A limit that binds usually still binds next step, where
-    the closed form would be wasted work: after a failed attempt the next few steps go to
-    the solver directly (the same answer), and twice as many after each attempt that fails
-    again (a humanoid whose limits bind at every step tried 167 times, 37 µs each, for
-    nothing); a success brings the pause back to its start."""
-
-    def __init__(self):
-        self.skip = 0  # steps left before the next attempt
-        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
-
-    def ready(self) -> bool:
-        """Whether to try this step (if not, one step of the pause is used up)."""
-        if self.skip:
-            self.skip -= 1
-            return False
-        return True
-
-    def succeeded(self) -> None:
-        self.next = CLOSED_FORM_PAUSE
-
-    def failed(self) -> None:
-        self.skip = self.next
-        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
-
-
 def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
     """The closed-form solve for a problem of ``nv`` dofs and ``meq`` equality rows,
     chosen once: A⁻¹b when the rows are as many as the dofs; else through H⁻¹, kept when
@@ -225,6 +199,7 @@ class HeldBounds:
     def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities):
         self.nv, self.meq, self.plain, self.inequalities = nv, meq, plain, inequalities
         self.lower, self.upper = [], []  # the dofs held at their lower and upper bounds
+        self._kkt = None  # ((lower, upper), its KKT matrix)
 
     def remember(self, x: np.ndarray) -> None:
         """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
@@ -258,17 +233,27 @@ class HeldBounds:
             x, r = self._held_solve(H, Ac, b, lower, upper) if lower or upper else (self.plain.solve(H, Ac, b), r[:0])
         return None
 
+    def _bordered(self, lower: list, upper: list) -> np.ndarray:
+        """The KKT matrix with its held dofs' unit rows and columns in place (kept while
+        the same bounds are held)."""
+        if self._kkt is None or self._kkt[0] != (lower, upper):
+            nv, meq, held = self.nv, self.meq, lower + upper
+            kkt = np.zeros((nv + meq + len(held),) * 2)
+            rows = np.arange(nv + meq, nv + meq + len(held))
+            kkt[rows, held] = kkt[held, rows] = 1.0
+            self._kkt = ((list(lower), list(upper)), kkt)
+        return self._kkt[1]
+
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
         """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
         nv, meq, held = self.nv, self.meq, len(lower)
         rows = meq + held + len(upper)
         if rows >= nv:  # no freedom left to weigh a multiplier
             return None, None
-        kkt = np.zeros((nv + rows, nv + rows))
+        kkt = self._bordered(lower, upper)
         kkt[:nv, :nv] = H
         kkt[nv:nv + meq, :nv] = Ac[:meq]
-        kkt[np.arange(nv + meq, nv + rows), lower + upper] = 1.0  # the held dofs' rows
-        kkt[:nv, nv:] = kkt[nv:, :nv].T
+        kkt[:nv, nv:nv + meq] = Ac[:meq].T
         lb, ub = self.inequalities.lb, self.inequalities.ub
         right = np.concatenate([-Ac[meq], b, lb[lower], ub[upper]])
         lu, _, solution, info = linalg.dgesv(kkt, right)
@@ -284,24 +269,33 @@ class HeldBounds:
 
 class ClosedForm:
     """The closed form tried before the solver: its answer is kept when it meets every
-    limit (then it is the QP's solution); a limit that binds usually still binds next
-    step, so after a miss the next few steps go straight to the solver
-    (:class:`ClosedFormPause`). ``admits``: the limits' check, None where the solve
-    checks them itself (:class:`HeldBounds`)."""
+    limit (then it is the QP's solution). ``admits``: the limits' check, None where the
+    solve checks them itself (:class:`HeldBounds`).
+
+    A limit that binds usually still binds next step, where the closed form would be
+    wasted work: after a failed attempt the next few steps go to the solver directly (the
+    same answer), and twice as many after each attempt that fails again (a humanoid whose
+    limits bound at every step tried 167 times, 37 µs each, for nothing); a success
+    brings the pause back to its start.
+    """
 
     def __init__(self, admits: Callable[[np.ndarray], bool] | None):
         self.admits = admits
-        self.pause = ClosedFormPause()
+        self.skip = 0  # steps left before the next attempt
+        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
 
     def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
-        """``solve(*arguments)`` when it is tried this step and meets the limits, else None."""
-        if not self.pause.ready():
+        """``solve(*arguments)`` when it is tried this step and meets the limits, else None
+        (one step of the pause used up, or a miss that starts the next pause)."""
+        if self.skip:
+            self.skip -= 1
             return None
         x = solve(*arguments)
         if x is not None and (self.admits is None or self.admits(x)):
-            self.pause.succeeded()
+            self.next = CLOSED_FORM_PAUSE
             return x
-        self.pause.failed()
+        self.skip = self.next
+        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
         return None
 
 

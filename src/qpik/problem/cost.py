@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import InvalidInput
 from ..limits.limit import as_slice
 from ..tasks import Task
+from .rows import Stack
 
 LM_RESCALE = 1e6
 
@@ -50,9 +51,15 @@ class Cost:
         # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
         self._first = plan.pop(0)[:2] if plan and isinstance(dofs[0], slice) and dofs[0] == slice(0, nv) else None
         self._plan = plan
-        # Each general task's W as a column (None: all ones, J itself); H0 is diagonal, so
-        # H = Σ JᵀWJ (the first product written into H) plus H0's diagonal.
-        self._weighted = [(task, None if np.all(task.weight == 1.0) else task.weight[:, None]) for task in self.general]
+        # H0 is diagonal: H = Σ JᵀWJ, written into H, plus H0's diagonal. One general task:
+        # Jᵀ(WJ) (W None when it is all ones); several: RᵀR for their rows stacked, R = √W J
+        # (one product instead of one per task, and no sum of nv x nv matrices).
+        if len(self.general) == 1:
+            task = self.general[0]
+            self._single = (task, None if np.all(task.weight == 1.0) else task.weight[:, None])
+        else:
+            self._single = None
+            self._rows = Stack(nv, self.general, weighted=True)
         self._diag0 = np.diag(self.H0).copy()
 
     def write_diagonal(self) -> None:
@@ -74,14 +81,17 @@ class Cost:
         if not self.general:
             return
         H, c = self.H, self.c
-        for k, (task, column) in enumerate(self._weighted):
+        if self._single is not None:
+            task, column = self._single
             jacobian = task.jacobian
             weighted = jacobian if column is None else column * jacobian
-            if k:
-                H += np.dot(jacobian.T, weighted)
-            else:
-                np.dot(jacobian.T, weighted, out=H)  # np.dot: less overhead than @ on small arrays
+            np.dot(jacobian.T, weighted, out=H)  # np.dot: less overhead than @ on small arrays
             c -= np.dot(task.target_velocity, weighted)
+        else:
+            rows = self._rows
+            rows.stack()
+            np.dot(rows.J.T, rows.J, out=H)
+            c -= np.dot(rows.v, rows.J)  # (√W v)ᵀ(√W J) = vᵀWJ
         self._diag += self._diag0
         lm = self.levenberg_marquardt()
         if lm:
