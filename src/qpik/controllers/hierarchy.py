@@ -10,29 +10,11 @@ Level k (0 the highest priority) is solved after every level above it:
     J_h \dot q = v_h \ (h \in k,\ \text{hard}),\quad lb \le \dot q \le ub
 
 with every limit hard at every level (Kanoun, Lamiraux and Wieber 2011; Escande, Mansard
-and Wieber 2014). The equalities keep the optimum of each level above: the residual
-:math:`J_j \dot q - v_j` of a level that could not be met exactly is frozen at its
-optimal value (the "optimal slack" :math:`w_j^* = J_j \dot q^*_{k-1} - v_j`), and since a
-level's cost is strictly convex in its task velocities :math:`J_j \dot q`, these are
-unique: the set the equalities leave is exactly the set of optima of the level above.
-:math:`\dot q^*_{k-1}` satisfies all of them, so a level below can never be infeasible;
-only a level's own hard tasks (or an empty box) can make it so, and the error then names
-that level. In floating point a lower level's set can be too thin for a solver (level 0
-at a vertex of the box, velocities of 1e13 rad/s from a target far out of reach): when
-every solver and the fallbacks fail on a level without hard tasks of its own, the level
-keeps :math:`\dot q^*_{k-1}`, a point of its set (every limit and every level above
-kept; only its own cost is not improved on that step), and ``kept_above`` counts it. The regulariser ε (and a task's Levenberg–Marquardt term) only picks one
-optimum within a level; what the levels below keep is each task's velocity.
-
-Each level owns a back-end of the solver asked for (:func:`qpik.solvers.make_backend`:
-persistent workspaces and warm starts per level). Equality rows that depend on each other
-(more rows above than joints, or a singular configuration) are consistent by
-construction but some solvers refuse them; such a level is solved again with the rows
-replaced by an orthonormal basis of their row space (an SVD), which constrains the same
-set.
-
-With a hard position task at level 0 and a joint-space task at level 1 this is exactly
-the hard QP (and, with no limit active, the null-space law).
+and Wieber 2014). :math:`\dot q^*_{k-1}` meets every equality, so only a level's own hard
+tasks (or an empty box) can make it infeasible, and the error names that level; a level
+without hard tasks that every solver fails on keeps :math:`\dot q^*_{k-1}`
+(``kept_above``). Dependent rows above are replaced by a basis of their row space. Why,
+and how each level is solved in closed form first: docs/controllers.md.
 """
 
 from __future__ import annotations
@@ -80,14 +62,12 @@ class _Level:
         # The closed form (qpik.problem.closed_form) on those equalities: with a constant
         # Hessian through H⁻¹; with soft tasks of their own Jacobian in damped
         # least-squares form (accurate when only ε makes H definite) on R = [√w J_soft; A].
-        self.soft_rows = sum(task.dim for task in self.cost.general)
-        self.roots = [np.sqrt(task.weight) for task in self.cost.general]  # weights are read once
         self.diagonal0 = np.diag(self.cost.H0).copy()
         self.dinv = np.zeros(nv)
-        self.dinv_fixed = False  # dinv holds 1/diagonal0 (no LM damping at the last fill)
         if self.cost.general:
-            self.R = np.zeros((self.soft_rows + self.rows, nv))
-            self.rhs = np.zeros(self.soft_rows + self.rows)
+            self.soft_rows = m = Stack(nv, self.cost.general, weighted=True).dim
+            self.R, self.rhs = np.zeros((m + self.rows, nv)), np.zeros(m + self.rows)
+            self.soft = Stack(nv, self.cost.general, weighted=True, out=(self.R[:m], self.rhs[:m]))  # √W J, √W v
         else:
             self.Ac = np.zeros((self.rows + 1, nv))  # [A; cᵀ]
             self.b = np.zeros(self.rows)
@@ -98,17 +78,14 @@ class _Level:
 
 
 def _level_regularization(nv: int, soft: Sequence[Task], regularization: float) -> float:
-    """ε only breaks ties between a level's optima. A level of hard tasks alone has no cost
-    of its own: its minimum-norm solution (H = I, which any solver meets accurately; with
-    H = εI a tolerance-based solver would leave the null space loose). Joint-space tasks
-    on every dof already make H positive definite: no ε."""
-    if not soft:
-        return 1.0
+    """ε only breaks ties between a level's optima. Hard tasks alone: the minimum-norm
+    solution (H = I, which any solver meets accurately). Joint-space tasks on every dof:
+    H already positive definite, no ε."""
     covered = np.zeros(nv, dtype=bool)
     for task in soft:
         if task.joint_space:
             covered[task.dofs[task.weight > 0]] = True
-    return 0.0 if covered.all() else regularization
+    return 1.0 if not soft else 0.0 if covered.all() else regularization
 
 
 class HierarchicalController:
@@ -246,20 +223,13 @@ class HierarchicalController:
     def _least_squares(self, level: _Level, frozen: np.ndarray) -> None:
         """Fill R = [√w J_soft; A], its right-hand side, D⁻¹ and c of a level with soft
         general rows (the form :func:`damped_least_squares_step` takes)."""
-        R, rhs, start = level.R, level.rhs, 0
-        for task, root in zip(level.cost.general, level.roots):
-            stop = start + task.dim
-            np.multiply(root[:, None], task.jacobian, out=R[start:stop])
-            np.multiply(root, task.target_velocity, out=rhs[start:stop])
-            start = stop
+        level.soft.stack()
+        R, rhs, start = level.R, level.rhs, level.soft_rows
         if level.rows:
             R[start:] = self._J[: level.rows]
             rhs[start:start + level.above] = frozen
             rhs[start + level.above:] = self._v[level.hard_rows]
-        damping = level.cost.levenberg_marquardt()
-        if damping or not level.dinv_fixed:
-            np.divide(1.0, level.diagonal0 + damping, out=level.dinv)
-            level.dinv_fixed = not damping
+        np.divide(1.0, level.diagonal0 + level.cost.levenberg_marquardt(), out=level.dinv)
 
     def _closed_form(self, level: _Level, frozen: np.ndarray) -> np.ndarray | None:
         """The level's equality-constrained minimiser when it meets every limit (then it is
@@ -279,11 +249,9 @@ class HierarchicalController:
         return level.step.solve(level.cost.H0, level.Ac, level.b)
 
     def _polish(self, level: _Level, x: np.ndarray, frozen: np.ndarray) -> np.ndarray:
-        """The solver's answer made exact on its active set. A least-squares level whose
-        Hessian only ε makes definite is one a tolerance-based solver meets loosely (DAQP:
-        a path residual of 4e-7 m/s where 0 was possible): with the bounds it found active
-        fixed, the rest is an equality-constrained least squares solved in closed form.
-        The polished point is kept only if it meets every limit and costs no more."""
+        """The solver's answer made exact on its active set (a least-squares level whose
+        Hessian only ε makes definite is met loosely by solvers): with the bounds it found
+        active fixed, the rest in closed form, kept if it meets every limit and costs no more."""
         mineq = self.problem.inequalities.rows
         if not level.cost.general or (mineq and not (self.G @ x < self.h).all()):
             return x  # a general row on its bound: left to the solver

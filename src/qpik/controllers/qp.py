@@ -44,10 +44,9 @@ class QPController:
             only when that solution would cross a limit (the same minimiser: the QP is
             strictly convex); False calls the solver every step.
 
-    :meth:`compute_velocity` updates the robot's kinematics itself when its configuration
-    changed since the last update. Task weights and constant limits (velocity bounds) are
-    read once, when the controller is built: their share of the QP is precomputed, the
-    hot path only adds what changes.
+    :meth:`compute_velocity` fills the step's problem (:class:`qpik.problem.Problem`:
+    the kinematics if q changed, the tasks, the limits) and solves it. Task weights and
+    constant limits are read once, when the controller is built.
     """
 
     kind = "qp"
@@ -60,10 +59,8 @@ class QPController:
         check_dt(dt)
         meq = sum(task.dim for task in tasks if task.hard)
         mineq = sum(limit.inequality_rows for limit in limits)
-        self._backend = make_backend(solver, robot.nv, meq, mineq, native=native, **solver_settings)
-        backend = self._backend
-        self.problem = Problem(robot, tasks, limits, dt, "QPController", out=(backend.lb, backend.ub, backend.G,
-                                                                                backend.h))
+        self._backend = backend = make_backend(solver, robot.nv, meq, mineq, native=native, **solver_settings)
+        self.problem = Problem(robot, tasks, limits, dt, "QPController", (backend.lb, backend.ub, backend.G, backend.h))
         self.robot, self.dt, self.tasks, self.limits = robot, self.problem.dt, self.problem.tasks, self.problem.limits
         self.solver = solver
         # The equality rows and the cost vector share one array, [A; cᵀ], which the
@@ -72,11 +69,9 @@ class QPController:
         self._Ac = np.zeros((meq + 1, robot.nv))
         self.hard_rows = Stack(robot.nv, self.problem.hard, out=(self._Ac[:meq], np.zeros(meq)))
         self.cost = Cost(robot.nv, self.problem.soft, float(regularization), c=self._Ac[meq])
-        constant_hessian = not self.cost.general
-        self._step = closed_form_step(robot.nv, meq, self.cost.H0 if constant_hessian else None)
-        # With an active-set solver (DAQP, quadprog), the closed form also holds the bounds
-        # that bind (qpik.problem.closed_form.HeldBounds): the same minimiser, checked by its
-        # KKT conditions. A tolerance-based solver's answers stay its own (its runs unchanged).
+        self._step = closed_form_step(robot.nv, meq, None if self.cost.general else self.cost.H0)
+        # With an active-set solver the closed form also holds the bounds that bind (HeldBounds);
+        # a tolerance-based solver's answers stay its own (its runs unchanged).
         self._held = HeldBounds(robot.nv, meq, self._step, self.problem.inequalities) \
             if backend.exact and fast_path else None
         self._solve_closed = self._step.solve if self._held is None else self._held.solve

@@ -1,89 +1,17 @@
 r"""SNSController: Saturation in the Null Space (Flacco, De Luca and Khatib, ICRA 2012,
 IROS 2012; IEEE T-RO 31(3), 2015), the pseudoinverse law made to respect joint bounds.
 
-**Bounds.** Every step the limits give a box :math:`\dot Q_{min} \le \dot q \le \dot
-Q_{max}` for the next period T: the position range reached in one step
-(:math:`(Q_{min} - q)/T`, here with qpik's velocity damper near a bound), the speed limit
-:math:`\pm V_{max}`, and, with ``max_acceleration`` :math:`A_{max}`, the speed from which
-the joint can still brake before its range ends,
-:math:`\pm\sqrt{2 A_{max} d}` with d the distance to the bound:
-
-.. math::
-    \dot Q_{min} = \max\{(Q_{min} - q)/T,\ -V_{max},\ -\sqrt{2A_{max}(q - Q_{min})}\},\quad
-    \dot Q_{max} = \min\{(Q_{max} - q)/T,\ V_{max},\ \sqrt{2A_{max}(Q_{max} - q)}\}.
-
-(The step-to-step bound :math:`|\dot q_k - \dot q_{k-1}| \le A_{max} T` belongs to SNS at
-the acceleration level, which this velocity-level controller does not implement.)
-
-**One task.** The minimum-norm solution :math:`\dot q = J^\# \dot x` may leave the box.
-SNS then takes the joint that is worst off out of the task's hands: it is held at its
-bound (its column removed from J by a diagonal selection W, its saturated velocity
-:math:`\dot q_N` put back explicitly), and the task is solved again by the other joints,
-
-.. math::
-    \dot q = \dot q_N + (J W)^\# (s\,\dot x - J \dot q_N),
-
-repeating until the solution stays inside the box. Each pass also asks how far the
-task itself could be scaled: writing :math:`\dot q(s) = s\,a + b` with
-:math:`a = (JW)^\# \dot x` and :math:`b = \dot q_N - (JW)^\# J \dot q_N`, every free joint
-i keeps its bounds for :math:`s` between :math:`(\dot Q_{min,i} - b_i)/a_i` and
-:math:`(\dot Q_{max,i} - b_i)/a_i` (swapped when :math:`a_i < 0`); the largest s that
-all free joints allow, capped at 1, is the pass's task scale, and the joint that limits
-it is the most critical one, the next to saturate. When the saturations leave J W
-with lower rank than J (no joints left to do the task), no pass met the task at full
-speed: the pass with the largest scale :math:`s^*` is used, its velocity
-:math:`s^* a + b`. The task is then executed in its own direction, only slower; the
-end effector stays on its path.
-
-**Several tasks by priority.** Task k works in the null space of tasks 1..k−1,
-projector :math:`P_{k-1}`, from their velocity :math:`\dot q_{k-1}`:
-
-.. math::
-    \dot q_k = \tilde{\dot q}_k + (J_k \bar P_k)^\# (s_k \dot x_k - J_k \tilde{\dot q}_k),\quad
-    \tilde{\dot q}_k = \dot q_{k-1} + ((I - W_k) P_{k-1})^\# \dot q_{N,k},\quad
-    \bar P_k = (I - ((I - W_k)P_{k-1})^\#)\,P_{k-1},
-
-with the same saturation loop and scaling on task k's own scale :math:`s_k` (the tasks
-above keep theirs: everything task k adds lies in the null space of their Jacobians).
-A task that no scale in [0, 1] can fit into the box is not executed (:math:`s_k = 0`).
-After task k, :math:`P_k = P_{k-1} - (J_k P_{k-1})^\# J_k P_{k-1}`.
-
-Here a projector is carried as an orthonormal basis Z (:math:`P = Z Z^T`) after a
-level solved by an SVD, so that every pseudoinverse is of a small matrix:
-:math:`(J Z Z^T)^\# = Z (J Z)^\#`; and as P itself after a level of one or two rows
-solved in closed form (:math:`x^T/\|x\|^2`; for two rows a Gram-Schmidt step, with the
-SVD kept for rank-deficient or badly conditioned rows), where
-:math:`P_k = P_{k-1} - X^\# X`, :math:`X = J_k P_{k-1}`, costs two products. Holding the
-saturated joints S at their bounds within the null space is the minimum-norm
-:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, built one joint at a
-time: joint i moves along :math:`Z h_\perp`, with :math:`h_\perp` its row of Z less its
-components along the joints held before (which :math:`h_\perp` leaves where they are),
-by its distance to the bound over :math:`\|h_\perp\|^2`; and the task's rows :math:`J Z`
-lose the direction :math:`u = h_\perp/\|h_\perp\|`, :math:`J Z \leftarrow J Z (I - u u^T)`
-(the freedom the joints have left). With P carried the same step reads
-:math:`d = \bar P e_i = Z h_\perp`, :math:`\|h_\perp\|^2 = d_i`, and
-:math:`J \bar P \leftarrow J \bar P - (J \bar P d)\,d^T/d_i` (:math:`\bar P`: P less the
-joints held). Without levels above (Z = I) that is setting the joint and zeroing its
-column of J. With no saturation this is exactly the prioritised pseudoinverse law; with
-one task and a joint-space secondary (:math:`J = I`) it is the null-space law
-:math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
-
-Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
-squares, as the QP weighs them). ``hard`` plays no role: priority decides.
-
-**Near a singularity.** A saturation pass whose rows J W keep a singular value below
-1e-2 ‖J‖ (a condition above 100) counts as having cost the task that direction, like an
-exact rank loss: the task is scaled on the passes before it. Such a pass would execute a
-tiny share of the task (scale ~1e-4 beyond the reach) while the saturated joints' bounds
-drive the others at full speed, reversing step after step (docs/controllers.md).
-
-Two consequences worth knowing. A task that already uses every direction left to it
-(a joint-space task such as the σ gradient below a position task) cannot lose a joint
-without losing a direction, so it is scaled at once, never redistributed. And the scale
-of this basic algorithm is the best among the passes it tries, not always the largest
-scale any joint velocity allows (the T-RO paper's optimal variant solves for that): on 40
-random arm states under a tight speed box it reaches a linear program's optimum in 32 to
-40 (by the box), at most 1.7 % short in the others (tests/core/test_sns.py).
+Level by level (priority 0 first), in the null space of the levels above: the
+prioritised pseudoinverse law; a joint that would leave its velocity bounds is held at
+its bound and the task solved again by the others, until the answer stays in the box; a
+task that cannot be met inside it is executed along its own direction, scaled by the
+largest s ∈ [0, 1] a pass allows (:math:`\dot q(s) = s\,a + b`). The null space is
+carried as an orthonormal basis Z or as the projector P itself (:class:`_NullSpace`).
+A saturation pass whose rows keep a singular value below 1e-2 ‖J‖ counts as having cost
+the task that direction: the task is scaled on the passes before it (near a
+singularity such a pass would move the saturated joints at full speed for a tiny share
+of the task). The derivation, with the bounds (including the braking bound
+:math:`\sqrt{2 A_{max} d}`), is in docs/controllers.md.
 """
 
 from __future__ import annotations
@@ -104,24 +32,18 @@ _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest co
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 # A saturation pass whose rows keep a singular value below this fraction of ‖J‖ (a
 # condition above 100) counts as having cost the task that direction: the task is scaled
-# instead (see the module docstring, "Near a singularity").
+# instead (docs/controllers.md, "Near a singularity").
 _PASS_RANK_TOLERANCE = 1e-2
 
 
 def _solve(X: np.ndarray, scale: float | None, closed: bool,
            tolerance: float = _RANK_TOLERANCE) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """X⁺ (n x m), the minimum-norm solution of X y = r applied to r, X's rank, and the
-    Vᵀ of its SVD when one was made (None otherwise). Singular values below
-    ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (X =
-    J Z or J P: a task direction the levels above nearly took is kept, as the law would
-    keep it; only rounding is cut; None: X's largest singular value); ``tolerance`` in
-    place of ``_RANK_TOLERANCE`` for the saturation passes. One row:
-    xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
-    (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
-    (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
-    bound the rank and the conditioning; if rank-deficient, near the rank threshold or
-    conditioned worse than 1e2, or otherwise: one SVD, from LAPACK directly (NumPy's
-    wrapper costs more than the decomposition at these sizes)."""
+    """(X⁺, X's rank, the Vᵀ of its SVD or None when none was made). Singular values below
+    ``tolerance · scale`` count as zero (``scale`` the size of J itself, X being J Z or
+    J P: a direction the levels above nearly took is kept; None: X's largest). One row:
+    xᵀ/‖x‖²; two rows when ``closed``: X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) by a Gram-Schmidt step,
+    unless they are nearly dependent or conditioned worse than 1e2; else one SVD from
+    LAPACK directly (NumPy's wrapper costs more than the decomposition at these sizes)."""
     m = X.shape[0]
     if m == 1:  # one row x: x^# = xᵀ/‖x‖²
         row = X[0]
@@ -173,9 +95,8 @@ class _NullSpace:
         return pinv if self.closed else self.F.dot(pinv)
 
     def hold(self, critical: int, target: float, shifted: np.ndarray, rows: np.ndarray, held: list):
-        """Joint ``critical`` held at ``target``: (q̇ shifted, the task's rows without the
-        direction that costs; None where this null space cannot hold the joint).
-        ``held``: the directions of the joints held before (appended to)."""
+        """Joint ``critical`` held at ``target`` (``held``: the directions held before, appended
+        to): (q̇ shifted, the task's rows less that direction), or None where it cannot be."""
         F = self.F
         if self.projector:  # along d = P̄ e_i, P̄ = P less the joints already held
             d = F[critical]
@@ -284,15 +205,8 @@ class SNSController:
     def level_count(self) -> int:
         return len(self.levels)
 
-    @property
-    def lb(self) -> np.ndarray:
-        """Lower bounds of the last step's velocity box (a copy)."""
-        return np.array(self._lower)
-
-    @property
-    def ub(self) -> np.ndarray:
-        """Upper bounds of the last step's velocity box (a copy)."""
-        return np.array(self._upper)
+    lb = property(lambda self: np.array(self._lower), doc="Lower bounds of the last step's velocity box (a copy).")
+    ub = property(lambda self: np.array(self._upper), doc="Upper bounds of the last step's velocity box (a copy).")
 
     def _bounds(self) -> None:
         """The step's box as lists, with the braking bounds."""

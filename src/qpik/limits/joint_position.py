@@ -38,7 +38,7 @@ class JointPositionLimit(Limit):
 
     def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
                  influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
-        self.limits = robot.joint_limits if limits is None else limits
+        self.limits = self.ranges = robot.joint_limits if limits is None else limits
         gain = positive_scalar(gain, "position-limit gain")
         if gain > 1.0:
             raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
@@ -70,11 +70,6 @@ class JointPositionLimit(Limit):
         self._near = np.empty(self._bounds.shape, dtype=bool)
         self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
                         zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
-
-    @property
-    def ranges(self) -> JointLimits:
-        """The ranges kept (``limits``)."""
-        return self.limits
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""

@@ -1,19 +1,11 @@
 r"""The Limit interface: inequalities on the joint velocity :math:`\dot q` for the next step Δt.
 
-A limit has one entry point, :meth:`Limit.apply`, which writes its part of the step's
-inequalities:
-
-- a box lb ≤ q̇ ≤ ub (nv,), tightened in place (joint position and velocity limits:
-  every solver takes boxes natively, and the closed-form step checks them cheaply);
-- and/or ``inequality_rows`` general rows :math:`G\dot q \le h` (collision avoidance).
-  A row that does not bind this step may be written as 0 ≤ +inf.
-
-``constant`` limits (the same box every step, e.g. speed limits) are written once, when a
-controller is built; the others every step.
-
-When both position and velocity limits are present a joint found outside its range
-(possible in physics mode) may return at full speed: the position bound is clipped into
-the velocity box, so the box is never empty for valid limits.
+A limit has one entry point, :meth:`Limit.apply`: it tightens the box lb ≤ q̇ ≤ ub in
+place and/or writes its ``inequality_rows`` general rows :math:`G\dot q \le h` (a row that
+does not bind this step may be 0 ≤ +inf). ``constant`` limits (the same box every step,
+e.g. speed limits) are applied once, when a controller is built. A position bound is
+clipped into the speed box, so a joint found outside its range returns at full speed
+and the box is never empty for valid limits.
 """
 
 from __future__ import annotations

@@ -1,27 +1,13 @@
 r"""The equality-constrained QP in closed form: the fast path of a control step.
 
-Most steps of a tracking controller touch no limit. Then the QP's inequalities are
-inactive and its solution is that of the equality-constrained problem
-
-.. math::
-    \min_x \tfrac12 x^T H x + c^T x \quad\text{s.t.}\quad A x = b,
-
-whose KKT system :math:`Hx + c + A^T\lambda = 0,\ Ax = b` gives, with
-:math:`S = A H^{-1} A^T` and :math:`r = b + A H^{-1} c`,
-
-.. math::
-    x = H^{-1} A^T S^{-1} r - H^{-1} c .
-
-For a strictly convex QP the minimiser is unique, so if this x also satisfies every
-inequality (the box and the general rows), it *is* the QP's solution: the controller
-returns it and calls the solver only on steps where a limit would bind. With a constant
-diagonal Hessian (hard tasks plus joint-space soft tasks: posture, damping, gradients)
-one product gives both S and :math:`A H^{-1} c`; otherwise one Cholesky solve with H
-gives :math:`H^{-1}[A^T\ c]`. S (symmetric positive definite when the hard rows are
-independent) is solved by LAPACK's Cholesky (``dposv``, from :mod:`qpik.linalg`): a step
-whose S is not positive definite, or is so ill-conditioned that its solution would be
-meaningless, is left to the solver. When the hard rows are as many as the dofs (the hexapod's pose task and loop
-closures) the feasible set is the single point :math:`A^{-1}b`: one LU solve.
+When no limit binds, the QP's minimiser is that of the equality-constrained problem
+:math:`\min \tfrac12 x^THx + c^Tx` s.t. :math:`Ax = b`, whose KKT system gives
+:math:`x = H^{-1}A^TS^{-1}r - H^{-1}c` with :math:`S = AH^{-1}A^T`,
+:math:`r = b + AH^{-1}c`. The QP being strictly convex, an x that also meets every
+inequality *is* its solution. :func:`closed_form_step` chooses once how to compute it;
+:class:`HeldBounds` holds the bounds a solver found active and checks the KKT conditions;
+:class:`ClosedForm` tries it before the solver. Every answer is checked against the hard
+rows (``EQUALITY_TOLERANCE``); one that fails any check goes to the solver.
 """
 
 from __future__ import annotations
@@ -62,10 +48,7 @@ def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
     if H0 is not None:
         diagonal = np.diag(H0)
         if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
-            inverse = 1.0 / diagonal
-            if np.all(inverse == inverse[0]):
-                return ScaledIdentity(meq, float(inverse[0]))
-            return DiagonalHessian(meq, inverse)
+            return DiagonalHessian(meq, 1.0 / diagonal)
     return FactorisedHessian(meq)
 
 
@@ -149,22 +132,17 @@ class SquareRows(KKTStep):
         return x if equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
 
 
-class ScaledIdentity(KKTStep):
-    """H = I/d, constant: no product with H⁻¹ at all (d applied to the scalars)."""
-
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        return self._eliminate(Ac, Ac, b, self.d)
-
-
 class DiagonalHessian(KKTStep):
-    """H a constant positive diagonal: H⁻¹ is the vector ``inverse``."""
+    """H a constant positive diagonal: H⁻¹ is the vector ``inverse`` (a scalar d when it is
+    uniform, H = I/d: no product with H⁻¹ at all, d applied to the scalars)."""
 
     def __init__(self, meq: int, inverse: np.ndarray):
-        super().__init__(meq)
-        self.inverse = inverse
+        uniform = bool(np.all(inverse == inverse[0]))
+        super().__init__(meq, float(inverse[0]) if uniform else 1.0)
+        self.inverse = None if uniform else inverse
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        return self._eliminate(Ac * self.inverse, Ac, b, 1.0)
+        return self._eliminate(Ac if self.inverse is None else Ac * self.inverse, Ac, b, self.d)
 
 
 class FactorisedHessian(KKTStep):
@@ -178,22 +156,13 @@ class FactorisedHessian(KKTStep):
 class HeldBounds:
     r"""The closed form with the bounds the last solver step found active held.
 
-    A limit that binds usually binds again at the next step, on the same joints. Held at
-    this step's bound values, those dofs are equality rows :math:`x_i = v_i` beside the
-    hard rows, and the equality-constrained problem is solved by its KKT system
-    :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` (LU: accurate however small ε is). Each held
-    bound's multiplier is :math:`r_i = -\mu_i`. The answer meets the KKT conditions of
-    the whole QP when it is inside every limit, meets the hard rows, and every
-    :math:`r_i` has the sign of an active bound (≥ 0 at a lower bound, ≤ 0 at an upper
-    one): the QP being strictly convex, it is then the QP's unique minimiser. A bound
-    whose multiplier has the wrong sign is released, a free dof that crosses its bound
-    is held, and the system is solved again (a few primal-dual active-set steps,
-    ``HELD_TRIES`` at most); otherwise (None) the solver decides.
-
-    Args:
-        nv, meq: the problem's dofs and hard rows.
-        plain: the closed form with no bound held.
-        inequalities: the step's box.
+    The held dofs are equality rows :math:`x_i = v_i` (this step's bound values) beside
+    the hard rows; the KKT system :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` is solved by LU
+    (accurate however small ε is). The answer is the QP's unique minimiser when it is in
+    every limit, meets the hard rows and each held bound's multiplier :math:`r_i = -\mu_i`
+    has the sign of an active bound (≥ 0 at a lower bound, ≤ 0 at an upper one). Else a
+    wrong-signed bound is released, a crossed bound held, and the system solved again
+    (``HELD_TRIES`` at most); then None: the solver decides (docs/controllers.md).
     """
 
     def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities):
@@ -301,18 +270,13 @@ class ClosedForm:
 
 def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
                               c: np.ndarray | None) -> np.ndarray | None:
-    r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂, D diagonal positive (``dinv`` = D⁻¹),
-    R₁ the first ``soft_rows`` rows of R (soft rows, scaled by √w), c None for zero, or
-    None where the system is singular.
+    r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂ (R₁ the first ``soft_rows`` rows of R,
+    D diagonal positive, ``dinv`` = D⁻¹, c None for zero), or None where singular.
 
-    With e = r₁ − R₁x, stationarity gives x = D⁻¹(Rᵀz − c) and z solves the symmetric
-    system (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c, of the size of R's rows. Unlike
-    H⁻¹ = (R₁ᵀR₁ + D)⁻¹, which is of order 1/ε when D = εI only breaks ties, this
-    system keeps its digits: it is the damped least-squares form ``Jᵀ(JJᵀ + εI)⁻¹``. It
-    loses them when the equalities leave x almost no freedom (the soft rows' Schur
-    complement is then a difference of terms of order 1/ε): an x that misses R₂x = r₂ by
-    more than ``EQUALITY_TOLERANCE`` relative is returned as None, for the solver.
-    Systems of up to ``SMALL_SYSTEM`` rows are solved in floats (cheaper than any call).
+    x = D⁻¹(Rᵀz − c) with (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c: the damped
+    least-squares form, which keeps its digits where H⁻¹ (of order 1/ε) would not; an x
+    that misses R₂x = r₂ by more than ``EQUALITY_TOLERANCE`` relative is None. Up to
+    ``SMALL_SYSTEM`` rows in floats.
     """
     m = R.shape[0]
     scaled = R * dinv

@@ -1,16 +1,9 @@
-r"""The cost of a set of soft tasks, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`.
-
-.. math::
-    H = \epsilon I + \sum_{\text{joint-space}} W_i + \sum_{\text{general}} J_i^T W_i J_i
-        + \sum_{\text{general}} \mu_i e_i^T W_i e_i\, I,\qquad
-    c = -\sum_i J_i^T W_i v_i
-
-Joint-space tasks (J = I[dofs], as each says itself) put their weights on H's diagonal,
-once; each step only their share of c changes. The others add :math:`J^TWJ` every step.
-The Levenberg–Marquardt term (μ times the weighted squared error, as mink's
-``lm_damping``) grows with the error, so a soft task with a far target asks for less and
-less; past ``LM_RESCALE`` it dominates the cost and H and c are scaled down together (the
-same minimiser) so that no solver sees overflowing numbers.
+r"""The cost of a set of soft tasks, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`:
+:math:`H = \epsilon I + \sum W_i` (joint-space tasks, on the diagonal, once)
+:math:`+ \sum J_i^TW_iJ_i + \sum \mu_i e_i^TW_ie_i\, I` (the others, each step),
+:math:`c = -\sum J_i^TW_iv_i`. The Levenberg–Marquardt term (mink's ``lm_damping``)
+grows with the error; past ``LM_RESCALE`` H and c are scaled down together (the same
+minimiser) so that no solver sees overflowing numbers.
 """
 
 from __future__ import annotations
@@ -28,13 +21,9 @@ LM_RESCALE = 1e6
 
 
 class Cost:
-    """H and c of the soft tasks ``soft``, with ``regularization`` ε on H's diagonal.
-
-    Attributes:
-        H0: the constant part of H (ε and the joint-space tasks' weights).
-        H, c: the step's, after :meth:`write` (H is H0 when no task has its own Jacobian).
-        diagonal, general: the joint-space tasks and the others.
-    """
+    """H and c of the soft tasks ``soft`` (``diagonal``: the joint-space ones, ``general``:
+    the others), ε = ``regularization``. ``H0`` is H's constant part; ``H`` and ``c`` the
+    step's after :meth:`write` (H stays H0 when no task has its own Jacobian)."""
 
     def __init__(self, nv: int, soft: Sequence[Task], regularization: float, c: np.ndarray | None = None):
         self.diagonal = [task for task in soft if task.joint_space]

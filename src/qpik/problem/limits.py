@@ -21,29 +21,14 @@ from .rows import row_slices
 # cost exceeds the arithmetic on arrays this small (the arm's box and check: 1.4 µs in
 # floats, 5 in arrays; the hexapod's 24 dofs: 4.5 against 8).
 FLOAT_BOX_MAX_DOFS = 32
-# A point is checked against a box of up to this many dofs in floats (30 dofs: 3.4 µs,
-# 4.0 in three NumPy calls).
-FLOAT_CHECK_MAX_DOFS = 40
 
 
 class Inequalities:
-    """The box and the general rows of a set of limits, for the control period ``dt``.
-
-    Args:
-        nv: the number of dofs.
-        limits: the limits.
-        dt: the control period (s).
-        out: the arrays to write the step into, (lb, ub, G, h) (a solver's own, say),
-            or None for arrays of its own.
-
-    Attributes:
-        limits: the limits, constant ones first (position bounds are then clipped into
-            the speed box).
-        lower0, upper0: the constant box (nv,), written once.
-        lb, ub, G, h: the step's box and rows, after :meth:`write`.
-        rows: the number of general rows.
-        row_limits: (limit, its rows of G and h) for each limit that writes rows.
-    """
+    """The box and the general rows of ``limits`` (constant ones first: position bounds
+    are then clipped into the speed box) for the period ``dt``, written by :meth:`write`
+    into ``lb``, ``ub``, ``G``, ``h`` (``out``: a solver's own arrays, or None). The
+    constant box is ``lower0``, ``upper0``; ``rows`` counts the general rows and
+    ``row_limits`` gives each limit that writes some with its rows."""
 
     def __init__(self, nv: int, limits: Sequence[Limit], dt: float, out: tuple | None = None):
         self.limits = order_limits(limits)
@@ -67,7 +52,6 @@ class Inequalities:
         self._lower0, self._upper0 = self.lower0.tolist(), self.upper0.tolist()
         self.lower, self.upper = list(self._lower0), list(self._upper0)  # the box in floats (small boxes)
         self._stale = False  # whether lb and ub lag behind the box in floats
-        self._check_in_floats = nv <= FLOAT_CHECK_MAX_DOFS
         self._scratch = np.zeros(nv)
 
     def write(self) -> None:
@@ -109,12 +93,11 @@ class Inequalities:
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if self._check_in_floats:
+        if self._in_floats:
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            lower, upper = (self.lower, self.upper) if self._in_floats else (self._lb.tolist(), self._ub.tolist())
-            for value, low, high in zip(values, lower, upper):
+            for value, low, high in zip(values, self.lower, self.upper):
                 if not low <= value <= high:
                     return False
         else:

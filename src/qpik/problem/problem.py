@@ -31,17 +31,15 @@ class Problem:
     """Tasks and limits laid out once; :meth:`fill` measures them for the step.
 
     Args:
-        robot: the robot every task and limit reads.
-        tasks: the tasks (each given the period: :meth:`~qpik.tasks.task.Task.attach`).
-        limits: the limits (:class:`~qpik.problem.limits.Inequalities`).
-        dt: the control period (s); None for a law without one (no limits then).
+        robot, tasks, limits: what the controller was given (each task gets the period:
+            :meth:`~qpik.tasks.task.Task.attach`).
+        dt: the control period (s); None for a law without one (and without limits).
         owner: the controller's name, for the messages.
         out: the arrays (lb, ub, G, h) the limits write into (a solver's own), or None.
 
-    Attributes:
-        robot, dt, tasks, limits.
-        inequalities: the box and general rows (None without a period).
-        hard: the hard tasks; soft: the others.
+    Attributes: ``robot``, ``dt``, ``tasks``, ``limits``; ``hard`` and ``soft``, the tasks
+    split; ``inequalities``, the box and general rows (:class:`Inequalities`; None
+    without a period).
     """
 
     def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), dt: float | None = None,

@@ -37,8 +37,8 @@ def group_levels(robot: Robot, tasks: Sequence[Task] | None, levels: Sequence[Se
 
     Raises:
         InvalidInput: both or neither of ``tasks``/``levels`` given, an empty level, a
-            task listed twice (in one level or in two: the same task object, which would
-            constrain itself), a task of another robot, or something that is no Task.
+            task listed twice (in one level or in two: it would constrain itself), or
+            something that is no Task.
     """
     if (tasks is None) == (levels is None):
         raise InvalidInput(f"{owner}: give either tasks (grouped by their priority) or levels, not both or neither")

@@ -193,7 +193,7 @@ def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
 
 def finite_vector(value, size: int, what: str) -> np.ndarray:
     """``value`` as a float array of shape (size,), or InvalidInput naming ``what``."""
-    arr = _float_array(value, size, what)
+    arr = float_array(value, size, what)
     # Per target, every step: a sum of floats is NaN or inf when an entry is (0.2 µs
     # where np.isfinite and np.all cost 2 µs); an overflowing sum is refused as well.
     if not math.isfinite(sum(arr.tolist())):
@@ -201,7 +201,8 @@ def finite_vector(value, size: int, what: str) -> np.ndarray:
     return arr
 
 
-def _float_array(value, size: int, what: str) -> np.ndarray:
+def float_array(value, size: int, what: str) -> np.ndarray:
+    """``value`` as a float array of shape (size,) (its entries not checked), or InvalidInput."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -214,11 +215,6 @@ def _float_array(value, size: int, what: str) -> np.ndarray:
 # A target (or feed-forward velocity) entry beyond this is refused: no model is that large,
 # and it keeps K·e, its square and J q̇ − v finite for any gain with K·Δt <= 2 and Δt > 1e-150.
 TARGET_MAGNITUDE_LIMIT = 1e150
-
-
-def float_array(value, size: int, what: str) -> np.ndarray:
-    """``value`` as a float array of shape (size,) (its entries not checked), or InvalidInput."""
-    return _float_array(value, size, what)
 
 
 def check_targets(*named: tuple[np.ndarray, str]) -> None:
@@ -236,7 +232,7 @@ def check_targets(*named: tuple[np.ndarray, str]) -> None:
 def target_vector(value, size: int, what: str) -> np.ndarray:
     """:func:`finite_vector`, and InvalidInput for an entry beyond
     :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
-    arr = _float_array(value, size, what)
+    arr = float_array(value, size, what)
     values = arr.tolist()  # checked in floats, one pass each (every target, every step)
     if not math.isfinite(sum(values)):
         raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
