@@ -28,18 +28,11 @@ def check_dt(dt) -> float:
 
 
 class Problem:
-    """Tasks and limits laid out once; :meth:`fill` measures them for the step.
-
-    Args:
-        robot, tasks, limits: what the controller was given (each task gets the period:
-            :meth:`~qpik.tasks.task.Task.attach`).
-        dt: the control period (s); None for a law without one (and without limits).
-        owner: the controller's name, for the messages.
-        out: the arrays (lb, ub, G, h) the limits write into (a solver's own), or None.
-
-    Attributes: ``robot``, ``dt``, ``tasks``, ``limits``; ``hard`` and ``soft``, the tasks
-    split; ``inequalities``, the box and general rows (:class:`Inequalities`; None
-    without a period).
+    """Tasks and limits laid out once; :meth:`fill` measures them for the step. Each task
+    gets the period (``dt``; None for a law without one, and no limits then); ``hard`` and
+    ``soft`` split them; ``inequalities`` holds the box and general rows, written into
+    ``out`` = (lb, ub, G, h) (a solver's own arrays) or arrays of its own; ``owner``
+    names the controller in messages.
     """
 
     def __init__(self, robot: Robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), dt: float | None = None,

@@ -68,15 +68,11 @@ class ComTask(Task):
             InvalidInput: a wrong length, NaN or inf, or a target so far away that the
                 feedback K·e would overflow.
         """
-        position = float_array(position, self.dim, "target CoM")  # beyond 1e150 refused: K·e stays finite
-        if velocity is None:
-            check_targets((position, "target CoM"))
-            self.target_rate.fill(0.0)
-        else:
-            velocity = float_array(velocity, self.dim, "target CoM velocity")
-            check_targets((position, "target CoM"), (velocity, "target CoM velocity"))
-            self.target_rate[:] = velocity
+        position = float_array(position, self.dim, "target CoM")
+        velocity = np.zeros(self.dim) if velocity is None else float_array(velocity, self.dim, "target CoM velocity")
+        check_targets((position, "target CoM"), (velocity, "target CoM velocity"))  # K·e stays finite
         self.target[:] = position
+        self.target_rate[:] = velocity
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the robot's current configuration."""

@@ -95,14 +95,10 @@ class PositionTask(Task):
         """
         n = len(self.target)
         position = float_array(position, n, "target position")
-        if velocity is None:
-            check_targets((position, "target position"))
-            self.target_rate.fill(0.0)
-        else:
-            velocity = float_array(velocity, n, "target velocity")
-            check_targets((position, "target position"), (velocity, "target velocity"))
-            self.target_rate[:] = velocity
-        self.target[:] = position
+        velocity = np.zeros(n) if velocity is None else float_array(velocity, n, "target velocity")
+        check_targets((position, "target position"), (velocity, "target velocity"))
+        self.target[:] = position  # written once both are checked
+        self.target_rate[:] = velocity
 
     def set_target_from_configuration(self) -> None:
         """Desired position: the frame's position at the robot's current configuration."""
