@@ -1,13 +1,15 @@
 """The closed-form fast path returns the solver's answer: checked step by step against
-the solver on the bundled scenarios, and on random equality-constrained QPs."""
+the solver on the bundled scenarios, on random equality-constrained QPs, and with the
+bounds a solver found active held (random boxed QPs)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from qpik.problem import closed_form
-from qpik.problem.closed_form import closed_form_step, damped_least_squares_step
+from qpik.limits import Limit
+from qpik.problem import Inequalities, closed_form
+from qpik.problem.closed_form import HeldBounds, closed_form_step, damped_least_squares_step
 from qpik.scenario import build_scenario
 from qpik.solvers import make_backend
 
@@ -123,3 +125,50 @@ def test_the_pause_doubles_after_each_failure_and_resets_after_a_success():
     assert fast.attempt(lambda: x) is x  # tried now, and a success
     fast.attempt(lambda: None)
     assert fast.skip == closed_form.CLOSED_FORM_PAUSE  # the pause after it back at its start
+
+
+class _Box(Limit):
+    """A fixed box, written every step (a changing limit, arrays only)."""
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray):
+        self.lower, self.upper = lower, upper
+
+    def apply(self, dt, lb, ub, G=None, h=None):
+        np.maximum(lb, self.lower, out=lb)
+        np.minimum(ub, self.upper, out=ub)
+
+
+@pytest.mark.parametrize("hessian", ["diagonal", "dense"])
+@pytest.mark.parametrize("meq", [0, 1, 3])
+def test_held_bounds_give_the_solvers_minimiser_or_nothing(hessian, meq):
+    """Random strictly convex QPs in a tight box, against DAQP: held at the bounds the
+    solver found active, the closed form returns its minimiser; held at any other set it
+    returns that minimiser (after releasing and holding bounds) or None, never another
+    point: the KKT check decides."""
+    rng = np.random.default_rng(10 + meq)
+    nv, held_right, wrong_kept = 7, 0, 0
+    for trial in range(40):
+        M = rng.normal(size=(nv, nv))
+        H = np.diag(rng.uniform(0.5, 2.0, nv)) if hessian == "diagonal" else M @ M.T + 0.1 * np.eye(nv)
+        Ac, b = rng.normal(size=(meq + 1, nv)), 0.1 * rng.normal(size=meq)
+        Ac[meq] *= 3.0  # a cost that pulls out of the box
+        inequalities = Inequalities(nv, [_Box(np.full(nv, -0.5), np.full(nv, 0.5))], 0.01)
+        inequalities.write()
+        backend = make_backend("daqp", nv, meq)
+        backend.A[:], backend.b[:] = Ac[:meq], b
+        backend.lb[:], backend.ub[:] = inequalities.lb, inequalities.ub
+        expected = backend.solve(H, Ac[meq].copy())
+        held = HeldBounds(nv, meq, closed_form_step(nv, meq, H if hessian == "diagonal" else None), inequalities)
+        held.remember(expected)
+        x = held.solve(H, Ac, b)
+        assert x is not None
+        np.testing.assert_allclose(x, expected, rtol=0, atol=1e-9)
+        held_right += bool(held.lower or held.upper)
+        held.lower, held.upper = rng.permutation(nv)[:2].tolist(), [int(rng.integers(nv))]  # a guess
+        held.upper = [i for i in held.upper if i not in held.lower]
+        x = held.solve(H, Ac, b)
+        if x is not None:
+            np.testing.assert_allclose(x, expected, rtol=0, atol=1e-9)
+            wrong_kept += 1
+    assert held_right >= 30  # the box binds on most problems
+    assert wrong_kept >= 1  # and a wrong guess is repaired by the active-set steps at times

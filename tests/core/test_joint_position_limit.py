@@ -1,4 +1,5 @@
-"""JointPositionLimit: its box against the rule written joint by joint in floats."""
+"""JointPositionLimit: its box (on arrays, and on lists of floats) against the rule written
+joint by joint."""
 
 from __future__ import annotations
 
@@ -38,9 +39,12 @@ def test_the_box_follows_the_rule_joint_by_joint(scene, influence):
         speed = rng.uniform(0.5, 5.0, robot.nv)
         lb, ub = -speed, speed.copy()
         expected = reference_box(limit, robot.q, 0.002, lb.tolist(), ub.tolist())
+        lists = (lb.tolist(), ub.tolist())  # the box as lists (a controller's box in floats)
+        limit.apply(0.002, *lists)
         limit.apply(0.002, lb, ub)
         np.testing.assert_allclose(lb, expected[0], rtol=1e-15, atol=0)
         np.testing.assert_allclose(ub, expected[1], rtol=1e-15, atol=0)
+        assert lists == (lb.tolist(), ub.tolist())  # the same operations in floats
         q_next = robot.q[ranges.qpos_index] + 0.002 * ub[ranges.dof_index]
         inside = (robot.q[ranges.qpos_index] <= ranges.upper)
         assert np.all(q_next[inside] <= ranges.upper[inside])  # the upper bound is never stepped past

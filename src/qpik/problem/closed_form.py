@@ -216,9 +216,7 @@ class HeldBounds:
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
         """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
         nv, meq, held = self.nv, self.meq, len(lower)
-        rows = meq + held + len(upper)
-        if rows >= nv:  # no freedom left to weigh a multiplier
-            return None, None
+        rows = meq + held + len(upper)  # (more rows than dofs: a singular system, refused below)
         kkt = self._bordered(lower, upper)
         kkt[:nv, :nv] = H
         kkt[nv:nv + meq, :nv] = Ac[:meq]
