@@ -174,7 +174,7 @@ class RotationError:
 
     def world(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The error in world axes, written into ``out``."""
-        return np.matmul(current, self.compute(desired, current), out=out)
+        return np.dot(current, self.compute(desired, current), out=out)
 
     def world_flat(self, desired_flat: np.ndarray, current_flat: np.ndarray, current: np.ndarray,
                    out: np.ndarray) -> np.ndarray:
@@ -182,7 +182,7 @@ class RotationError:
         mujoco.mju_mat2Quat(self._desired, desired_flat)
         mujoco.mju_mat2Quat(self._current, current_flat)
         mujoco.mju_subQuat(self.local, self._desired, self._current)
-        return np.matmul(current, self.local, out=out)
+        return np.dot(current, self.local, out=out)
 
 
 def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -623,7 +623,7 @@ class PoseRows:
         if self.local:
             Rt = self.frame.rotation.T
             for block in self._blocks:
-                np.matmul(Rt, jac[block], out=self._rotated[block])
+                np.dot(Rt, jac[block], out=self._rotated[block])
             jac = self._rotated
         np.take(jac, self.rows, axis=0, out=out)
 
@@ -636,15 +636,15 @@ class PoseRows:
             np.subtract(target_position, frame.position, out=e[self._position])
             f[self._position] = linear_velocity
             if self.local:  # vᵀR = (Rᵀv)ᵀ
-                np.matmul(e[self._position], R, out=self._scratch)
+                np.dot(e[self._position], R, out=self._scratch)
                 e[self._position] = self._scratch
-                np.matmul(f[self._position], R, out=self._scratch)
+                np.dot(f[self._position], R, out=self._scratch)
                 f[self._position] = self._scratch
         if self.has_orientation:
             part = self._orientation
             if self.local:
                 e[part] = self._rotation_error.compute(target_rotation, R)
-                np.matmul(angular_velocity, R, out=f[part])
+                np.dot(angular_velocity, R, out=f[part])
             else:
                 self._rotation_error.world(target_rotation, R, out=e[part])
                 f[part] = angular_velocity
