@@ -117,8 +117,8 @@ class QPController:
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
                                     exc.variable) from None
-        if self._held is not None:
-            self._held.remember(self.qdot)  # its active bounds, held by the next closed forms
+        if self._held is not None and not self._closed_form.skip:  # the next step tries the closed form
+            self._held.remember(self.qdot)  # with the active bounds of this answer held
         return self.qdot
 
     @property

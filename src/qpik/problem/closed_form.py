@@ -197,8 +197,12 @@ class HeldBounds:
                 return x
             lb, ub = self.inequalities.box()
             values = x.tolist()
-            lower = [i for i in lower if i not in wrong] + [i for i, value in enumerate(values) if value < lb[i]]
-            upper = [i for i in upper if i not in wrong] + [i for i, value in enumerate(values) if value > ub[i]]
+            below = [i for i, value in enumerate(values) if value < lb[i]]
+            above = [i for i, value in enumerate(values) if value > ub[i]]
+            if not (wrong or below or above):  # a general row, not a bound, is in the way
+                return None
+            lower = [i for i in lower if i not in wrong] + below
+            upper = [i for i in upper if i not in wrong] + above
             x, r = self._held_solve(H, Ac, b, lower, upper) if lower or upper else (self.plain.solve(H, Ac, b), r[:0])
         return None
 

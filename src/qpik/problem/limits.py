@@ -93,11 +93,11 @@ class Inequalities:
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if self._in_floats:
+        if len(self.lower) <= FLOAT_BOX_MAX_DOFS:  # in floats (the box's own, or its arrays')
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            for value, low, high in zip(values, self.lower, self.upper):
+            for value, low, high in zip(values, *self.box()):
                 if not low <= value <= high:
                     return False
         else:
