@@ -219,15 +219,13 @@ def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
     for i, task in enumerate(demo.tasks):
         parts[f"task {i}: {type(task).__name__}"] = cost(task.update)
     for limit in controller.limits:
-        if limit.box and not limit.constant:
-            parts[type(limit).__name__] = cost(lambda: limit.apply(demo.dt, controller.lb, controller.ub))
-        if limit.inequality_rows:
+        if not limit.constant:
             rows = slice(0, limit.inequality_rows)
-            parts[type(limit).__name__ + " rows"] = cost(
-                lambda: limit.fill_inequalities(demo.dt, controller.G[rows], controller.h[rows]))
-    closed_form = controller._closed_form
-    if closed_form is not None:
-        parts["closed-form attempt"] = cost(lambda: closed_form.solve(controller.H, controller._Ac, controller.b))
+            parts[type(limit).__name__] = cost(lambda: limit.apply(demo.dt, controller.lb, controller.ub,
+                                                                   controller.G[rows], controller.h[rows]))
+    step = controller._step
+    if controller._closed_form is not None:
+        parts["closed-form attempt"] = cost(lambda: step.solve(controller.H, controller._Ac, controller.b))
     if needs_solver:
         backend = controller._backend
         backend.A[:], backend.b[:] = controller.A, controller.b

@@ -415,11 +415,12 @@ class Robot:
         self.data.qpos[:] = q
         self._start_unchecked = False
 
-    def update_kinematics(self) -> None:
-        """The one kinematics update per control step: frames and Jacobian data."""
+    def update_kinematics(self, state: bytes | None = None) -> None:
+        """The one kinematics update per control step: frames and Jacobian data
+        (``state``: the configuration's bytes, when the caller has them already)."""
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
-        self._kinematics_state = self._state_bytes()
+        self._kinematics_state = self._state_bytes() if state is None else state
 
     def ensure_kinematics(self) -> None:
         """Update the kinematics if the configuration (or a mocap pose) changed since the
@@ -436,8 +437,9 @@ class Robot:
             self._check_inside(self._qpos, "the start configuration", "start inside them (set_q(q) or "
                                "keyframe=name), or load with allow_outside_limits=True")
             self._start_unchecked = False
-        if self._state_bytes() != self._kinematics_state:
-            self.update_kinematics()
+        state = self._state_bytes()
+        if state != self._kinematics_state:
+            self.update_kinematics(state)
 
     def _state_bytes(self) -> bytes:
         if self._has_mocap:

@@ -8,18 +8,22 @@ package; see qpik.controllers.sns for the algorithm."""
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import math
+from typing import Sequence
 
 import numpy as np
 from scipy.linalg import lapack
 
-from qpik.controllers.levels import StackedLevel, check_dt, group_levels
 from qpik.errors import DivergenceError, InvalidInput
 from qpik.limits import order_limits
+from qpik.problem import Stack, check_dt, group_levels
 from qpik.robot import JointLimits, Robot
 from qpik.tasks import Task
+
+
+def StackedLevel(robot: Robot, tasks, weighted: bool) -> Stack:  # the package's stack, as it was named
+    return Stack(robot.nv, tasks, weighted)
+
 
 _gesvd = lapack.dgesvd
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero

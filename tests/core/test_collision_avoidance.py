@@ -87,10 +87,10 @@ def test_row_is_the_distance_rate(robot):
     robot.update_kinematics()
     limit = CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], minimum_distance=D_MIN, detection_distance=1.0)
     G, h = np.zeros((1, robot.nv)), np.zeros(1)
-    limit.fill_inequalities(DT, G, h)
+    limit.apply(DT, None, None, G, h)
     damper_bound = h[0]
     limit.damper_rate = None
-    limit.fill_inequalities(DT, G, h)
+    limit.apply(DT, None, None, G, h)
     qdot = np.array([0.3, -0.7, 0.4])
     eps = 1e-7
     q0 = robot.q.copy()
@@ -107,7 +107,7 @@ def test_row_is_the_distance_rate(robot):
 def test_far_pairs_add_no_constraint(robot):
     limit = CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], detection_distance=0.05)
     G, h = np.ones((1, robot.nv)), np.zeros(1)
-    limit.fill_inequalities(DT, G, h)
+    limit.apply(DT, None, None, G, h)
     assert h[0] == np.inf and not G.any()
 
 
@@ -135,7 +135,7 @@ def test_mesh_distances_are_exact_where_the_model_turns_native_collision_off(jac
     robot.update_kinematics()
     limit = CollisionAvoidanceLimit(robot, [(["b_5"], ["box"])], minimum_distance=0.0, detection_distance=0.1)
     rows = len(limit.pairs)
-    limit.fill_inequalities(DT, np.zeros((rows, robot.nv)), np.zeros(rows))
+    limit.apply(DT, None, None, np.zeros((rows, robot.nv)), np.zeros(rows))
     assert robot.model.opt.disableflags & native_off  # restored
     fallback = [mujoco.mj_geomDistance(robot.model, robot.data, *pair, 0.1, None) for pair in limit.pairs]
     robot.model.opt.disableflags &= ~native_off

@@ -1,5 +1,5 @@
-"""JointPositionLimit: its float path for a few joints equals its vectorised path exactly, on
-arrays and on lists (``apply_to_lists``)."""
+"""JointPositionLimit: its box (on arrays, and on lists of floats) against the rule written
+joint by joint."""
 
 from __future__ import annotations
 
@@ -9,39 +9,45 @@ import pytest
 from qpik import InvalidInput, JointPositionLimit, Robot
 
 
+def reference_box(limit: JointPositionLimit, q: np.ndarray, dt: float, lb: list, ub: list) -> tuple[list, list]:
+    """The limit's rule, joint by joint: the step q + q̇Δt in the range pulled in by the
+    margin (a fraction ``gain`` of the distance per step), the damper's rate within the
+    influence distance, and a joint outside its range brought back no faster than the
+    velocity box allows."""
+    lb, ub = list(lb), list(ub)
+    step_rate = limit.gain / dt
+    damped = min(limit.damper_rate / limit.influence, step_rate) if limit.influence > 0 else step_rate
+    ranges = limit.limits
+    for qi, di, low_end, high_end in zip(ranges.qpos_index, ranges.dof_index, ranges.lower, ranges.upper):
+        low, high = low_end + limit.margin - q[qi], high_end - limit.margin - q[qi]
+        low *= damped if abs(low) < limit.influence else step_rate
+        high *= damped if abs(high) < limit.influence else step_rate
+        low, high = min(low, ub[di]), max(high, lb[di])  # recovery never asks for more than the box
+        lb[di], ub[di] = max(lb[di], low), min(ub[di], high)
+    return lb, ub
+
+
 @pytest.mark.parametrize("scene", ["arm", "hexapod"])
 @pytest.mark.parametrize("influence", [0.0, 0.05, 0.8])
-def test_float_and_vector_paths_are_identical(scene, influence):
+def test_the_box_follows_the_rule_joint_by_joint(scene, influence):
     robot = Robot.load(scene)
-    from qpik.limits import joint_position
-
-    vector = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
-    vector._scalar_joints = None
-    limit = joint_position.SCALAR_JOINTS_MAX
-    joint_position.SCALAR_JOINTS_MAX = 100  # the float path for the hexapod's 18 joints too
-    try:
-        floats = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
-    finally:
-        joint_position.SCALAR_JOINTS_MAX = limit
-    assert floats._scalar_joints is not None
+    limit = JointPositionLimit(robot, influence=influence, damper_rate=2.0, gain=0.7)
     rng = np.random.default_rng(1)
-    limits = robot.joint_limits
+    ranges = robot.joint_limits
     for _ in range(200):  # inside, near and outside the ranges
-        robot.q[limits.qpos_index] = rng.uniform(limits.lower - 0.3, limits.upper + 0.3)
+        robot.q[ranges.qpos_index] = rng.uniform(ranges.lower - 0.3, ranges.upper + 0.3)
         speed = rng.uniform(0.5, 5.0, robot.nv)
-        box_a, box_b = (-speed, speed.copy()), (-speed, speed.copy())
-        lists_a, lists_b = ((-speed).tolist(), speed.tolist()), ((-speed).tolist(), speed.tolist())
-        floats.apply(0.002, *box_a)
-        vector.apply(0.002, *box_b)
-        np.testing.assert_array_equal(box_a[0], box_b[0])
-        np.testing.assert_array_equal(box_a[1], box_b[1])
-        # The box as lists: the float loop itself, and (vectorised) the base class's way through apply
-        floats.apply_to_lists(0.002, *lists_a)
-        vector.apply_to_lists(0.002, *lists_b)
-        assert lists_a == lists_b == (box_a[0].tolist(), box_a[1].tolist())
-        q_next = robot.q[limits.qpos_index] + 0.002 * box_a[1][limits.dof_index]
-        inside = (robot.q[limits.qpos_index] <= limits.upper)
-        assert np.all(q_next[inside] <= limits.upper[inside])  # the upper bound is never stepped past
+        lb, ub = -speed, speed.copy()
+        expected = reference_box(limit, robot.q, 0.002, lb.tolist(), ub.tolist())
+        lists = (lb.tolist(), ub.tolist())  # the box as lists (a controller's box in floats)
+        limit.apply(0.002, *lists)
+        limit.apply(0.002, lb, ub)
+        np.testing.assert_allclose(lb, expected[0], rtol=1e-15, atol=0)
+        np.testing.assert_allclose(ub, expected[1], rtol=1e-15, atol=0)
+        assert lists == (lb.tolist(), ub.tolist())  # the same operations in floats
+        q_next = robot.q[ranges.qpos_index] + 0.002 * ub[ranges.dof_index]
+        inside = (robot.q[ranges.qpos_index] <= ranges.upper)
+        assert np.all(q_next[inside] <= ranges.upper[inside])  # the upper bound is never stepped past
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
@@ -51,23 +57,6 @@ def test_non_finite_position_is_an_error(value):
     robot.q[1] = value
     with pytest.raises(InvalidInput, match="theta2"):
         limit.apply(0.002, np.full(4, -1.0), np.full(4, 1.0))
-
-
-@pytest.mark.parametrize("scene", ["arm", "hexapod"])
-def test_apply_from_a_box_equals_copying_the_box_then_applying(scene):
-    robot = Robot.load(scene)
-    limit = JointPositionLimit(robot, influence=0.05, damper_rate=2.0, gain=0.9)
-    rng = np.random.default_rng(2)
-    limits = robot.joint_limits
-    for _ in range(100):
-        robot.q[limits.qpos_index] = rng.uniform(limits.lower - 0.2, limits.upper + 0.2)
-        speed = rng.uniform(0.5, 5.0, robot.nv)
-        lb, ub = -speed.copy(), speed.copy()
-        limit.apply(0.002, lb, ub)
-        fused_lb, fused_ub = np.zeros(robot.nv), np.zeros(robot.nv)
-        limit.apply_from(0.002, (-speed).tolist(), speed.tolist(), fused_lb, fused_ub)
-        np.testing.assert_array_equal(fused_lb, lb)
-        np.testing.assert_array_equal(fused_ub, ub)
 
 
 @pytest.mark.parametrize("argument, value", [

@@ -17,7 +17,7 @@ import pytest
 from scipy.linalg import lapack
 
 from qpik import linalg
-from qpik.controllers.closed_form import ClosedFormStep
+from qpik.problem.closed_form import closed_form_step
 from qpik.scenario import build_scenario
 
 EPS = np.finfo(float).eps
@@ -125,7 +125,7 @@ def test_the_closed_form_step_agrees_on_random_problems(numpy_and_scipy, meq, he
         answers = []
         for backend in ("scipy", "numpy"):
             linalg.use(backend)
-            answers.append(ClosedFormStep(None if hessian == "per-call" else H, meq).solve(H, Ac, b))
+            answers.append(closed_form_step(nv, meq, None if hessian == "per-call" else H).solve(H, Ac, b))
         x1, x2 = answers
         if condition > 1e6:
             assert x1 is None and x2 is None

@@ -134,8 +134,8 @@ def test_braking_bound_from_max_acceleration():
     plain = SNSController(robot, [position], [JointPositionLimit(robot), JointVelocityLimit(robot)], dt=DT)
     braking = SNSController(robot, [position], [JointPositionLimit(robot), JointVelocityLimit(robot)],
                             max_acceleration=4.0, dt=DT)
-    plain._bounds()
-    braking._bounds()
+    plain.compute_velocity()  # the step's box, at this configuration (compute_velocity leaves q)
+    braking.compute_velocity()
     assert plain.ub[3] == pytest.approx(2.0)  # the speed limit: 1/Δt·(2 cm) is larger
     assert braking.ub[3] == pytest.approx(np.sqrt(2 * 4.0 * (1.0 - 0.98)), rel=1e-9)
     assert braking.lb[3] == pytest.approx(-2.0)  # 0.98 m from the other end: speed-limited

@@ -69,7 +69,7 @@ def _unmet_tasks(controller, x: np.ndarray) -> list[str]:
     """Each hard task that the elastic solution misses, with its frame and by how much."""
     A, b = controller.A, controller.b
     unmet = []
-    for task, rows in zip(controller._hard, controller._rows):
+    for task, rows in controller.hard_rows.task_rows:
         residual = A[rows] @ x - b[rows]
         worst = float(np.max(np.abs(residual))) if residual.size else 0.0
         if worst > 1e-6 * (1.0 + float(np.max(np.abs(b[rows])))):
@@ -79,11 +79,11 @@ def _unmet_tasks(controller, x: np.ndarray) -> list[str]:
 
 def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
     """The bounds and general rows the elastic solution sits on, named."""
-    robot = controller.robot
+    robot, inequalities = controller.robot, controller.problem.inequalities
     binding = []
     for dof in range(robot.nv):
-        for side, bound, constant in (("lower", controller.lb[dof], controller._lb0[dof]),
-                                      ("upper", controller.ub[dof], controller._ub0[dof])):
+        for side, bound, constant in (("lower", controller.lb[dof], inequalities.lower0[dof]),
+                                      ("upper", controller.ub[dof], inequalities.upper0[dof])):
             if np.isfinite(bound) and abs(x[dof] - bound) <= tol * (1.0 + abs(bound)):
                 kind = "speed" if bound == constant else "position"
                 binding.append(f"joint {robot.dof_name(dof)} at its {side} {kind} limit ({bound:.6g})")
@@ -91,7 +91,7 @@ def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
         finite = np.isfinite(controller.h)
         active = np.zeros(len(controller.h), dtype=bool)
         active[finite] = controller.G[finite] @ x >= controller.h[finite] - tol * (1.0 + np.abs(controller.h[finite]))
-        for limit, rows in zip(controller._row_limits, controller._inequality_slices):
+        for limit, rows in inequalities.row_limits:
             count = int(np.count_nonzero(active[rows]))
             if count:
                 binding.append(f"{count} row(s) of the {type(limit).__name__}")
@@ -99,5 +99,5 @@ def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
 
 
 def _row_limit_names(controller) -> str:
-    names = [type(limit).__name__ for limit in controller._row_limits]
+    names = [type(limit).__name__ for limit, _ in controller.problem.inequalities.row_limits]
     return "the joint box" + (" and the rows of the " + ", ".join(names) if names else "")

@@ -10,29 +10,11 @@ Level k (0 the highest priority) is solved after every level above it:
     J_h \dot q = v_h \ (h \in k,\ \text{hard}),\quad lb \le \dot q \le ub
 
 with every limit hard at every level (Kanoun, Lamiraux and Wieber 2011; Escande, Mansard
-and Wieber 2014). The equalities keep the optimum of each level above: the residual
-:math:`J_j \dot q - v_j` of a level that could not be met exactly is frozen at its
-optimal value (the "optimal slack" :math:`w_j^* = J_j \dot q^*_{k-1} - v_j`), and since a
-level's cost is strictly convex in its task velocities :math:`J_j \dot q`, these are
-unique: the set the equalities leave is exactly the set of optima of the level above.
-:math:`\dot q^*_{k-1}` satisfies all of them, so a level below can never be infeasible;
-only a level's own hard tasks (or an empty box) can make it so, and the error then names
-that level. In floating point a lower level's set can be too thin for a solver (level 0
-at a vertex of the box, velocities of 1e13 rad/s from a target far out of reach): when
-every solver and the fallbacks fail on a level without hard tasks of its own, the level
-keeps :math:`\dot q^*_{k-1}`, a point of its set (every limit and every level above
-kept; only its own cost is not improved on that step), and ``kept_above`` counts it. The regulariser ε (and a task's Levenberg–Marquardt term) only picks one
-optimum within a level; what the levels below keep is each task's velocity.
-
-Each level owns a back-end of the solver asked for (:func:`qpik.solvers.make_backend`:
-persistent workspaces and warm starts per level). Equality rows that depend on each other
-(more rows above than joints, or a singular configuration) are consistent by
-construction but some solvers refuse them; such a level is solved again with the rows
-replaced by an orthonormal basis of their row space (an SVD), which constrains the same
-set.
-
-With a hard position task at level 0 and a joint-space task at level 1 this is exactly
-the hard QP (and, with no limit active, the null-space law).
+and Wieber 2014). :math:`\dot q^*_{k-1}` meets every equality, so only a level's own hard
+tasks (or an empty box) can make it infeasible, and the error names that level; a level
+without hard tasks that every solver fails on keeps :math:`\dot q^*_{k-1}`
+(``kept_above``). Dependent rows above are replaced by a basis of their row space. Why,
+and how each level is solved in closed form first: docs/controllers.md.
 """
 
 from __future__ import annotations
@@ -42,13 +24,21 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput, SolverError
-from ..limits import order_limits
-from ..robot import Robot, check_same_robot
+from ..problem import (
+    ClosedForm,
+    Cost,
+    Problem,
+    Stack,
+    check_dt,
+    closed_form_step,
+    damped_least_squares_step,
+    group_levels,
+)
+from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
-from .closed_form import ClosedFormPause, ClosedFormStep, damped_least_squares_step, inside_limits
 from .fallbacks import GuardedSolve, check_finite_velocities
-from .levels import StackedLevel, check_dt, group_levels
+from .labels import task_label
 
 # Singular values below this fraction of the largest are dropped when the rows above a
 # level are replaced by a basis of their row space.
@@ -56,55 +46,46 @@ _RANK_TOLERANCE = 1e-10
 
 
 class _Level:
-    """One level: its soft tasks (the cost), its hard rows, and its solver back-end."""
+    """One level: its rows in the hierarchy's stack, its cost, closed form and solver."""
 
-    def __init__(self, index: int, tasks: Sequence[Task], above: int, stack: StackedLevel, nv: int,
-                 regularization: float):
+    def __init__(self, index: int, stack: Stack, offset: int, regularization: float, problem: Problem):
+        nv = problem.robot.nv
         self.index = index
-        self.tasks = list(tasks)
-        self.names = stack.names
-        self.above = above  # equality rows frozen from the levels above
-        self.hard_rows = slice(stack.offset, stack.offset + stack.hard_dim)  # hard tasks come first
-        self.hard_dim = stack.hard_dim
-        soft = [t for t in self.tasks if not t.hard]
-        self.soft_diagonal = [t for t in soft if t.joint_space]
-        self.soft_general = [t for t in soft if not t.joint_space]
-        # ε only breaks ties between a level's optima. A level of hard tasks alone has no
-        # cost of its own: its minimum-norm solution (H = I, which any solver meets
-        # accurately; with H = εI a tolerance-based solver would leave the null space
-        # loose). Joint-space tasks on every dof already make H positive definite: no ε.
-        covered = np.zeros(nv, dtype=bool)
-        for task in soft:
-            if task.joint_space:
-                covered[task.dofs[task.weight > 0]] = True
-        self.H0 = np.eye(nv) * (1.0 if not soft else 0.0 if covered.all() else regularization)
-        for task in self.soft_diagonal:
-            self.H0.reshape(-1)[:: nv + 1][task.dofs] += task.weight
-        self.hessian_changes = bool(self.soft_general)
-        self.H = self.H0.copy()
-        self.c = np.zeros(nv)
-        rows = above + self.hard_dim
-        # The closed-form step (qpik.controllers.closed_form) on the level's equalities (the
-        # rows above, then its hard rows): with a constant diagonal Hessian, through H⁻¹;
-        # with soft general rows, in damped least-squares form (accurate when only ε
-        # makes H definite) on R = [√w J_soft; A].
-        self.soft_rows = sum(t.dim for t in self.soft_general)
-        self.roots = [np.sqrt(t.weight) for t in self.soft_general]  # weights are read once
-        self.root_columns = [root[:, None] for root in self.roots]
-        self.diagonal0 = np.diag(self.H0).copy()
+        self.tasks = stack.tasks
+        self.names = ", ".join(task_label(task) for task in self.tasks)
+        self.above = offset  # equality rows frozen from the levels above
+        self.hard_dim = sum(task.dim for task in self.tasks if task.hard)  # hard tasks come first
+        self.hard_rows = slice(offset, offset + self.hard_dim)
+        soft = [task for task in self.tasks if not task.hard]
+        self.cost = Cost(nv, soft, _level_regularization(nv, soft, regularization))
+        self.rows = offset + self.hard_dim  # the level's equalities: the rows above, then its hard rows
+        # The closed form (qpik.problem.closed_form) on those equalities: with a constant
+        # Hessian through H⁻¹; with soft tasks of their own Jacobian in damped
+        # least-squares form (accurate when only ε makes H definite) on R = [√w J_soft; A].
+        self.diagonal0 = np.diag(self.cost.H0).copy()
         self.dinv = np.zeros(nv)
-        self.dinv_fixed = False  # dinv holds 1/diagonal0 (no LM damping at the last fill)
-        if self.soft_general:
-            self.R = np.zeros((self.soft_rows + rows, nv))
-            self.rhs = np.zeros(self.soft_rows + rows)
+        if self.cost.general:
+            self.soft_rows = m = Stack(nv, self.cost.general, weighted=True).dim
+            self.R, self.rhs = np.zeros((m + self.rows, nv)), np.zeros(m + self.rows)
+            self.soft = Stack(nv, self.cost.general, weighted=True, out=(self.R[:m], self.rhs[:m]))  # √W J, √W v
         else:
-            self.Ac = np.zeros((rows + 1, nv))  # [A; cᵀ]
-            self.b = np.zeros(rows)
-            self.closed_form = ClosedFormStep(self.H0, rows)
-        self.pause = ClosedFormPause()
-        self.backend = None
+            self.Ac = np.zeros((self.rows + 1, nv))  # [A; cᵀ]
+            self.b = np.zeros(self.rows)
+            self.step = closed_form_step(nv, self.rows, self.cost.H0)
+        self.closed_form = ClosedForm(problem.inequalities.admits)
         self.guard = None  # the back-end with taming and fallbacks (qpik.controllers.fallbacks)
         self.reduced: dict[int, GuardedSolve] = {}  # for rows replaced by a basis, by count
+
+
+def _level_regularization(nv: int, soft: Sequence[Task], regularization: float) -> float:
+    """ε only breaks ties between a level's optima. Hard tasks alone: the minimum-norm
+    solution (H = I, which any solver meets accurately). Joint-space tasks on every dof:
+    H already positive definite, no ε."""
+    covered = np.zeros(nv, dtype=bool)
+    for task in soft:
+        if task.joint_space:
+            covered[task.dofs[task.weight > 0]] = True
+    return 1.0 if not soft else 0.0 if covered.all() else regularization
 
 
 class HierarchicalController:
@@ -142,78 +123,44 @@ class HierarchicalController:
         if not (np.isfinite(regularization) and regularization > 0):  # a level may need it
             raise InvalidInput(f"regularization must be positive, got {regularization}")
         grouped = group_levels(robot, tasks, levels, "HierarchicalController")
-        check_same_robot(robot, (), limits, "HierarchicalController")  # tasks: group_levels checks them
-        self.robot = robot
-        self.solver = solver
-        self.dt = float(dt)
-        self.limits = order_limits(limits)
-        # General rows G q̇ ≤ h (collision avoidance) are filled once per step and hold at
-        # every level, as the box does.
-        self._row_limits = [lim for lim in self.limits if lim.inequality_rows]
-        self._mineq = sum(lim.inequality_rows for lim in self._row_limits)
-        self.G, self.h = np.zeros((self._mineq, robot.nv)), np.zeros(self._mineq)
-        self._row_slices = []
-        start = 0
-        for lim in self._row_limits:
-            self._row_slices.append(slice(start, start + lim.inequality_rows))
-            start += lim.inequality_rows
-        self._native = native
-        self._solver_settings = solver_settings
-        nv = robot.nv
-        # One stack of every level's rows (unweighted, zero-weight rows left out), level
-        # by level and hard tasks first within a level: the equalities of level k are
-        # then a prefix of it (all rows above, then level k's hard rows).
-        ordered = [[t for t in level if t.hard] + [t for t in level if not t.hard] for level in grouped]
-        sizes = [StackedLevel(robot, level, weighted=False).dim for level in ordered]
-        self._J = np.zeros((sum(sizes), nv))
-        self._v = np.zeros(sum(sizes))
-        self._stacks = []
-        offset = 0
-        for level_tasks, size in zip(ordered, sizes):
-            rows = slice(offset, offset + size)
-            stack = StackedLevel(robot, level_tasks, weighted=False, out=(self._J[rows], self._v[rows]))
-            stack.offset = offset
-            stack.hard_dim = sum(t.dim for t in level_tasks if t.hard)
-            self._stacks.append(stack)
-            offset += size
-        self.levels: list[_Level] = []
-        for k, (level_tasks, stack) in enumerate(zip(grouped, self._stacks)):
-            level = _Level(k, level_tasks, stack.offset, stack, nv, float(regularization))
-            level.backend = make_backend(solver, nv, level.above + level.hard_dim, self._mineq, native=native,
-                                         **solver_settings)
-            level.guard = GuardedSolve(level.backend, solver)
-            self.levels.append(level)
         self.tasks = [t for level in grouped for t in level]
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
-        for task in self.tasks:
-            task.attach(self.dt)
-        self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
-        for limit in self.limits:
-            if limit.constant and limit.box:
-                limit.apply(self.dt, self._lb0, self._ub0)
-        self._dynamic_limits = [lim for lim in self.limits if lim.box and not lim.constant]
-        self.lb, self.ub = np.zeros(nv), np.zeros(nv)
+        self.problem = problem = Problem(robot, self.tasks, limits, dt, "HierarchicalController")
+        self.robot, self.solver, self.dt, self.limits = robot, solver, problem.dt, problem.limits
+        # Hard tasks first within a level: the equalities of level k are then a prefix of
+        # the stack of every level's rows (all rows above, then level k's hard rows).
+        grouped = [[t for t in level if t.hard] + [t for t in level if not t.hard] for level in grouped]
+        self._native, self._solver_settings = native, solver_settings
+        nv, mineq = robot.nv, problem.inequalities.rows
+        sizes = [Stack(nv, level).dim for level in grouped]
+        self._J, self._v = np.zeros((sum(sizes), nv)), np.zeros(sum(sizes))
+        self._stacks, self.levels = [], []
+        for k, (level, offset) in enumerate(zip(grouped, np.cumsum([0] + sizes[:-1]))):
+            rows = slice(int(offset), int(offset) + sizes[k])
+            stack = Stack(nv, level, out=(self._J[rows], self._v[rows]))
+            self._stacks.append(stack)
+            self.levels.append(_Level(k, stack, int(offset), float(regularization), problem))
+        for level in self.levels:
+            level.guard = GuardedSolve(make_backend(solver, nv, level.rows, mineq, native=native, **solver_settings),
+                                       solver)
         self.level_velocities = np.zeros((len(self.levels), nv))  # q̇*_k of each level
         self.qdot = np.zeros(nv)
         self.kept_above = 0  # level solves that failed and kept the level above's velocity
+
+    lb = property(lambda self: self.problem.inequalities.lb, doc="The last step's lower bound on q̇ (nv,).")
+    ub = property(lambda self: self.problem.inequalities.ub, doc="The last step's upper bound on q̇ (nv,).")
+    G = property(lambda self: self.problem.inequalities.G, doc="The last step's general rows (mineq x nv).")
+    h = property(lambda self: self.problem.inequalities.h, doc="Their bounds (mineq,).")
 
     @property
     def level_count(self) -> int:
         return len(self.levels)
 
     def compute_velocity(self) -> np.ndarray:
-        """Update every task and limit, then solve the levels in order."""
-        self.robot.ensure_kinematics()
-        for task in self.tasks:
-            task.update()
+        """Fill the step's problem, then solve the levels in order."""
+        self.problem.fill()
         for stack in self._stacks:
             stack.stack()
-        self.lb[:] = self._lb0
-        self.ub[:] = self._ub0
-        for limit in self._dynamic_limits:
-            limit.apply(self.dt, self.lb, self.ub)
-        for limit, rows in zip(self._row_limits, self._row_slices):
-            limit.fill_inequalities(self.dt, self.G[rows], self.h[rows])
         previous = None
         for level in self.levels:
             x = self._solve_level(level, previous)
@@ -221,19 +168,6 @@ class HierarchicalController:
             previous = x
         self.qdot = previous
         return previous
-
-    def _cost(self, level: _Level) -> None:
-        H, c = level.H, level.c
-        H[:] = level.H0
-        self._joint_space_cost(level)
-        diagonal = H.reshape(-1)[:: H.shape[0] + 1]
-        for task in level.soft_general:
-            weighted = task.weight[:, None] * task.jacobian
-            H += task.jacobian.T @ weighted
-            c -= weighted.T @ task.target_velocity
-            if task.lm_damping:
-                error = task.error
-                diagonal += task.lm_damping * float(error @ (task.weight * error))
 
     def _write(self, backend, level: _Level, above_rows, above_values) -> None:
         m = len(above_values)
@@ -244,14 +178,9 @@ class HierarchicalController:
             backend.b[m:] = self._v[level.hard_rows]
         backend.lb[:] = self.lb
         backend.ub[:] = self.ub
-        if self._mineq:
+        if backend.mineq:
             backend.G[:] = self.G
             backend.h[:] = self.h
-
-    def _run(self, guard: GuardedSolve, level: _Level) -> np.ndarray:
-        # The back-end checks the answer (finite, projected into the box, rows met); the
-        # guard tames a far target's cost and falls back as QPController does.
-        return guard.solve(level.H, level.c, hessian_changed=level.hessian_changes)
 
     def _solve_level(self, level: _Level, previous: np.ndarray | None) -> np.ndarray:
         above = self._J[: level.above]
@@ -259,11 +188,10 @@ class HierarchicalController:
         x = self._closed_form(level, frozen)
         if x is not None:
             return x
-        self._cost(level)
-        check_finite_velocities(self.tasks, level.c, self._v)
+        level.cost.write()
+        check_finite_velocities(self.tasks, level.cost.c, self._v)
         try:
-            self._write(level.backend, level, above, frozen)
-            return self._polish(level, self._run(level.guard, level), frozen)
+            return self._guarded(level.guard, level, above, frozen, frozen)
         except (InfeasibleProblem, SolverError) as first:
             if not level.above:
                 raise self._named(level, first) from None
@@ -272,85 +200,60 @@ class HierarchicalController:
         _, singular, vt = np.linalg.svd(above, full_matrices=False)
         rank = int(np.sum(singular > _RANK_TOLERANCE * singular[0])) if singular.size and singular[0] > 0 else 0
         basis = vt[:rank]
-        guard = level.reduced.get(rank)
-        if guard is None:
-            guard = GuardedSolve(make_backend(self.solver, self.robot.nv, rank + level.hard_dim, self._mineq,
-                                              native=self._native, **self._solver_settings), self.solver)
-            level.reduced[rank] = guard
+        if rank not in level.reduced:
+            level.reduced[rank] = GuardedSolve(make_backend(self.solver, self.robot.nv, rank + level.hard_dim,
+                                                            self.problem.inequalities.rows, native=self._native,
+                                                            **self._solver_settings), self.solver)
         try:
-            self._write(guard.backend, level, basis, basis @ previous)
-            return self._polish(level, self._run(guard, level), frozen)
+            return self._guarded(level.reduced[rank], level, basis, basis @ previous, frozen)
         except (InfeasibleProblem, SolverError) as second:
             if level.hard_dim:  # previous misses the level's own hard rows
                 raise self._named(level, second) from None
         self.kept_above += 1  # previous is a point of the level's set (see the module's docstring)
         return previous
 
+    def _guarded(self, guard: GuardedSolve, level: _Level, rows, values, frozen: np.ndarray) -> np.ndarray:
+        """The level solved by ``guard`` with ``rows`` q̇ = ``values`` for the rows above.
+        The back-end checks the answer (finite, projected into the box, rows met); the
+        guard tames a far target's cost and falls back as QPController does."""
+        self._write(guard.backend, level, rows, values)
+        x = guard.solve(level.cost.H, level.cost.c, hessian_changed=bool(level.cost.general))
+        return self._polish(level, x, frozen)
+
     def _least_squares(self, level: _Level, frozen: np.ndarray) -> None:
         """Fill R = [√w J_soft; A], its right-hand side, D⁻¹ and c of a level with soft
         general rows (the form :func:`damped_least_squares_step` takes)."""
-        rows = level.above + level.hard_dim
-        R, rhs, start = level.R, level.rhs, 0
-        damping = 0.0
-        for task, root, column in zip(level.soft_general, level.roots, level.root_columns):
-            stop = start + task.dim
-            np.multiply(column, task.jacobian, out=R[start:stop])
-            np.multiply(root, task.target_velocity, out=rhs[start:stop])
-            if task.lm_damping:
-                error = task.error
-                damping += task.lm_damping * float(error @ (task.weight * error))
-            start = stop
-        if rows:
-            R[start:] = self._J[:rows]
-            if level.above:
-                rhs[start:start + level.above] = frozen
-            if level.hard_dim:
-                rhs[start + level.above:] = self._v[level.hard_rows]
-        if damping or not level.dinv_fixed:
-            np.divide(1.0, level.diagonal0 + damping, out=level.dinv)
-            level.dinv_fixed = not damping
-
-    @staticmethod
-    def _joint_space_cost(level: _Level) -> None:
-        """c of the level's joint-space tasks alone (the soft general rows add theirs in
-        :meth:`_cost`, or stay in R for the closed form)."""
-        c = level.c
-        c.fill(0.0)
-        for task in level.soft_diagonal:
-            c[task.dofs] -= task.weight * task.target_velocity
+        level.soft.stack()
+        R, rhs, start = level.R, level.rhs, level.soft_rows
+        if level.rows:
+            R[start:] = self._J[: level.rows]
+            rhs[start:start + level.above] = frozen
+            rhs[start + level.above:] = self._v[level.hard_rows]
+        np.divide(1.0, level.diagonal0 + level.cost.levenberg_marquardt(), out=level.dinv)
 
     def _closed_form(self, level: _Level, frozen: np.ndarray) -> np.ndarray | None:
         """The level's equality-constrained minimiser when it meets every limit (then it is
-        the level's QP solution, as for :class:`~qpik.controllers.qp.QPController`), else
-        None; after a step where a limit bound, the next few go to the solver directly
-        (:class:`~qpik.controllers.closed_form.ClosedFormPause`)."""
-        if not level.pause.ready():
-            return None
-        above, rows = level.above, level.above + level.hard_dim
-        self._joint_space_cost(level)
-        if level.soft_general:
+        the level's QP solution), else None."""
+        return level.closed_form.attempt(self._closed_form_solve, level, frozen)
+
+    def _closed_form_solve(self, level: _Level, frozen: np.ndarray) -> np.ndarray | None:
+        level.cost.write_diagonal()
+        if level.cost.general:
             self._least_squares(level, frozen)
-            x = damped_least_squares_step(level.dinv, level.R, level.soft_rows, level.rhs,
-                                          level.c if level.soft_diagonal else None)
-        else:
-            level.Ac[:rows] = self._J[:rows]
-            level.Ac[rows] = level.c
-            level.b[:above] = frozen
-            level.b[above:] = self._v[level.hard_rows]
-            x = level.closed_form.solve(level.H0, level.Ac, level.b)
-        if x is not None and inside_limits(x, self.lb, self.ub, self.G, self.h):
-            level.pause.succeeded()
-            return x
-        level.pause.failed()
-        return None
+            return damped_least_squares_step(level.dinv, level.R, level.soft_rows, level.rhs,
+                                             level.cost.c if level.cost.diagonal else None)
+        level.Ac[: level.rows] = self._J[: level.rows]
+        level.Ac[level.rows] = level.cost.c
+        level.b[: level.above] = frozen
+        level.b[level.above:] = self._v[level.hard_rows]
+        return level.step.solve(level.cost.H0, level.Ac, level.b)
 
     def _polish(self, level: _Level, x: np.ndarray, frozen: np.ndarray) -> np.ndarray:
-        """The solver's answer made exact on its active set. A least-squares level whose
-        Hessian only ε makes definite is one a tolerance-based solver meets loosely (DAQP:
-        a path residual of 4e-7 m/s where 0 was possible): with the bounds it found active
-        fixed, the rest is an equality-constrained least squares solved in closed form.
-        The polished point is kept only if it meets every limit and costs no more."""
-        if not level.soft_general or (self._mineq and not (self.G @ x < self.h).all()):
+        """The solver's answer made exact on its active set (a least-squares level whose
+        Hessian only ε makes definite is met loosely by solvers): with the bounds it found
+        active fixed, the rest in closed form, kept if it meets every limit and costs no more."""
+        mineq = self.problem.inequalities.rows
+        if not level.cost.general or (mineq and not (self.G @ x < self.h).all()):
             return x  # a general row on its bound: left to the solver
         lb, ub = self.lb, self.ub
         # An absent bound (±inf) is never "reached" (|x − inf| <= inf would say it is).
@@ -360,18 +263,18 @@ class HierarchicalController:
         free = ~fixed
         if not free.any():
             return x
-        self._joint_space_cost(level)
+        level.cost.write_diagonal()
         self._least_squares(level, frozen)
-        R, rhs, dinv, c = level.R, level.rhs, level.dinv, level.c
+        R, rhs, dinv, c = level.R, level.rhs, level.dinv, level.cost.c
         bound = np.where(at_lower, lb, ub)[fixed]
         polished = x.copy()
         polished[fixed] = bound
         step = damped_least_squares_step(dinv[free], R[:, free], level.soft_rows, rhs - R[:, fixed] @ bound,
-                                         c[free] if level.soft_diagonal else None)
+                                         c[free] if level.cost.diagonal else None)
         if step is None:
             return x
         polished[free] = step
-        if not inside_limits(polished, lb, ub, self.G, self.h):
+        if not self.problem.inequalities.admits(polished):
             return x
         return polished if self._level_cost(level, polished) <= self._level_cost(level, x) else x
 
@@ -379,7 +282,7 @@ class HierarchicalController:
     def _level_cost(level: _Level, x: np.ndarray) -> float:
         m = level.soft_rows
         residual = level.R[:m] @ x - level.rhs[:m]
-        return 0.5 * float(residual @ residual) + 0.5 * float(x @ (x / level.dinv)) + float(level.c @ x)
+        return 0.5 * float(residual @ residual) + 0.5 * float(x @ (x / level.dinv)) + float(level.cost.c @ x)
 
     def _named(self, level: _Level, exc: Exception) -> Exception:
         if isinstance(exc, InfeasibleProblem) or level.hard_dim:
@@ -392,7 +295,7 @@ class HierarchicalController:
         """Per-level residual ‖J q̇ − v‖ of the last step (velocity units of each level),
         over every task of the level: what each QP minimised (its soft part)."""
         out = np.zeros(len(self.levels))
-        for k, stack in enumerate(self._stacks):
-            rows = slice(stack.offset, stack.offset + stack.dim)
+        for k, (level, stack) in enumerate(zip(self.levels, self._stacks)):
+            rows = slice(level.above, level.above + stack.dim)
             out[k] = float(np.linalg.norm(self._J[rows] @ self.qdot - self._v[rows]))
         return {"level_residual": out}

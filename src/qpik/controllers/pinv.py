@@ -20,7 +20,8 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import DivergenceError, InvalidInput
-from ..robot import Robot, check_same_robot
+from ..problem import Problem, Stack
+from ..robot import Robot
 from ..tasks import Task
 
 # A joint speed beyond this (rad/s or m/s) is divergence, not an answer: its square and
@@ -29,34 +30,28 @@ DIVERGED_SPEED = 1e100
 
 
 class _StackedTasks:
-    """Stacks the primary tasks' Jacobians and velocities into preallocated arrays."""
+    """The primary tasks' rows stacked into J and v, each step (:class:`~qpik.problem.Stack`)."""
 
-    def __init__(self, robot: Robot, primary: Sequence[Task]):
+    def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Sequence[Task] = ()):
         if not primary:
             raise InvalidInput("the controller needs at least one primary task")
-        check_same_robot(robot, primary, (), type(self).__name__)
-        self.robot = robot
-        self.primary = list(primary)
-        self.updated_tasks = tuple(self.primary)  # fresh after every step (rollouts read them)
-        for task in self.primary:
+        for task in primary:
             if task.needs_period:
                 raise InvalidInput(f"{task.name}: its default gain is 1/dt of a QP controller's period; this "
                                    "law has none: give the task a gain (1/s)")
-        m = sum(t.dim for t in self.primary)
-        self.J = np.zeros((m, robot.nv))
-        self.v = np.zeros(m)
-        self._rows = []
-        start = 0
-        for t in self.primary:
-            self._rows.append(slice(start, start + t.dim))
-            start += t.dim
+        # No control period here: attach(None) fixes the tasks' Jacobian kind, checks no gain.
+        self.problem = Problem(robot, [*primary, *secondary], owner=type(self).__name__)
+        self.robot = robot
+        self.primary = list(primary)
+        self.updated_tasks = tuple(self.problem.tasks)  # fresh after every step (rollouts read them)
+        self._stack = Stack(robot.nv, self.primary)
+
+    J = property(lambda self: self._stack.J, doc="The primary tasks' stacked Jacobian of the last step.")
+    v = property(lambda self: self._stack.v, doc="Their stacked target velocities.")
 
     def stack(self) -> None:
-        self.robot.ensure_kinematics()
-        for task, rows in zip(self.primary, self._rows):
-            task.update()
-            self.J[rows] = task.jacobian
-            self.v[rows] = task.target_velocity
+        self.problem.fill()
+        self._stack.stack()
 
 
 class PseudoinverseController(_StackedTasks):
@@ -73,19 +68,14 @@ class PseudoinverseController(_StackedTasks):
     solver = "none"
 
     def __init__(self, robot: Robot, primary: Sequence[Task], secondary: Task | None = None, damping: float = 0.0):
-        super().__init__(robot, primary)
-        check_same_robot(robot, [secondary] if secondary is not None else [], (), type(self).__name__)
-        for task in (*self.primary, *([secondary] if secondary is not None else [])):
-            task.attach(None)  # no control period here: fixes the tasks' Jacobian kind, checks no gain
+        super().__init__(robot, primary, [secondary] if secondary is not None else [])
         if secondary is not None and not secondary.joint_space:
             raise InvalidInput(f"the secondary task must be a joint-space task (J = I[dofs]), not a {secondary.name}")
         if not (np.isfinite(damping) and damping >= 0):
             raise InvalidInput(f"damping must be finite and >= 0, got {damping}")
         self.secondary = secondary
-        if secondary is not None:
-            self.updated_tasks += (secondary,)
         self.damping = float(damping)
-        self._gram = np.zeros((len(self.v), len(self.v)))
+        self._gram = np.zeros((self._stack.dim, self._stack.dim))
         self.qdot = np.zeros(robot.nv)
         self._qdot0 = np.zeros(robot.nv)  # q̇0 = I[dofs]ᵀ v of the secondary task
 
@@ -95,7 +85,6 @@ class PseudoinverseController(_StackedTasks):
         # q̇ = q̇0 + J†(v − J q̇0) = J†v + (I − J†J) q̇0, one linear solve with J Jᵀ.
         rhs = v
         if self.secondary is not None:
-            self.secondary.update()
             self._qdot0[self.secondary.dofs] = self.secondary.target_velocity
             rhs = v - J @ self._qdot0
         np.matmul(J, J.T, out=self._gram)

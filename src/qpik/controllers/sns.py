@@ -1,129 +1,49 @@
 r"""SNSController: Saturation in the Null Space (Flacco, De Luca and Khatib, ICRA 2012,
 IROS 2012; IEEE T-RO 31(3), 2015), the pseudoinverse law made to respect joint bounds.
 
-**Bounds.** Every step the limits give a box :math:`\dot Q_{min} \le \dot q \le \dot
-Q_{max}` for the next period T: the position range reached in one step
-(:math:`(Q_{min} - q)/T`, here with qpik's velocity damper near a bound), the speed limit
-:math:`\pm V_{max}`, and, with ``max_acceleration`` :math:`A_{max}`, the speed from which
-the joint can still brake before its range ends,
-:math:`\pm\sqrt{2 A_{max} d}` with d the distance to the bound:
-
-.. math::
-    \dot Q_{min} = \max\{(Q_{min} - q)/T,\ -V_{max},\ -\sqrt{2A_{max}(q - Q_{min})}\},\quad
-    \dot Q_{max} = \min\{(Q_{max} - q)/T,\ V_{max},\ \sqrt{2A_{max}(Q_{max} - q)}\}.
-
-(The step-to-step bound :math:`|\dot q_k - \dot q_{k-1}| \le A_{max} T` belongs to SNS at
-the acceleration level, which this velocity-level controller does not implement.)
-
-**One task.** The minimum-norm solution :math:`\dot q = J^\# \dot x` may leave the box.
-SNS then takes the joint that is worst off out of the task's hands: it is held at its
-bound (its column removed from J by a diagonal selection W, its saturated velocity
-:math:`\dot q_N` put back explicitly), and the task is solved again by the other joints,
-
-.. math::
-    \dot q = \dot q_N + (J W)^\# (s\,\dot x - J \dot q_N),
-
-repeating until the solution stays inside the box. Each pass also asks how far the
-task itself could be scaled: writing :math:`\dot q(s) = s\,a + b` with
-:math:`a = (JW)^\# \dot x` and :math:`b = \dot q_N - (JW)^\# J \dot q_N`, every free joint
-i keeps its bounds for :math:`s` between :math:`(\dot Q_{min,i} - b_i)/a_i` and
-:math:`(\dot Q_{max,i} - b_i)/a_i` (swapped when :math:`a_i < 0`); the largest s that
-all free joints allow, capped at 1, is the pass's task scale, and the joint that limits
-it is the most critical one, the next to saturate. When the saturations leave J W
-with lower rank than J (no joints left to do the task), no pass met the task at full
-speed: the pass with the largest scale :math:`s^*` is used, its velocity
-:math:`s^* a + b`. The task is then executed in its own direction, only slower; the
-end effector stays on its path.
-
-**Several tasks by priority.** Task k works in the null space of tasks 1..k−1,
-projector :math:`P_{k-1}`, from their velocity :math:`\dot q_{k-1}`:
-
-.. math::
-    \dot q_k = \tilde{\dot q}_k + (J_k \bar P_k)^\# (s_k \dot x_k - J_k \tilde{\dot q}_k),\quad
-    \tilde{\dot q}_k = \dot q_{k-1} + ((I - W_k) P_{k-1})^\# \dot q_{N,k},\quad
-    \bar P_k = (I - ((I - W_k)P_{k-1})^\#)\,P_{k-1},
-
-with the same saturation loop and scaling on task k's own scale :math:`s_k` (the tasks
-above keep theirs: everything task k adds lies in the null space of their Jacobians).
-A task that no scale in [0, 1] can fit into the box is not executed (:math:`s_k = 0`).
-After task k, :math:`P_k = P_{k-1} - (J_k P_{k-1})^\# J_k P_{k-1}`.
-
-Here a projector is carried as an orthonormal basis Z (:math:`P = Z Z^T`) after a
-level solved by an SVD, so that every pseudoinverse is of a small matrix:
-:math:`(J Z Z^T)^\# = Z (J Z)^\#`; and as P itself after a level of one or two rows
-solved in closed form (:math:`x^T/\|x\|^2`; for two rows a Gram-Schmidt step, with the
-SVD kept for rank-deficient or badly conditioned rows), where
-:math:`P_k = P_{k-1} - X^\# X`, :math:`X = J_k P_{k-1}`, costs two products. Holding the
-saturated joints S at their bounds within the null space is the minimum-norm
-:math:`y` with :math:`(Z y)_S = \dot q_{N,S} - \dot q_{k-1,S}`, built one joint at a
-time: joint i moves along :math:`Z h_\perp`, with :math:`h_\perp` its row of Z less its
-components along the joints held before (which :math:`h_\perp` leaves where they are),
-by its distance to the bound over :math:`\|h_\perp\|^2`; and the task's rows :math:`J Z`
-lose the direction :math:`u = h_\perp/\|h_\perp\|`, :math:`J Z \leftarrow J Z (I - u u^T)`
-(the freedom the joints have left). With P carried the same step reads
-:math:`d = \bar P e_i = Z h_\perp`, :math:`\|h_\perp\|^2 = d_i`, and
-:math:`J \bar P \leftarrow J \bar P - (J \bar P d)\,d^T/d_i` (:math:`\bar P`: P less the
-joints held). Without levels above (Z = I) that is setting the joint and zeroing its
-column of J. With no saturation this is exactly the prioritised pseudoinverse law; with
-one task and a joint-space secondary (:math:`J = I`) it is the null-space law
-:math:`J^\dagger v + (I - J^\dagger J)\,\dot q_0`.
-
-Within a level, tasks are stacked with their rows scaled by √weight (a weighted least
-squares, as the QP weighs them). ``hard`` plays no role: priority decides.
-
-**Near a singularity.** A saturation pass whose rows J W keep a singular value below
-1e-2 ‖J‖ (a condition above 100) counts as having cost the task that direction, like an
-exact rank loss: the task is scaled on the passes before it. Such a pass would execute a
-tiny share of the task (scale ~1e-4 beyond the reach) while the saturated joints' bounds
-drive the others at full speed, reversing step after step (docs/controllers.md).
-
-Two consequences worth knowing. A task that already uses every direction left to it
-(a joint-space task such as the σ gradient below a position task) cannot lose a joint
-without losing a direction, so it is scaled at once, never redistributed. And the scale
-of this basic algorithm is the best among the passes it tries, not always the largest
-scale any joint velocity allows (the T-RO paper's optimal variant solves for that): on 40
-random arm states under a tight speed box it reaches a linear program's optimum in 32 to
-40 (by the box), at most 1.7 % short in the others (tests/core/test_sns.py).
+Level by level (priority 0 first), in the null space of the levels above: the
+prioritised pseudoinverse law; a joint that would leave its velocity bounds is held at
+its bound and the task solved again by the others, until the answer stays in the box; a
+task that cannot be met inside it is executed along its own direction, scaled by the
+largest s ∈ [0, 1] a pass allows (:math:`\dot q(s) = s\,a + b`). The null space is
+carried as an orthonormal basis Z or as the projector P itself (:class:`_NullSpace`).
+A saturation pass whose rows keep a singular value below 1e-2 ‖J‖ counts as having cost
+the task that direction: the task is scaled on the passes before it (near a
+singularity such a pass would move the saturated joints at full speed for a tiny share
+of the task). The derivation, with the bounds (including the braking bound
+:math:`\sqrt{2 A_{max} d}`), is in docs/controllers.md.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import math
+from typing import Sequence
 
 import numpy as np
 
 from .. import linalg
 from ..errors import DivergenceError, InvalidInput
-from ..limits import order_limits
-from ..robot import JointLimits, Robot, check_same_robot
+from ..problem import Problem, Stack, check_dt, group_levels
+from ..robot import Robot
 from ..tasks import Task
-from .levels import StackedLevel, check_dt, group_levels
 
 # Products below use ndarray.dot: `@` costs twice as much at these sizes.
 _RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 _BOUND_TOLERANCE = 1e-12  # rad/s (m/s): rounding, not a violation
 # A saturation pass whose rows keep a singular value below this fraction of ‖J‖ (a
 # condition above 100) counts as having cost the task that direction: the task is scaled
-# instead (see the module docstring, "Near a singularity").
+# instead (docs/controllers.md, "Near a singularity").
 _PASS_RANK_TOLERANCE = 1e-2
 
 
 def _solve(X: np.ndarray, scale: float | None, closed: bool,
            tolerance: float = _RANK_TOLERANCE) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """X⁺ (n x m), the minimum-norm solution of X y = r applied to r, X's rank, and the
-    Vᵀ of its SVD when one was made (None otherwise). Singular values below
-    ``_RANK_TOLERANCE · scale`` count as zero, ``scale`` being the size of J itself (X =
-    J Z or J P: a task direction the levels above nearly took is kept, as the law would
-    keep it; only rounding is cut; None: X's largest singular value); ``tolerance`` in
-    place of ``_RANK_TOLERANCE`` for the saturation passes. One row:
-    xᵀ/‖x‖². Two rows when ``closed``: the Gram-Schmidt step r = x2 − c x1
-    (c = x1·x2/‖x1‖²) gives X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) with G⁻¹ from ‖x1‖², c and ‖r‖²
-    (‖r‖² from G where that loses at most two digits), and σ1σ2 = ‖x1‖‖r‖, σ1² ≤ trace G
-    bound the rank and the conditioning; if rank-deficient, near the rank threshold or
-    conditioned worse than 1e2, or otherwise: one SVD, from LAPACK directly (NumPy's
-    wrapper costs more than the decomposition at these sizes)."""
+    """(X⁺, X's rank, the Vᵀ of its SVD or None when none was made). Singular values below
+    ``tolerance · scale`` count as zero (``scale`` the size of J itself, X being J Z or
+    J P: a direction the levels above nearly took is kept; None: X's largest). One row:
+    xᵀ/‖x‖²; two rows when ``closed``: X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) by a Gram-Schmidt step,
+    unless they are nearly dependent or conditioned worse than 1e2; else one SVD from
+    LAPACK directly (NumPy's wrapper costs more than the decomposition at these sizes)."""
     m = X.shape[0]
     if m == 1:  # one row x: x^# = xᵀ/‖x‖²
         row = X[0]
@@ -158,6 +78,67 @@ def _solve(X: np.ndarray, scale: float | None, closed: bool,
     return vt[:rank].T.dot(u[:, :rank].T / s[:rank, None]), rank, vt
 
 
+class _NullSpace:
+    """The null space of the levels done, of dimension ``free``: all of joint space
+    (``F`` None), an orthonormal basis Z (``F``), or, ``projector``, P = Z Zᵀ itself."""
+
+    def __init__(self, nv: int):
+        self.F, self.projector, self.free = None, False, nv
+
+    @property
+    def closed(self) -> bool:
+        """Whether one or two rows are solved in closed form here (joint space, or a projector's)."""
+        return self.F is None or self.projector
+
+    def mapped(self, pinv: np.ndarray) -> np.ndarray:
+        """(J Z)^# mapped back to joint space (Z (J Z)^#); as it is in joint space or a projector's."""
+        return pinv if self.closed else self.F.dot(pinv)
+
+    def hold(self, critical: int, target: float, shifted: np.ndarray, rows: np.ndarray, held: list):
+        """Joint ``critical`` held at ``target`` (``held``: the directions held before, appended
+        to): (q̇ shifted, the task's rows less that direction), or None where it cannot be."""
+        F = self.F
+        if self.projector:  # along d = P̄ e_i, P̄ = P less the joints already held
+            d = F[critical]
+            for e, norm in held:
+                d = d - e * (e[critical] / norm)
+            norm_sq = float(d[critical])  # ‖P̄ e_i‖²
+            if norm_sq <= _RANK_TOLERANCE**2:
+                return None
+            shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
+            held.append((d, norm_sq))
+            # J P̄: the task without d
+            return shifted, rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
+                                    (rows.dot(d) / norm_sq)[:, None] * d)
+        # Within the basis, as close as it allows: along h, the joint's row of Z less its
+        # part along the joints already held.
+        h = F[critical]
+        for u in held:
+            h = h - u.dot(h) * u
+        norm_sq = float(h.dot(h))
+        if norm_sq <= _RANK_TOLERANCE**2:
+            return None
+        shifted = shifted + F.dot(h * ((target - shifted[critical]) / norm_sq))
+        u = h / math.sqrt(norm_sq)
+        held.append(u)
+        return shifted, rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
+
+    def reduce(self, rank: int, pinv: np.ndarray, X: np.ndarray, vt: np.ndarray | None, eye: np.ndarray) -> None:
+        """The null space left after a level of this ``rank`` (X = J F its rows, ``pinv``
+        their pseudoinverse, ``vt`` their SVD's Vᵀ or None)."""
+        self.free -= rank
+        if self.closed and vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
+            self.F, self.projector = (eye if self.F is None else self.F) - pinv.dot(X), True
+            return
+        if self.projector:
+            self.F = self.F - pinv.dot(X)
+            return
+        if vt is None:  # one row: decompose now
+            vt = linalg.dgesvd(X)[2]
+        null = vt[rank:].T
+        self.F = null if self.F is None else self.F.dot(null)
+
+
 class SNSController:
     """Saturation in the Null Space: the prioritised pseudoinverse law inside joint bounds.
 
@@ -189,35 +170,22 @@ class SNSController:
             raise InvalidInput("SNSController needs a robot with at least one degree of freedom; "
                                "this model has none")
         grouped = group_levels(robot, tasks, levels, "SNSController")
-        check_same_robot(robot, (), limits, "SNSController")  # tasks: group_levels checks them
-        self.robot = robot
-        self.dt = float(dt)
-        self.levels = [StackedLevel(robot, level, weighted=True) for level in grouped]
-        self.tasks = [t for level in grouped for t in level]
-        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
-        for task in self.tasks:
-            task.attach(self.dt)
-        self.limits = order_limits(limits)
-        rows = [type(lim).__name__ for lim in self.limits if lim.inequality_rows]
+        rows = [type(lim).__name__ for lim in limits if lim.inequality_rows]
         if rows:
             raise InvalidInput(f"SNS saturates joints inside a velocity box; it cannot keep general rows "
                                f"({', '.join(rows)}): use the QP or the hierarchy for those")
-        nv = robot.nv
-        self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
-        for limit in self.limits:
-            if limit.constant:
-                limit.apply(self.dt, self._lb0, self._ub0)
-        self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
+        self.tasks = [t for level in grouped for t in level]
+        self.problem = Problem(robot, self.tasks, limits, dt, "SNSController")
+        self.robot, self.dt, self.limits = robot, self.problem.dt, self.problem.limits
+        self.levels = [Stack(robot.nv, level, weighted=True) for level in grouped]
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self._braking = self._braking_terms(max_acceleration)
-        self._zero = np.zeros(nv)
-        self._eye = np.eye(nv)
-        # The box as lists of floats (the loop reads it joint by joint): the constant part,
-        # and the last step's
-        self._lower0, self._upper0 = self._lb0.tolist(), self._ub0.tolist()
-        self._lower, self._upper = list(self._lower0), list(self._upper0)
+        self._zero = np.zeros(robot.nv)
+        self._eye = np.eye(robot.nv)
+        self._lower, self._upper = [], []  # the step's box as lists of floats (the loops read it joint by joint)
         self.task_scale = np.ones(len(self.levels))
         self.saturated = np.zeros(len(self.levels), dtype=int)  # joints saturated per level
-        self.qdot = np.zeros(nv)
+        self.qdot = np.zeros(robot.nv)
 
     def _braking_terms(self, max_acceleration):
         if max_acceleration is None:
@@ -227,7 +195,7 @@ class SNSController:
             np.asarray(max_acceleration, dtype=float)
         if amax.shape != (nv,) or np.any(np.isnan(amax)) or np.any(amax <= 0):
             raise InvalidInput(f"max_acceleration must be positive (inf for none), one number or shape ({nv},)")
-        ranges = [lim.limits for lim in self.limits if isinstance(getattr(lim, "limits", None), JointLimits)]
+        ranges = [lim.ranges for lim in self.limits if lim.ranges is not None]
         if not ranges:
             raise InvalidInput("max_acceleration needs a joint position limit among the limits "
                                "(the ranges to brake before)")
@@ -237,36 +205,26 @@ class SNSController:
     def level_count(self) -> int:
         return len(self.levels)
 
-    @property
-    def lb(self) -> np.ndarray:
-        """Lower bounds of the last step's velocity box (a copy)."""
-        return np.array(self._lower)
-
-    @property
-    def ub(self) -> np.ndarray:
-        """Upper bounds of the last step's velocity box (a copy)."""
-        return np.array(self._upper)
+    lb = property(lambda self: np.array(self._lower), doc="Lower bounds of the last step's velocity box (a copy).")
+    ub = property(lambda self: np.array(self._upper), doc="Upper bounds of the last step's velocity box (a copy).")
 
     def _bounds(self) -> None:
-        lower, upper = self._lower0.copy(), self._upper0.copy()
-        for limit in self._dynamic_limits:
-            limit.apply_to_lists(self.dt, lower, upper)
-        if self._braking:
-            lb, ub = np.array(lower), np.array(upper)
-            q = self.robot.q
-            for qpos, dofs, low, high, amax in self._braking:
-                up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
-                down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
-                ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
-                lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
-            lower, upper = lb.tolist(), ub.tolist()
-        self._lower, self._upper = lower, upper
+        """The step's box as lists, with the braking bounds."""
+        inequalities = self.problem.inequalities
+        if not self._braking:
+            self._lower, self._upper = inequalities.box()
+            return
+        lb, ub, q = inequalities.lb, inequalities.ub, self.robot.q
+        for qpos, dofs, low, high, amax in self._braking:
+            up = np.sqrt(2.0 * amax * np.maximum(high - q[qpos], 0.0))
+            down = -np.sqrt(2.0 * amax * np.maximum(q[qpos] - low, 0.0))
+            ub[dofs] = np.minimum(ub[dofs], np.maximum(up, lb[dofs]))  # outside the range: return
+            lb[dofs] = np.maximum(lb[dofs], np.minimum(down, ub[dofs]))
+        self._lower, self._upper = lb.tolist(), ub.tolist()
 
     def compute_velocity(self) -> np.ndarray:
-        """Update every task and bound, then run SNS level by level."""
-        self.robot.ensure_kinematics()
-        for task in self.tasks:
-            task.update()
+        """Fill the step's problem (tasks, bounds), then run SNS level by level."""
+        self.problem.fill()
         for level in self.levels:
             level.stack()
         self._bounds()
@@ -274,12 +232,10 @@ class SNSController:
         # Start from the box's point nearest zero (zero unless a joint is outside its range).
         zero = max(lower) <= 0.0 <= min(upper)
         qdot = self._zero if zero else np.array([min(max(0.0, lo), hi) for lo, hi in zip(lower, upper)])
-        # The null space of the levels done: all (None), a basis Z or a projector P, its dimension
-        space, projector, free = None, False, self.robot.nv
+        space = _NullSpace(self.robot.nv)
         last = len(self.levels) - 1
         for k, level in enumerate(self.levels):
-            qdot, self.task_scale[k], self.saturated[k], space, projector, free = \
-                self._level(level, qdot, zero, space, projector, free, k < last)
+            qdot, self.task_scale[k], self.saturated[k] = self._level(level, qdot, zero, space, k < last)
             zero = False
         # Clipped to the box (rounding only: every pass ends inside it), on floats.
         clipped = [hi if x > hi else lo if x < lo else x for x, lo, hi in zip(qdot.tolist(), lower, upper)]
@@ -288,38 +244,43 @@ class SNSController:
         self.qdot[:] = clipped
         return self.qdot
 
-    def _level(self, level: StackedLevel, above: np.ndarray, above_zero: bool, F: np.ndarray | None,
-               projector: bool, free: int, more: bool):
-        """SNS for one level in the null space of the levels above (``F``: None, all of
-        joint space; an orthonormal basis Z; or, ``projector``, P = Z Zᵀ itself), of
-        dimension ``free``, whose velocity is ``above``. Returns (q̇, scale, saturated
-        joints, and the null space left for the levels below as (F, projector, free):
-        computed only when ``more`` levels follow)."""
+    def _level(self, level: Stack, above: np.ndarray, above_zero: bool, space: _NullSpace, more: bool):
+        """SNS for one level in the null space of the levels above, whose velocity is
+        ``above``. Returns (q̇, scale, saturated joints); ``space`` is left as the null
+        space for the levels below (computed only when ``more`` levels follow)."""
         J, v = level.J, level.v
-        if free == 0 or J.shape[0] == 0:
-            return above, 0.0, 0, F, projector, free
-        lower, upper = self._lower, self._upper
-        identity = level.identity  # J = I: no decomposition needed
-        vt = size = None
-        if identity:  # (J F)^# mapped back: F Fᵀ, or P itself
-            X = None
-            pinv, rank = (self._eye if F is None else F if projector else F.dot(F.T)), free
+        if space.free == 0 or J.shape[0] == 0:
+            return above, 0.0, 0
+        if level.identity:  # J = I: no decomposition needed; (J F)^# mapped back: F Fᵀ, or P itself
+            F = space.F
+            X = vt = size = None
+            pinv, rank = (self._eye if F is None else F if space.projector else F.dot(F.T)), space.free
         else:
             # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
             # singular value). Two rows in joint space or in a projector's: closed form.
-            X = J if F is None else J.dot(F)
-            size = None if F is None else math.sqrt(float(np.vdot(J, J)))
-            pinv, rank, vt = _solve(X, size, F is None or projector)
+            X = J if space.F is None else J.dot(space.F)
+            size = None if space.F is None else math.sqrt(float(np.vdot(J, J)))
+            pinv, rank, vt = _solve(X, size, space.closed)
             if rank == 0:  # the levels above took every direction this task moves
-                return above, 0.0, 0, F, projector, free
-            if F is not None and not projector:
-                pinv = F.dot(pinv)
+                return above, 0.0, 0
+            pinv = space.mapped(pinv)
         # The unsaturated pass: the prioritised pseudoinverse law.
-        if above_zero:
-            qdot = pinv.dot(v)
+        qdot = pinv.dot(v) if above_zero else above + pinv.dot(v - (above if level.identity else J.dot(above)))
+        qdot, scale, saturated = self._saturate(level, above, qdot, pinv, rank, size, space, X, above_zero)
+        if qdot is None:  # no scale in [0, 1] fits: not executed
+            return above, 0.0, saturated
+        if not more or level.identity:
+            space.free -= rank
         else:
-            qdot = above + pinv.dot(v - (above if identity else J.dot(above)))
-        task_pinv, task_X, task_vt = pinv, X, vt
+            space.reduce(rank, pinv, X, vt, self._eye)
+        return qdot, scale, saturated
+
+    def _saturate(self, level: Stack, above: np.ndarray, qdot: np.ndarray, pinv: np.ndarray, rank: int,
+                  size: float | None, space: _NullSpace, X: np.ndarray | None, above_zero: bool):
+        """The saturation passes from the unsaturated q̇ (``X``: the task's rows J F):
+        (q̇, scale, saturated joints), q̇ None when no scale fits."""
+        J, v = level.J, level.v
+        lower, upper = self._lower, self._upper
         saturated: list[int] = []
         held: list = []  # joints held within F: unit directions u (basis) or (d, ‖d‖²) (projector)
         shifted, rows = above, X
@@ -327,90 +288,51 @@ class SNSController:
         first = qdot if above_zero else None  # with nothing above, the first pass's a is q̇
         while True:
             q_list = qdot.tolist()
-            for x, lo, hi in zip(q_list, lower, upper):
-                if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
-                    break
-            else:  # inside the box
-                scale = 1.0
-                break
+            if _inside(q_list, lower, upper):
+                return qdot, 1.0, len(saturated)
             # q̇(s) = s a + b: a the task's share, b = q̇ − a the saturated joints' and the
             # levels above' (taken joint by joint where needed; None: b = 0)
             if first is None:
-                a = pinv.dot(v)
-                whole = qdot
+                a, whole = pinv.dot(v), qdot
                 s, critical = self._scaling(a.tolist(), q_list, saturated)
             else:  # a = q̇, b = 0
                 a, whole, first = first, None, None
                 s, critical = self._scaling(q_list, None, saturated)
             if s > best_scale:
                 best_scale, best = s, (a, whole)
-            scale = -1.0
             # One more saturated joint leaves free − len(saturated) − 1 directions: if that
             # is fewer than the task needs, it would cost the task one: scale it now.
-            if critical < 0 or free - len(saturated) - 1 < rank:
+            if critical < 0 or space.free - len(saturated) - 1 < rank:
                 break
             # Hold the critical joint at the bound it crossed; the task gets what is left.
             saturated.append(critical)
             target = upper[critical] if q_list[critical] > upper[critical] else lower[critical]
-            if F is None:  # in joint space: the saturated joints are simply set, and the
+            if space.F is None:  # in joint space: the saturated joints are simply set, and the
                 # task keeps the other columns (zeroed columns: the same singular values as
                 # J without them, and a pseudoinverse with zero rows there)
                 if shifted is above:
                     shifted, rows = above.copy(), J.copy()
                 shifted[critical] = target
                 rows[:, critical] = 0.0
-            elif projector:  # along d = P̄ e_i, P̄ = P less the joints already held
-                d = F[critical]
-                for e, norm in held:
-                    d = d - e * (e[critical] / norm)
-                norm_sq = float(d[critical])  # ‖P̄ e_i‖²
-                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
+            else:
+                moved = space.hold(critical, target, shifted, rows, held)
+                if moved is None:  # that null space cannot hold this joint
                     break
-                shifted = shifted + d.dot((target - shifted.item(critical)) / norm_sq)  # dot: a faster *
-                held.append((d, norm_sq))
-                # J P̄: the task without d
-                rows = rows - (d.dot(rows.dot(d).item() / norm_sq) if len(rows) == 1 else
-                               (rows.dot(d) / norm_sq)[:, None] * d)
-            else:  # within the basis, as close as it allows: along h, the joint's row of Z
-                # less its part along the joints already held
-                h = F[critical]
-                for u in held:
-                    h = h - u.dot(h) * u
-                norm_sq = float(h.dot(h))
-                if norm_sq <= _RANK_TOLERANCE**2:  # that null space cannot hold this joint
-                    break
-                shifted = shifted + F.dot(h * ((target - shifted[critical]) / norm_sq))
-                u = h / math.sqrt(norm_sq)
-                held.append(u)
-                rows = rows - rows.dot(u)[:, None] * u  # J Z (I − u uᵀ): the task without u
+                shifted, rows = moved
             # The rank tolerance of these passes scales with ‖J‖, never with the task scale s
             # (which is −1 when no scale fits: a negative threshold counted zero singular
             # values as a rank and divided by them).
             if size is None:
                 size = math.sqrt(float(np.vdot(J, J)))
-            pinv, pass_rank, _ = _solve(rows, size, F is None or projector, _PASS_RANK_TOLERANCE)
+            pinv, pass_rank, _ = _solve(rows, size, space.closed, _PASS_RANK_TOLERANCE)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
-            if F is not None and not projector:
-                pinv = F.dot(pinv)
+            pinv = space.mapped(pinv)
             qdot = shifted + pinv.dot(v - J.dot(shifted))
-        if scale < 0.0:
-            if best is None or best_scale < 0.0:  # no scale in [0, 1] fits: not executed
-                return above, 0.0, len(saturated), F, projector, free
-            a, b = best[0], self._zero if best[1] is None else best[1] - best[0]
-            scale, qdot = best_scale, b if best_scale == 0.0 else best_scale * a + b
-        if not more or identity:
-            return qdot, scale, len(saturated), F, projector, free - rank
-        if F is None or projector:
-            if task_vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
-                return qdot, scale, len(saturated), (self._eye if F is None else F) - task_pinv.dot(task_X), \
-                    True, free - rank
-            if projector:
-                return qdot, scale, len(saturated), F - task_pinv.dot(task_X), True, free - rank
-        if task_vt is None:  # one row: decompose now
-            task_vt = linalg.dgesvd(task_X)[2]
-        null = task_vt[rank:].T
-        return qdot, scale, len(saturated), (null if F is None else F.dot(null)), False, free - rank
+        if best is None or best_scale < 0.0:
+            return None, 0.0, len(saturated)
+        a, b = best[0], self._zero if best[1] is None else best[1] - best[0]
+        return (b if best_scale == 0.0 else best_scale * a + b), best_scale, len(saturated)
 
     def _scaling(self, a_list: list[float], q_list: list[float] | None, saturated: list[int]) -> tuple[float, int]:
         """For q̇ = a + b outside the box (``q_list``: q̇; None: b = 0): the largest s in
@@ -446,3 +368,11 @@ class SNSController:
     def report(self) -> dict[str, np.ndarray]:
         """The last step's task scale of each level (1: met in full)."""
         return {"task_scale": self.task_scale.copy()}
+
+
+def _inside(q: list[float], lower: list[float], upper: list[float]) -> bool:
+    """Whether q̇ is in the box, up to rounding (``_BOUND_TOLERANCE``)."""
+    for x, lo, hi in zip(q, lower, upper):
+        if x < lo - _BOUND_TOLERANCE or x > hi + _BOUND_TOLERANCE:
+            return False
+    return True

@@ -65,11 +65,9 @@ def box_and_rows(robot, hard_tasks, limits, dt: float):
     lb, ub = np.full(nv, -np.inf), np.full(nv, np.inf)
     rows = []
     for limit in order_limits(limits):
-        if limit.box:
-            limit.apply(dt, lb, ub)
+        G, h = np.zeros((limit.inequality_rows, nv)), np.zeros(limit.inequality_rows)
+        limit.apply(dt, lb, ub, G, h)
         if limit.inequality_rows:
-            G, h = np.zeros((limit.inequality_rows, nv)), np.zeros(limit.inequality_rows)
-            limit.fill_inequalities(dt, G, h)
             rows.append((G, h))
     G = np.vstack([g for g, _ in rows]) if rows else np.zeros((0, nv))
     h = np.concatenate([v for _, v in rows]) if rows else np.zeros(0)

@@ -55,7 +55,7 @@ class AccelerationLimit(Limit):
         self.previous_velocity[:] = 0.0 if velocity is None else np.asarray(velocity, dtype=float)
         self._started = False
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         q = self.robot.data.qpos
         if self._started:
             mujoco.mj_differentiatePos(self.robot.model, self.previous_velocity, dt, self._previous_q, q)

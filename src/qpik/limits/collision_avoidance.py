@@ -16,19 +16,8 @@ may close, as mink's ``gain``). Once at or below :math:`d_s` they may not approa
 (bound 0 + ``bound_relaxation``). Farther than :math:`d_i` a pair's row is inactive
 (0 ≤ +inf).
 
-Why the damper is on by default: the row bounds the distance rate to first order. A
-step that closes most of the margin at speed (γ/Δt alone lets a hand arrive at metres per
-second) overshoots by the distance's second-order term, ½ Δqᵀ∇²d Δq — half a millimetre
-for a hand sliding into a box edge at 7 m/s in the tests. With the damper the speed
-toward the obstacle vanishes in proportion to the margin, so the second-order term
-(∝ margin²) never catches up with it and :math:`d \ge d_s` holds to rounding.
-
-Distances come from MuJoCo's native convex collision (GJK/EPA) even where the model
-disables it for its own contacts (``<flag nativeccd="disable"/>``, as dm_control's Jaco
-does): the fallback, libccd's MPR, returns for meshes a distance that depends on the
-cutoff it is given (one Jaco pose: −0.011 m with a 5 cm cutoff, −0.103 m with 1 m), so
-the limit would bound a distance that is not there. The flag is switched on around the
-queries and restored after them.
+Why the damper is on by default, and why distances come from MuJoCo's native convex
+collision even where the model turns it off: docs/controllers.md.
 """
 
 from __future__ import annotations
@@ -71,7 +60,6 @@ class CollisionAvoidanceLimit(Limit):
         InvalidInput: no pair left, or parameters out of range.
     """
 
-    box = False
 
     def __init__(self, robot: Robot, geom_pairs: Sequence[tuple[GeomGroup, GeomGroup]],
                  minimum_distance: float = 0.005, detection_distance: float = 0.1, gain: float = 0.85,
@@ -103,7 +91,9 @@ class CollisionAvoidanceLimit(Limit):
         self._jac1 = np.zeros((3, robot.nv))
         self._jac2 = np.zeros((3, robot.nv))
 
-    def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G: np.ndarray | None = None,
+              h: np.ndarray | None = None) -> None:
+        """Write one row per pair into G (pairs x nv) and h (the box is left as it is)."""
         flags = self.robot.model.opt.disableflags
         if not flags & NATIVE_CCD_OFF:
             self._fill(dt, G, h)

@@ -19,12 +19,8 @@ class FloatingBaseVelocityLimit(Limit):
     free-joint velocity is the base's linear velocity in world axes and its angular
     velocity in the base's own axes, so the bounds hold on those axes.
 
-    Per-axis boxes, not norms: a box is exact, constant (applied once when a controller
-    is built) and taken natively by every solver and by SNS. The Euclidean norm is then
-    at most :math:`\sqrt3` times a scalar bound; to bound the norm by L pass
-    :math:`L/\sqrt3` (the cube inside the ball). A norm bound itself would need a
-    polyhedral approximation in general rows :math:`G\dot q \le h` (many rows for a
-    close fit, and rows SNS cannot take).
+    Per-axis boxes, not norms (exact, constant and taken by every controller): the norm
+    is then at most :math:`\sqrt3` times a scalar bound; pass :math:`L/\sqrt3` to bound it by L.
 
     Args:
         robot: the robot.
@@ -48,7 +44,7 @@ class FloatingBaseVelocityLimit(Limit):
         self.dofs = np.arange(first, first + 6)
         self.max_velocity = np.concatenate([_bounds(linear, "linear"), _bounds(angular, "angular")])
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         dofs = self.dofs
         lb[dofs] = np.maximum(lb[dofs], -self.max_velocity)
         ub[dofs] = np.minimum(ub[dofs], self.max_velocity)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import JointLimits, Robot
 from ..tasks.task import positive_scalar
 from .limit import Limit, as_slice
-
-SCALAR_JOINTS_MAX = 8  # measured crossover: 4 joints 2.1 vs 5.3 µs, 18 joints 5.4 vs 3.7
 
 
 class JointPositionLimit(Limit):
@@ -35,10 +34,11 @@ class JointPositionLimit(Limit):
     """
 
     constant = False  # depends on q: recomputed every step
+    takes_lists = True  # the box of a robot of a few dofs, in floats
 
     def __init__(self, robot: Robot, limits: JointLimits | None = None, gain: float = 1.0,
                  influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
-        self.limits = robot.joint_limits if limits is None else limits
+        self.limits = self.ranges = robot.joint_limits if limits is None else limits
         gain = positive_scalar(gain, "position-limit gain")
         if gain > 1.0:
             raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
@@ -51,38 +51,36 @@ class JointPositionLimit(Limit):
             raise InvalidInput(f"joint range narrower than twice the limit margin ({margin:g}) or empty: "
                                f"{', '.join(bad)}")
         self.robot = robot
-        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter costs ~0.5 µs)
         self.gain = gain
         self.influence = influence
         self.damper_rate = damper_rate
         self.margin = float(margin)
         # Rows: lower then upper bound, pulled in by the margin.
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
-        self._qpos = as_slice(self.limits.qpos_index)
+        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter costs ~0.5 µs)
+        qpos = as_slice(self.limits.qpos_index)
+        # The limited joints' positions: a view of it when they are consecutive.
+        self._positions = self._q[qpos] if isinstance(qpos, slice) else None
+        self._qpos = qpos
         self._dofs = as_slice(self.limits.dof_index)
         self._steps = np.empty_like(self._bounds)
         self._low, self._high = self._steps  # row views, made once
         self._rate = damper_rate / influence if influence > 0 else 0.0
         self._factor = np.empty_like(self._bounds)
         self._near = np.empty(self._bounds.shape, dtype=bool)
-        # A few joints: plain floats beat a dozen NumPy calls (each ~0.4 µs) per step.
-        self._scalar_joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
-                               zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)] \
-            if len(self.limits.names) <= SCALAR_JOINTS_MAX else None
+        self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
+                        zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
 
-    @property
-    def in_floats(self) -> bool:
-        """Whether the box is computed joint by joint in floats (a few joints): then
-        :meth:`apply_from` and :meth:`apply_to_lists` are the cheap calls."""
-        return self._scalar_joints is not None
-
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place."""
-        if self._scalar_joints is not None:
-            self._apply_scalars(dt, lb, ub)
+        if type(lb) is list:
+            self._apply_to_floats(dt, lb, ub)
             return
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
-        np.subtract(self._bounds, self._q[self._qpos], out=steps)
+        positions = self._positions if self._positions is not None else self._q[self._qpos]
+        np.subtract(self._bounds, positions, out=steps)
+        if not math.isfinite(mujoco.mju_sum(self._low)):  # NaN or inf in q: name the joint
+            self._non_finite()
         if self.influence > 0.0:
             # Within the influence distance of a bound the speed toward it is rate x
             # distance, but never more than the step limit (a damper faster than gain/Δt
@@ -104,38 +102,14 @@ class JointPositionLimit(Limit):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
 
-    def apply_from(self, dt: float, lower: list[float], upper: list[float], lb: np.ndarray, ub: np.ndarray) -> None:
-        """:meth:`apply` to the box [lower, upper] (lists of nv floats: a controller's
-        constant bounds), writing all of ``lb`` and ``ub``: the same result as copying the
-        box into them and applying, one NumPy copy per side fewer."""
-        if self._scalar_joints is not None:
-            lbs, ubs = list(lower), list(upper)
-            self.apply_to_lists(dt, lbs, ubs)
-            lb[:] = lbs
-            ub[:] = ubs
-            return
-        lb[:] = lower
-        ub[:] = upper
-        self.apply(dt, lb, ub)
-
-    def _apply_scalars(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def _apply_to_floats(self, dt: float, lbs: list, ubs: list) -> None:
         """:meth:`apply` joint by joint in floats: the same operations in the same order."""
-        lbs, ubs = lb.tolist(), ub.tolist()
-        self.apply_to_lists(dt, lbs, ubs)
-        lb[:] = lbs
-        ub[:] = ubs
-
-    def apply_to_lists(self, dt: float, lbs: list, ubs: list) -> None:
-        """:meth:`apply` on the box as lists of floats: the joint-by-joint loop itself."""
-        if self._scalar_joints is None:
-            super().apply_to_lists(dt, lbs, ubs)
-            return
         q = self._q.tolist()
         step_rate = self.gain / dt
         influence = self.influence
         damped = self._rate if self._rate < step_rate else step_rate
         total = 0.0  # one finiteness test for all the joints, after the loop
-        for qi, di, lo, hi in self._scalar_joints:
+        for qi, di, lo, hi in self._joints:
             x = q[qi]
             total += x
             low, high = lo - x, hi - x
@@ -156,6 +130,10 @@ class JointPositionLimit(Limit):
             if high < v_hi:
                 ubs[di] = high
         if not math.isfinite(total):
-            for qi, di, _, _ in self._scalar_joints:
-                if not math.isfinite(q[qi]):
-                    raise InvalidInput(f"joint {self.robot.dof_name(di)} has a non-finite position {q[qi]}")
+            self._non_finite()
+
+    def _non_finite(self) -> None:
+        q = self.robot.data.qpos
+        for qpos, dof in zip(self.limits.qpos_index, self.limits.dof_index):
+            if not math.isfinite(q[qpos]):
+                raise InvalidInput(f"joint {self.robot.dof_name(dof)} has a non-finite position {q[qpos]}")

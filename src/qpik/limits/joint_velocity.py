@@ -62,7 +62,7 @@ class JointVelocityLimit(Limit):
         self.robot = robot
         self.max_velocity = vmax
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
         np.maximum(lb, -self.max_velocity, out=lb)
         np.minimum(ub, self.max_velocity, out=ub)
 

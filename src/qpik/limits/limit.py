@@ -1,19 +1,11 @@
 r"""The Limit interface: inequalities on the joint velocity :math:`\dot q` for the next step Δt.
 
-A limit contributes either or both of
-
-- a box lb ≤ q̇ ≤ ub (nv,), tightened in place by :meth:`Limit.apply` (joint position
-  and velocity limits: every solver takes boxes natively, the fast path);
-- ``inequality_rows`` general rows :math:`G\dot q \le h`, written in place by
-  :meth:`Limit.fill_inequalities` (collision avoidance). A row that does not bind this
-  step may be written as 0 ≤ +inf.
-
-``constant`` limits (the same bounds every step, e.g. speed limits) are applied once when
-a controller is built; the others every step.
-
-When both position and velocity limits are present a joint found outside its range
-(possible in physics mode) may return at full speed: the position bound is clipped into
-the velocity box, so the box is never empty for valid limits.
+A limit has one entry point, :meth:`Limit.apply`: it tightens the box lb ≤ q̇ ≤ ub in
+place and/or writes its ``inequality_rows`` general rows :math:`G\dot q \le h` (a row that
+does not bind this step may be 0 ≤ +inf). ``constant`` limits (the same box every step,
+e.g. speed limits) are applied once, when a controller is built. A position bound is
+clipped into the speed box, so a joint found outside its range returns at full speed
+and the box is never empty for valid limits.
 """
 
 from __future__ import annotations
@@ -25,27 +17,24 @@ class Limit:
     """Base class of the limits: a box on q̇ and/or general rows G q̇ ≤ h for the step Δt.
 
     Attributes:
-        constant: the same bounds every step (a controller applies them once).
-        box: whether :meth:`apply` tightens the box.
-        inequality_rows: how many rows :meth:`fill_inequalities` writes.
+        constant: the same box every step (written once; such a limit writes no rows).
+        inequality_rows: how many rows :meth:`apply` writes into G and h.
+        ranges: the joint ranges the limit keeps q inside (a
+            :class:`~qpik.robot.JointLimits`: position limits), else None.
+        takes_lists: whether :meth:`apply` also takes the box as lists of floats (a
+            controller then keeps the box of a robot of a few dofs in floats).
     """
 
     constant = False
-    box = True
     inequality_rows = 0
+    ranges = None
+    takes_lists = False
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
-        """Tighten the velocity box [lb, ub] (nv,) in place."""
-
-    def apply_to_lists(self, dt: float, lower: list, upper: list) -> None:
-        """:meth:`apply` on the box held as lists of floats (for a controller that works on
-        floats), in place."""
-        lb, ub = np.array(lower), np.array(upper)
-        self.apply(dt, lb, ub)
-        lower[:], upper[:] = lb.tolist(), ub.tolist()
-
-    def fill_inequalities(self, dt: float, G: np.ndarray, h: np.ndarray) -> None:
-        """Write this limit's rows G (rows x nv) and h (rows,) in place."""
+    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G: np.ndarray | None = None,
+              h: np.ndarray | None = None) -> None:
+        """Write this limit for a step of ``dt`` seconds: tighten the box [lb, ub] (nv,)
+        in place (NumPy arrays; lists of floats too where ``takes_lists``), and/or write
+        its rows G (inequality_rows x nv) and h (inequality_rows,)."""
 
 
 def as_slice(index: np.ndarray):

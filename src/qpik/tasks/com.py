@@ -5,9 +5,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ..errors import InvalidInput, ModelError
+from ..errors import ModelError
 from ..robot import Robot
-from .task import Task, axis_rows, feedback_gain, positive, target_vector
+from .task import Task, axis_rows, check_targets, feedback_gain, float_array
 
 
 class ComTask(Task):
@@ -44,14 +44,12 @@ class ComTask(Task):
     def __init__(self, robot: Robot, gain=None, weight=1.0, subtree: str | None = None, axes: str = "xyz",
                  hard: bool = False, lm_damping: float = 0.0):
         self.rows = axis_rows(axes)
-        super().__init__(robot, len(self.rows), weight, hard)
-        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
         self.body = 0 if subtree is None else robot.body_id(subtree)
         if not robot.model.body_subtreemass[self.body] > 0:
             what = "the model" if subtree is None else f"the subtree of body {subtree!r}"
             raise ModelError(f"{self.name}: {what} has no mass, so no centre of mass")
-        self.gain = feedback_gain(gain, self.dim, "CoM gain")
-        self._mark_dead_beat(self.gain)
+        self._use_gain(feedback_gain(gain, self.dim, "CoM gain"))
         self.com = robot.data.subtree_com[self.body]  # a view, refreshed by every kinematics update
         self._jacp = np.zeros((3, robot.nv))
         self.target = self.com[self.rows].copy()
@@ -70,14 +68,11 @@ class ComTask(Task):
             InvalidInput: a wrong length, NaN or inf, or a target so far away that the
                 feedback K·e would overflow.
         """
-        target = target_vector(position, self.dim, "target CoM")
-        # e = target − CoM and K·e must stay finite (an overflow there would warn every step);
-        # fmax: a dead-beat gain is NaN until a controller gives its period.
-        if not (np.abs(target) <= np.finfo(float).max / (2.0 * np.fmax(self.gain, 1.0))).all():
-            raise InvalidInput(f"{self.name}: target CoM {target} is so far away that the feedback "
-                               f"(gain {float(np.max(self.gain)):g} times the error) overflows")
-        self.target[:] = target
-        self.target_rate[:] = 0.0 if velocity is None else target_vector(velocity, self.dim, "target CoM velocity")
+        position = float_array(position, self.dim, "target CoM")
+        velocity = np.zeros(self.dim) if velocity is None else float_array(velocity, self.dim, "target CoM velocity")
+        check_targets((position, "target CoM"), (velocity, "target CoM velocity"))  # K·e stays finite
+        self.target[:] = position
+        self.target_rate[:] = velocity
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the robot's current configuration."""
@@ -89,9 +84,6 @@ class ComTask(Task):
         (valid after its kinematics update)."""
         return (robot or self.robot).data.subtree_com[self.body][self.rows]
 
-    def feedback_gains(self) -> np.ndarray:
-        return self.gain
-
     def update(self) -> None:
         mujoco.mj_jacSubtreeCom(self.robot.model, self.robot.data, self._jacp, self.body)
         np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
@@ -100,5 +92,4 @@ class ComTask(Task):
     def update_target_velocity(self) -> None:
         """Error and v only (what a law without the Jacobian needs)."""
         np.subtract(self.target, np.take(self.com, self.rows, out=self._masked), out=self.error)
-        np.multiply(self.gain, self.error, out=self.target_velocity)
-        self.target_velocity += self.target_rate
+        self._track(self.target_rate)

@@ -12,15 +12,17 @@ from .task import (
     axis_rows,
     check_axes_frame,
     feedback_gain,
-    target_vector,
+    check_targets,
+    float_array,
     homogeneous_transform,
     mocap_pose,
-    positive,
     rotation_error,
     rotation_matrix,
 )
 
 __all__ = ["FrameTask", "rotation_error"]
+
+_ZERO3 = np.zeros(3)
 
 
 class FrameTask(Task):
@@ -78,15 +80,13 @@ class FrameTask(Task):
         self.axes_frame = axes_frame
         local = check_axes_frame(axes_frame)
         n_position = len(self.position_rows)
-        super().__init__(robot, n_position + len(self.orientation_rows), weight, hard)
-        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
         self.frame = robot.frame(frame, frame_type)
         # Gains and the feed-forward twist live in one array each, the per-block names being
         # views: v = K e + ẋ_d is then two operations on all rows.
-        self._gain = np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
-                                     feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")])
-        self.position_gain, self.orientation_gain = self._gain[:n_position], self._gain[n_position:]
-        self._mark_dead_beat(self._gain)
+        self._use_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
+                                       feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
+        self.position_gain, self.orientation_gain = self.gain[:n_position], self.gain[n_position:]
         self.target_position = self.frame.position.copy()
         self.target_rotation = self.frame.rotation.copy()
         self._twist = np.zeros(6)
@@ -112,10 +112,15 @@ class FrameTask(Task):
         Raises:
             InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
         """
-        self.target_position[:] = target_vector(position, 3, "target position")
-        self.target_rotation[:] = rotation_matrix(rotation)
-        self.target_linear_velocity[:] = 0.0 if linear_velocity is None else target_vector(linear_velocity, 3, "target linear velocity")
-        self.target_angular_velocity[:] = 0.0 if angular_velocity is None else target_vector(angular_velocity, 3, "target angular velocity")
+        position = float_array(position, 3, "target position")
+        linear = _ZERO3 if linear_velocity is None else float_array(linear_velocity, 3, "target linear velocity")
+        angular = _ZERO3 if angular_velocity is None else float_array(angular_velocity, 3, "target angular velocity")
+        check_targets((position, "target position"), (linear, "target linear velocity"),
+                      (angular, "target angular velocity"))
+        self.target_rotation[:] = rotation_matrix(rotation)  # every argument checked before the others are written
+        self.target_position[:] = position
+        self.target_linear_velocity[:] = linear
+        self.target_angular_velocity[:] = angular
 
     def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].
@@ -140,9 +145,6 @@ class FrameTask(Task):
         self.robot.ensure_kinematics()
         self.set_target(self.frame.position, self.frame.rotation)
 
-    def feedback_gains(self) -> np.ndarray:
-        return self._gain.copy()
-
     def update(self) -> None:
         if self._whole:
             self.frame.jacobian(self._jacp, self._jacr)
@@ -155,11 +157,9 @@ class FrameTask(Task):
         if not self._whole:
             self._rows.errors(self.target_position, self.target_rotation, self.target_linear_velocity,
                               self.target_angular_velocity, self.error, self._feedforward)
-            np.multiply(self._gain, self.error, out=self.target_velocity)
-            self.target_velocity += self._feedforward
+            self._track(self._feedforward)
             return
         np.subtract(self.target_position, self.frame.position, out=self.position_error)
         self._rotation_error.world_flat(self._target_flat, self._current_flat, self.frame.rotation,
                                         out=self.orientation_error)
-        np.multiply(self._gain, self.error, out=self.target_velocity)
-        self.target_velocity += self._twist
+        self._track(self._twist)

@@ -188,6 +188,12 @@ class Yoshikawa:
         return self._measure()[0]
 
     def gradient(self, out: np.ndarray) -> None:
+        # Unbounded (no limits, a slide joint extending) the ascent grows w without end
+        # until JJᵀ overflows: the task then reports a DivergenceError, not a RuntimeWarning per step.
+        with np.errstate(over="ignore", invalid="ignore"):
+            self._gradient(out)
+
+    def _gradient(self, out: np.ndarray) -> None:
         self._fill(self.robot)
         w, adjugate = self._measure()
         if w == 0.0:
@@ -291,10 +297,7 @@ class ManipulabilityTask(JointSpaceTask):
         self._every_dof = bool(np.array_equal(self.dofs, np.arange(robot.nv)))
 
     def update(self) -> None:
-        # Unbounded (no limits, a slide joint extending) the ascent grows w without end
-        # until JJᵀ overflows: a DivergenceError, not a RuntimeWarning per step.
-        with np.errstate(over="ignore", invalid="ignore"):
-            self.measure.gradient(self._grad)
+        self.measure.gradient(self._grad)
         if not math.isfinite(sum(self._grad.tolist())):
             raise DivergenceError(f"{self.name}: the manipulability gradient overflowed (the configuration "
                                   "diverged, e.g. an unlimited joint extending): add joint limits")

@@ -13,7 +13,6 @@ from .task import (
     feedback_gain,
     target_vector,
     mocap_pose,
-    positive,
     rotation_matrix,
 )
 
@@ -53,11 +52,9 @@ class OrientationTask(Task):
         self.rows = axis_rows(axes)
         self.axes_frame = axes_frame
         local = check_axes_frame(axes_frame)
-        super().__init__(robot, len(self.rows), weight, hard)
-        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
+        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
         self.frame = robot.frame(frame, frame_type)
-        self.gain = feedback_gain(gain, self.dim, "orientation gain")
-        self._mark_dead_beat(self.gain)
+        self._use_gain(feedback_gain(gain, self.dim, "orientation gain"))
         self.target_rotation = self.frame.rotation.copy()
         self.target_angular_velocity = np.zeros(3)
         self._pose_rows = PoseRows(self.frame, robot.nv, None, self.rows, local)
@@ -88,9 +85,6 @@ class OrientationTask(Task):
         """
         self.set_target(mocap_pose(self.robot, body)[1])
 
-    def feedback_gains(self) -> np.ndarray:
-        return self.gain
-
     def update(self) -> None:
         self._pose_rows.jacobian(self.jacobian)
         self.update_target_velocity()
@@ -99,5 +93,4 @@ class OrientationTask(Task):
         """Error and v only (what a law without the Jacobian needs)."""
         self._pose_rows.errors(None, self.target_rotation, None, self.target_angular_velocity, self.error,
                                self._feedforward)
-        np.multiply(self.gain, self.error, out=self.target_velocity)
-        self.target_velocity += self._feedforward
+        self._track(self._feedforward)

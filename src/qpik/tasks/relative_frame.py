@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..robot import Robot
-from .task import RotationError, Task, feedback_gain, homogeneous_transform, positive, rotation_matrix, target_vector
+from .task import RotationError, Task, feedback_gain, homogeneous_transform, rotation_matrix, target_vector
 
 
 class RelativeFrameTask(Task):
@@ -48,15 +48,14 @@ class RelativeFrameTask(Task):
 
     def __init__(self, robot: Robot, frame: str, root: str, frame_type: str = "site", root_type: str = "site",
                  position_gain=None, orientation_gain=None, weight=1.0, hard: bool = False, lm_damping: float = 0.0):
-        super().__init__(robot, 6, weight, hard)
+        super().__init__(robot, 6, weight, hard, lm_damping=lm_damping)
         self.frame = robot.frame(frame, frame_type)
         self.root = robot.frame(root, root_type)
         if (self.frame.type, self.frame.id) == (self.root.type, self.root.id):
             raise InvalidInput(f"{self.name}: frame and root are the same {frame_type} {frame!r}")
-        self.lm_damping = positive(lm_damping, 1, "lm_damping", allow_zero=True)[0]
-        self.position_gain = feedback_gain(position_gain, 3, "position gain")
-        self.orientation_gain = feedback_gain(orientation_gain, 3, "orientation gain")
-        self._mark_dead_beat(self.position_gain, self.orientation_gain)
+        self._use_gain(np.concatenate([feedback_gain(position_gain, 3, "position gain"),
+                                       feedback_gain(orientation_gain, 3, "orientation gain")]))
+        self.position_gain, self.orientation_gain = self.gain[:3], self.gain[3:]
         nv = robot.nv
         self._jac_frame, self._jac_root = np.zeros((6, nv)), np.zeros((6, nv))
         self._moved = np.zeros((3, nv))
@@ -67,16 +66,16 @@ class RelativeFrameTask(Task):
         self._relative_pose()
         self.target_position = self.position.copy()
         self.target_rotation = self.rotation.copy()
-        self.target_linear_velocity = np.zeros(3)
-        self.target_angular_velocity = np.zeros(3)
+        self._twist = np.zeros(6)
+        self.target_linear_velocity, self.target_angular_velocity = self._twist[:3], self._twist[3:]
         self.position_error = self.error[:3]
         self.orientation_error = self.error[3:]
         self._rotation_error = RotationError()
 
     def _relative_pose(self) -> None:
         np.subtract(self.frame.position, self.root.position, out=self._offset)
-        np.matmul(self._offset, self.root.rotation, out=self.position)  # dᵀR_r = (R_rᵀd)ᵀ
-        np.matmul(self.root.rotation.T, self.frame.rotation, out=self.rotation)
+        np.dot(self._offset, self.root.rotation, out=self.position)  # dᵀR_r = (R_rᵀd)ᵀ
+        np.dot(self.root.rotation.T, self.frame.rotation, out=self.rotation)
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
         """Desired pose of ``frame`` in ``root`` coordinates (``rotation`` a 3x3 matrix or
@@ -101,9 +100,6 @@ class RelativeFrameTask(Task):
         self._relative_pose()
         self.set_target(self.position, self.rotation)
 
-    def feedback_gains(self) -> np.ndarray:
-        return np.concatenate([self.position_gain, self.orientation_gain])
-
     def update(self) -> None:
         jf, jr, moved = self._jac_frame, self._jac_root, self._moved
         self.frame.jacobian(jf[:3], jf[3:])
@@ -116,9 +112,9 @@ class RelativeFrameTask(Task):
             moved[i] += np.multiply(d[j], wr[k], out=row)
             moved[i] -= np.multiply(d[k], wr[j], out=row)
         Rt = self.root.rotation.T
-        np.matmul(Rt, moved, out=self.jacobian[:3])
+        np.dot(Rt, moved, out=self.jacobian[:3])
         np.subtract(jf[3:], wr, out=moved)
-        np.matmul(Rt, moved, out=self.jacobian[3:])
+        np.dot(Rt, moved, out=self.jacobian[3:])
         self._errors()
 
     def update_target_velocity(self) -> None:
@@ -129,7 +125,4 @@ class RelativeFrameTask(Task):
     def _errors(self) -> None:
         np.subtract(self.target_position, self.position, out=self.position_error)
         self._rotation_error.world(self.target_rotation, self.rotation, out=self.orientation_error)
-        np.multiply(self.position_gain, self.position_error, out=self.target_velocity[:3])
-        self.target_velocity[:3] += self.target_linear_velocity
-        np.multiply(self.orientation_gain, self.orientation_error, out=self.target_velocity[3:])
-        self.target_velocity[3:] += self.target_angular_velocity
+        self._track(self._twist)

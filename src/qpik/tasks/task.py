@@ -79,8 +79,8 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     except (TypeError, ValueError):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {rotation!r}") from None
     if rot.shape == (4,):
-        return quaternion_matrix(rot, what)
-    if rot.shape != (3, 3):
+        rot = quaternion_matrix(rot, what)
+    elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
     # In floats (about 1 µs; RᵀR with NumPy reductions costs 4): columns of unit length,
     # pairwise orthogonal, determinant +1.
@@ -174,7 +174,7 @@ class RotationError:
 
     def world(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The error in world axes, written into ``out``."""
-        return np.matmul(current, self.compute(desired, current), out=out)
+        return np.dot(current, self.compute(desired, current), out=out)
 
     def world_flat(self, desired_flat: np.ndarray, current_flat: np.ndarray, current: np.ndarray,
                    out: np.ndarray) -> np.ndarray:
@@ -182,7 +182,7 @@ class RotationError:
         mujoco.mju_mat2Quat(self._desired, desired_flat)
         mujoco.mju_mat2Quat(self._current, current_flat)
         mujoco.mju_subQuat(self.local, self._desired, self._current)
-        return np.matmul(current, self.local, out=out)
+        return np.dot(current, self.local, out=out)
 
 
 def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -193,16 +193,22 @@ def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
 
 def finite_vector(value, size: int, what: str) -> np.ndarray:
     """``value`` as a float array of shape (size,), or InvalidInput naming ``what``."""
+    arr = float_array(value, size, what)
+    # Per target, every step: a sum of floats is NaN or inf when an entry is (0.2 µs
+    # where np.isfinite and np.all cost 2 µs); an overflowing sum is refused as well.
+    if not math.isfinite(sum(arr.tolist())):
+        raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
+    return arr
+
+
+def float_array(value, size: int, what: str) -> np.ndarray:
+    """``value`` as a float array of shape (size,) (its entries not checked), or InvalidInput."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise InvalidInput(f"{what} must be {size} numbers, got {value!r}") from None
     if arr.shape != (size,):
         raise InvalidInput(f"{what} must have shape ({size},), got {arr.shape}")
-    # Per target, every step: a sum of floats is NaN or inf when an entry is (0.2 µs
-    # where np.isfinite and np.all cost 2 µs); an overflowing sum is refused as well.
-    if not math.isfinite(sum(arr.tolist())):
-        raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
     return arr
 
 
@@ -211,11 +217,26 @@ def finite_vector(value, size: int, what: str) -> np.ndarray:
 TARGET_MAGNITUDE_LIMIT = 1e150
 
 
+def check_targets(*named: tuple[np.ndarray, str]) -> None:
+    """Each (array, what) checked as :func:`target_vector` checks it, in one pass over all
+    of them (a step's targets: the pass is the check's cost)."""
+    values = []
+    for array, _ in named:
+        values += array.tolist()
+    if not (math.isfinite(sum(values)) and -TARGET_MAGNITUDE_LIMIT <= min(values)
+            and max(values) <= TARGET_MAGNITUDE_LIMIT):
+        for array, what in named:
+            target_vector(array, len(array), what)  # the culprit, named
+
+
 def target_vector(value, size: int, what: str) -> np.ndarray:
     """:func:`finite_vector`, and InvalidInput for an entry beyond
     :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
-    arr = finite_vector(value, size, what)
-    if size and max(map(abs, arr.tolist())) > TARGET_MAGNITUDE_LIMIT:
+    arr = float_array(value, size, what)
+    values = arr.tolist()  # checked in floats, one pass each (every target, every step)
+    if not math.isfinite(sum(values)):
+        raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
+    if size and not (-TARGET_MAGNITUDE_LIMIT <= min(values) and max(values) <= TARGET_MAGNITUDE_LIMIT):
         raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback "
                            "K·e (and its square) would overflow; give a target the robot could reach")
     return arr
@@ -320,16 +341,13 @@ class Task:
         self.hard = bool(hard)
         self.weight = positive(weight, self.dim, f"{self.name} weight", allow_zero=True)
         self.priority = priority
-        if lm_damping:
-            self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
+        self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
         self._allocate_jacobian()
         self.target_velocity = np.zeros(self.dim)
         self.error = np.zeros(self.dim)
         generic = self._computes_rows()
         if generic or gain is not None:
-            self.gain = feedback_gain(gain, self.dim, f"{self.name} gain")
-            self._gains = self.gain
-            self._mark_dead_beat(self.gain)
+            self._use_gain(feedback_gain(gain, self.dim, f"{self.name} gain"))
         self.target_rate = np.zeros(self.dim)  # ẋ_d (a built-in task may replace it)
 
     def _computes_rows(self) -> bool:
@@ -474,8 +492,18 @@ class Task:
             return
         error = self.compute_error(self.robot)
         self.error[...] = _checked_rows(error, (self.dim,), self.name, "compute_error")
-        np.multiply(self.gain, self.error, out=self.target_velocity)
-        self.target_velocity += self.target_rate
+        self._track(self.target_rate)
+
+    def _use_gain(self, gain: np.ndarray) -> None:
+        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`)."""
+        self.gain = self._gains = gain
+        self._mark_dead_beat(gain)
+
+    def _track(self, rate: np.ndarray) -> None:
+        """v = ẋ_d + K e, from ``error`` and the feed-forward ``rate`` (outputs passed by
+        position: a keyword costs more per call)."""
+        np.multiply(self.gain, self.error, self.target_velocity)
+        np.add(self.target_velocity, rate, self.target_velocity)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, hard={self.hard})"
@@ -595,7 +623,7 @@ class PoseRows:
         if self.local:
             Rt = self.frame.rotation.T
             for block in self._blocks:
-                np.matmul(Rt, jac[block], out=self._rotated[block])
+                np.dot(Rt, jac[block], out=self._rotated[block])
             jac = self._rotated
         np.take(jac, self.rows, axis=0, out=out)
 
@@ -608,15 +636,15 @@ class PoseRows:
             np.subtract(target_position, frame.position, out=e[self._position])
             f[self._position] = linear_velocity
             if self.local:  # vᵀR = (Rᵀv)ᵀ
-                np.matmul(e[self._position], R, out=self._scratch)
+                np.dot(e[self._position], R, out=self._scratch)
                 e[self._position] = self._scratch
-                np.matmul(f[self._position], R, out=self._scratch)
+                np.dot(f[self._position], R, out=self._scratch)
                 f[self._position] = self._scratch
         if self.has_orientation:
             part = self._orientation
             if self.local:
                 e[part] = self._rotation_error.compute(target_rotation, R)
-                np.matmul(angular_velocity, R, out=f[part])
+                np.dot(angular_velocity, R, out=f[part])
             else:
                 self._rotation_error.world(target_rotation, R, out=e[part])
                 f[part] = angular_velocity

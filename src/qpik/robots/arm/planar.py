@@ -32,7 +32,7 @@ class PlanarOrientationTask(Task):
     def __init__(self, robot: Robot, site: str, gain: float = 1.0, weight=1.0, hard: bool = False):
         super().__init__(robot, 1, weight, hard)
         self.site_id = robot.site_id(site)
-        self.gain = float(positive(gain, 1, "orientation gain", allow_zero=True)[0])
+        self._use_gain(positive(gain, 1, "orientation gain", allow_zero=True))
         self._jacr = np.zeros((3, robot.nv))
         self.jacobian = self._jacr[2:3]  # a view MuJoCo fills
         self.target = np.array([self.angle()])
@@ -48,11 +48,8 @@ class PlanarOrientationTask(Task):
         self.target[:] = finite_vector(np.reshape(angle, -1), 1, "target angle")
         self.target_rate[:] = 0.0 if rate is None else finite_vector(np.reshape(rate, -1), 1, "target rate")
 
-    def feedback_gains(self) -> np.ndarray:
-        return np.array([self.gain])
-
     def update(self) -> None:
         mujoco.mj_jacSite(self.robot.model, self.robot.data, None, self._jacr, self.site_id)
         difference = float(self.target[0]) - self.angle()
         self.error[0] = math.remainder(difference, 2.0 * math.pi)  # the short way round
-        self.target_velocity[0] = self.target_rate[0] + self.gain * self.error[0]
+        self._track(self.target_rate)

@@ -1,0 +1,328 @@
+r"""The equality-constrained QP in closed form: the fast path of a control step.
+
+When no limit binds, the QP's minimiser is that of the equality-constrained problem
+:math:`\min \tfrac12 x^THx + c^Tx` s.t. :math:`Ax = b`, whose KKT system gives
+:math:`x = H^{-1}A^TS^{-1}r - H^{-1}c` with :math:`S = AH^{-1}A^T`,
+:math:`r = b + AH^{-1}c`. The QP being strictly convex, an x that also meets every
+inequality *is* its solution. :func:`closed_form_step` chooses once how to compute it;
+:class:`HeldBounds` holds the bounds a solver found active and checks the KKT conditions;
+:class:`ClosedForm` tries it before the solver. Every answer is checked against the hard
+rows (``EQUALITY_TOLERANCE``); one that fails any check goes to the solver.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .. import linalg
+from ..solvers.base import equalities_met, equalities_met_in_floats
+
+# S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
+# more than this ratio (the condition number of S is the square of it: 1e12).
+SINGULAR_RATIO = 1e6
+# Equality residual (relative to 1 + |b|) a closed-form step may leave: every answer is
+# checked against it (qpik.solvers.base.equalities_met, the solvers' check), since a
+# nearly singular H or S loses digits no cheaper test foresees.
+EQUALITY_TOLERANCE = 1e-10
+# Up to this many hard rows the closed form's answer is checked against them in floats.
+FLOAT_CHECK_ROWS = 8
+
+
+# After a step where the closed form crossed a limit, the solver is called directly for
+# this many steps, twice as many after each attempt that fails again, up to the maximum.
+CLOSED_FORM_PAUSE = 8
+CLOSED_FORM_PAUSE_MAX = 32
+# Closed forms a step may try with held bounds (HeldBounds) before the solver takes it.
+HELD_TRIES = 3
+
+
+def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
+    """The closed-form solve for a problem of ``nv`` dofs and ``meq`` equality rows,
+    chosen once: A⁻¹b when the rows are as many as the dofs; else through H⁻¹, kept when
+    ``H0`` (the Hessian when it is the same every step, else None) is a positive
+    diagonal (a scalar when uniform), factorised every step otherwise."""
+    if meq and meq == nv:
+        return SquareRows(meq)
+    if H0 is not None:
+        diagonal = np.diag(H0)
+        if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
+            return DiagonalHessian(meq, 1.0 / diagonal)
+    return FactorisedHessian(meq)
+
+
+class KKTStep:
+    """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot
+    (H not positive definite, S singular, or x misses the equalities by more than
+    ``EQUALITY_TOLERANCE``: a nearly singular H or S loses digits no cheaper test
+    foresees; the solver then decides). ``Ac`` stacks the equality rows A (meq x nv) and
+    the cost vector cᵀ as its last row."""
+
+    def __init__(self, meq: int, d: float = 1.0):
+        self.meq, self.d = meq, d
+        self._tail = np.zeros(meq + 1)  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
+        self._tail[meq] = -d
+        self._y = self._tail[:meq]  # solved in place where LAPACK allows
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """x, or None."""
+        raise NotImplementedError
+
+    def _eliminate(self, scaled: np.ndarray, Ac: np.ndarray, b: np.ndarray, d: float) -> np.ndarray | None:
+        """x from ``scaled`` = [A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the
+        scalars S, A H⁻¹c and x here)."""
+        meq = self.meq
+        if not meq:
+            return -d * scaled[0]
+        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d); np.dot: cheaper than @
+        if meq <= 2:  # in floats: cheaper than any call
+            return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
+        # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
+        rhs = self._y
+        np.multiply(M[:meq, meq], d, rhs)
+        rhs += b
+        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
+        if info != 0:
+            return None
+        pivots = factor.diagonal().tolist()
+        if max(pivots) > SINGULAR_RATIO * min(pivots):
+            return None
+        if z is not rhs:
+            rhs[:] = z
+        x = np.dot(self._tail, scaled)
+        if meq <= FLOAT_CHECK_ROWS:  # the same check, in floats (fewer NumPy calls)
+            return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
+        return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
+
+    def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
+        """The end of :meth:`_eliminate` for one or two rows, in floats: ``rows`` is M as
+        lists; x checked against the rows as there, in floats."""
+        tail = self._tail
+        if self.meq == 1:
+            s = d * rows[0][0]
+            if not s > 0.0:
+                return None
+            tail[0] = d * (d * rows[0][1] + rhs[0]) / s
+        else:
+            (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
+            a, b_, d_ = d * a, d * b_, d * d_
+            det = a * d_ - b_ * b_
+            if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
+                return None
+            r0 = d * r0 + rhs[0]
+            r1 = d * r1 + rhs[1]
+            tail[0] = d * (d_ * r0 - b_ * r1) / det
+            tail[1] = d * (a * r1 - b_ * r0) / det
+        x = np.dot(tail, scaled)
+        return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
+
+
+class SquareRows(KKTStep):
+    """As many independent hard rows as dofs: the feasible set is the point x = A⁻¹b (one LU)."""
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        A = Ac[: self.meq]
+        lu, _, x, info = linalg.dgesv(A, b)
+        if info != 0:
+            return None
+        pivots = np.abs(lu.diagonal()).tolist()
+        if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
+            return None
+        return x if equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
+
+
+class DiagonalHessian(KKTStep):
+    """H a constant positive diagonal: H⁻¹ is the vector ``inverse`` (a scalar d when it is
+    uniform, H = I/d: no product with H⁻¹ at all, d applied to the scalars)."""
+
+    def __init__(self, meq: int, inverse: np.ndarray):
+        uniform = bool(np.all(inverse == inverse[0]))
+        super().__init__(meq, float(inverse[0]) if uniform else 1.0)
+        self.inverse = None if uniform else inverse
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        return self._eliminate(Ac if self.inverse is None else Ac * self.inverse, Ac, b, self.d)
+
+
+class FactorisedHessian(KKTStep):
+    """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        factor, scaled_t, info = linalg.dposv(H, Ac.T)
+        return None if info != 0 else self._eliminate(scaled_t.T, Ac, b, 1.0)
+
+
+class HeldBounds:
+    r"""The closed form with the bounds the last solver step found active held.
+
+    The held dofs are equality rows :math:`x_i = v_i` (this step's bound values) beside
+    the hard rows; the KKT system :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` is solved by LU
+    (accurate however small ε is). The answer is the QP's unique minimiser when it is in
+    every limit, meets the hard rows and each held bound's multiplier :math:`r_i = -\mu_i`
+    has the sign of an active bound (≥ 0 at a lower bound, ≤ 0 at an upper one). Else a
+    wrong-signed bound is released, a crossed bound held, and the system solved again
+    (``HELD_TRIES`` at most); then None: the solver decides (docs/controllers.md).
+    """
+
+    def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities):
+        self.nv, self.meq, self.plain, self.inequalities = nv, meq, plain, inequalities
+        self.lower, self.upper = [], []  # the dofs held at their lower and upper bounds
+        self._kkt = None  # ((lower, upper), its KKT matrix)
+
+    def remember(self, x: np.ndarray) -> None:
+        """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
+        lb, ub = self.inequalities.lb, self.inequalities.ub
+        at_lower = np.isfinite(lb) & (np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb)))
+        at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
+        self.lower, self.upper = np.flatnonzero(at_lower).tolist(), np.flatnonzero(at_upper).tolist()
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """The QP's minimiser by closed forms with bounds held, checked (None: the solver decides)."""
+        lower, upper = self.lower, self.upper
+        if not (lower or upper):  # the plain closed form, kept when it meets the limits (most steps)
+            x = self.plain.solve(H, Ac, b)
+            if x is None or self.inequalities.admits(x):
+                return x
+            r = np.zeros(0)
+        else:
+            x, r = self._held_solve(H, Ac, b, lower, upper)
+        for _ in range(HELD_TRIES):
+            if x is None:
+                return None
+            wrong = {i for i, ri in zip(lower, r[: len(lower)].tolist()) if ri < 0.0} | \
+                {i for i, ri in zip(upper, r[len(lower):].tolist()) if ri > 0.0}
+            if not wrong and self.inequalities.admits(x):
+                self.lower, self.upper = lower, upper  # the working set, held again next step
+                return x
+            lb, ub = self.inequalities.box()
+            values = x.tolist()
+            below = [i for i, value in enumerate(values) if value < lb[i]]
+            above = [i for i, value in enumerate(values) if value > ub[i]]
+            if not (wrong or below or above):  # a general row, not a bound, is in the way
+                return None
+            lower = [i for i in lower if i not in wrong] + below
+            upper = [i for i in upper if i not in wrong] + above
+            x, r = self._held_solve(H, Ac, b, lower, upper) if lower or upper else (self.plain.solve(H, Ac, b), r[:0])
+        return None
+
+    def _bordered(self, lower: list, upper: list) -> np.ndarray:
+        """The KKT matrix with its held dofs' unit rows and columns in place (kept while
+        the same bounds are held)."""
+        if self._kkt is None or self._kkt[0] != (lower, upper):
+            nv, meq, held = self.nv, self.meq, lower + upper
+            kkt = np.zeros((nv + meq + len(held),) * 2)
+            rows = np.arange(nv + meq, nv + meq + len(held))
+            kkt[rows, held] = kkt[held, rows] = 1.0
+            self._kkt = ((list(lower), list(upper)), kkt)
+        return self._kkt[1]
+
+    def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
+        """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
+        nv, meq, held = self.nv, self.meq, len(lower)
+        rows = meq + held + len(upper)  # (more rows than dofs: a singular system, refused below)
+        kkt = self._bordered(lower, upper)
+        kkt[:nv, :nv] = H
+        kkt[nv:nv + meq, :nv] = Ac[:meq]
+        kkt[:nv, nv:nv + meq] = Ac[:meq].T
+        lb, ub = self.inequalities.lb, self.inequalities.ub
+        right = np.concatenate([-Ac[meq], b, lb[lower], ub[upper]])
+        lu, _, solution, info = linalg.dgesv(kkt, right)
+        pivots = np.abs(lu.diagonal()).tolist()
+        if info != 0 or max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
+            return None, None
+        x = solution[:nv]
+        x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
+        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
+            return None, None
+        return x, -solution[nv + meq:]
+
+
+class ClosedForm:
+    """The closed form tried before the solver: its answer is kept when it meets every
+    limit (then it is the QP's solution). ``admits``: the limits' check, None where the
+    solve checks them itself (:class:`HeldBounds`).
+
+    A limit that binds usually still binds next step, where the closed form would be
+    wasted work: after a failed attempt the next few steps go to the solver directly (the
+    same answer), and twice as many after each attempt that fails again (a humanoid whose
+    limits bound at every step tried 167 times, 37 µs each, for nothing); a success
+    brings the pause back to its start.
+    """
+
+    def __init__(self, admits: Callable[[np.ndarray], bool] | None):
+        self.admits = admits
+        self.skip = 0  # steps left before the next attempt
+        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
+
+    def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
+        """``solve(*arguments)`` when it is tried this step and meets the limits, else None
+        (one step of the pause used up, or a miss that starts the next pause)."""
+        if self.skip:
+            self.skip -= 1
+            return None
+        x = solve(*arguments)
+        if x is not None and (self.admits is None or self.admits(x)):
+            self.next = CLOSED_FORM_PAUSE
+            return x
+        self.skip = self.next
+        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
+        return None
+
+
+def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
+                              c: np.ndarray | None) -> np.ndarray | None:
+    r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂ (R₁ the first ``soft_rows`` rows of R,
+    D diagonal positive, ``dinv`` = D⁻¹, c None for zero), or None where singular.
+
+    x = D⁻¹(Rᵀz − c) with (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c: the damped
+    least-squares form, which keeps its digits where H⁻¹ (of order 1/ε) would not; an x
+    that misses R₂x = r₂ by more than ``EQUALITY_TOLERANCE`` relative is None. Up to
+    ``SMALL_SYSTEM`` rows in floats.
+    """
+    m = R.shape[0]
+    scaled = R * dinv
+    K = np.dot(scaled, R.T)
+    right = rhs if c is None else rhs + np.dot(scaled, c)
+    if m <= SMALL_SYSTEM:
+        z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
+        if z is None:
+            return None
+        x = np.dot(z, R)
+    else:
+        K.reshape(-1)[:: m + 1][:soft_rows] += 1.0
+        factor, z, info = linalg.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
+        if info != 0:
+            return None
+        pivots = factor.diagonal().tolist()
+        if max(pivots) > SINGULAR_RATIO * min(pivots):
+            return None
+        x = np.dot(z, R)
+    if c is not None:
+        x -= c
+    x *= dinv
+    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
+        return None
+    return x
+
+
+# Up to this many rows, damped_least_squares_step solves in Python floats.
+SMALL_SYSTEM = 2
+
+
+def _small_spd_solve(K: list, r: list, soft_rows: int) -> list | None:
+    """z of (K + diag(I, 0)) z = r for one or two rows, in floats (K symmetric, as lists),
+    or None where it is not positive definite or its condition number passes
+    SINGULAR_RATIO² (as the LAPACK path's pivot test)."""
+    if len(r) == 1:
+        a = K[0][0] + (1.0 if soft_rows else 0.0)
+        return [r[0] / a] if a > 0.0 else None
+    (a, b), (_, d) = K
+    if soft_rows:
+        a += 1.0
+        if soft_rows > 1:
+            d += 1.0
+    det = a * d - b * b
+    if not (a > 0.0 and det * SINGULAR_RATIO ** 2 > a * d):
+        return None
+    return [(d * r[0] - b * r[1]) / det, (a * r[1] - b * r[0]) / det]

@@ -1,0 +1,107 @@
+r"""The cost of a set of soft tasks, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`:
+:math:`H = \epsilon I + \sum W_i` (joint-space tasks, on the diagonal, once)
+:math:`+ \sum J_i^TW_iJ_i + \sum \mu_i e_i^TW_ie_i\, I` (the others, each step),
+:math:`c = -\sum J_i^TW_iv_i`. The Levenberg–Marquardt term (mink's ``lm_damping``)
+grows with the error; past ``LM_RESCALE`` H and c are scaled down together (the same
+minimiser) so that no solver sees overflowing numbers.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InvalidInput
+from ..limits.limit import as_slice
+from ..tasks import Task
+from .rows import Stack
+
+LM_RESCALE = 1e6
+
+
+class Cost:
+    """H and c of the soft tasks ``soft`` (``diagonal``: the joint-space ones, ``general``:
+    the others), ε = ``regularization``. ``H0`` is H's constant part; ``H`` and ``c`` the
+    step's after :meth:`write` (H stays H0 when no task has its own Jacobian)."""
+
+    def __init__(self, nv: int, soft: Sequence[Task], regularization: float, c: np.ndarray | None = None):
+        self.diagonal = [task for task in soft if task.joint_space]
+        self.general = [task for task in soft if not task.joint_space]
+        self.H0 = np.eye(nv) * regularization
+        dofs = [as_slice(task.dofs) for task in self.diagonal]
+        for task, where in zip(self.diagonal, dofs):
+            self.H0.reshape(-1)[:: nv + 1][where] += task.weight
+        self.H = self.H0.copy()
+        self.c = np.zeros(nv) if c is None else c
+        self._diag = self.H.reshape(-1)[:: nv + 1]
+        self._scratch = np.zeros(nv)
+        plan = [(task, -task.weight, where) for task, where in zip(self.diagonal, dofs)]
+        # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
+        self._first = plan.pop(0)[:2] if plan and isinstance(dofs[0], slice) and dofs[0] == slice(0, nv) else None
+        self._plan = plan
+        # H0 is diagonal: H = Σ JᵀWJ, written into H, plus H0's diagonal. One general task:
+        # Jᵀ(WJ) (W None when it is all ones); several: RᵀR for their rows stacked, R = √W J
+        # (one product instead of one per task, and no sum of nv x nv matrices).
+        if len(self.general) == 1:
+            task = self.general[0]
+            self._single = (task, None if np.all(task.weight == 1.0) else task.weight[:, None])
+        else:
+            self._single = None
+            self._rows = Stack(nv, self.general, weighted=True)
+        self._diag0 = np.diag(self.H0).copy()
+
+    def write_diagonal(self) -> None:
+        """c of the joint-space tasks alone."""
+        c = self.c
+        if self._first is not None:
+            task, neg_weight = self._first
+            np.multiply(neg_weight, task.target_velocity, c)
+        else:
+            c.fill(0.0)
+        for task, neg_weight, dofs in self._plan:
+            scratch = self._scratch[: task.dim]
+            np.multiply(neg_weight, task.target_velocity, scratch)
+            c[dofs] += scratch
+
+    def write(self) -> None:
+        """The step's H and c: c of every task, and H = H0 + Σ JᵀWJ + the LM terms."""
+        self.write_diagonal()
+        if not self.general:
+            return
+        H, c = self.H, self.c
+        if self._single is not None:
+            task, column = self._single
+            jacobian = task.jacobian
+            weighted = jacobian if column is None else column * jacobian
+            np.dot(jacobian.T, weighted, out=H)  # np.dot: less overhead than @ on small arrays
+            c -= np.dot(task.target_velocity, weighted)
+        else:
+            rows = self._rows
+            rows.stack()
+            np.dot(rows.J.T, rows.J, out=H)
+            c -= np.dot(rows.v, rows.J)  # (√W v)ᵀ(√W J) = vᵀWJ
+        self._diag += self._diag0
+        lm = self.levenberg_marquardt()
+        if lm:
+            self._diag += lm
+        if lm > LM_RESCALE:
+            scale = 1.0 / (1.0 + lm)
+            H *= scale
+            c *= scale
+
+    def levenberg_marquardt(self) -> float:
+        """Σ μ eᵀWe over the tasks with ``lm_damping``: the step's damping on every dof.
+
+        Raises:
+            InvalidInput: it overflows (a target absurdly far away).
+        """
+        total = 0.0
+        for task in self.general:
+            if task.lm_damping:
+                error = task.error
+                total += task.lm_damping * float(np.dot(error, task.weight * error))
+        if total > LM_RESCALE and not np.isfinite(total):
+            raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
+                               "check its target")
+        return total
