@@ -60,12 +60,17 @@ class NullSpaceBackend(QPBackend):
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
         particular, basis = self._null_space()
+        self._allow_rounding(particular)
         rows, bounds = self._reduced_rows(particular, basis)
         z = self._reduced_minimiser(H, c, particular, basis, rows, bounds)
         step = basis @ z
-        magnitude = float(np.abs(particular).max(initial=0.0) + np.abs(step).max(initial=0.0))
-        self.bound_tolerance = type(self).bound_tolerance + 16 * self.nv * EPS * magnitude
+        self._allow_rounding(particular, step)
         return particular + step
+
+    def _allow_rounding(self, *parts: np.ndarray) -> None:
+        """``bound_tolerance`` widened by the rounding of a sum of ``parts`` (nv terms each)."""
+        magnitude = sum(float(np.abs(part).max(initial=0.0)) for part in parts)
+        self.bound_tolerance = type(self).bound_tolerance + 16 * self.nv * EPS * magnitude
 
     def _null_space(self) -> tuple[np.ndarray, np.ndarray]:
         """x_p (the least-squares solution of A x = b) and N (nv × (nv − rank))."""
