@@ -16,7 +16,7 @@ import pytest
 from scipy.optimize import linprog
 
 from qpik.controllers.fallbacks import GuardedSolve, has_feasible_point
-from qpik.errors import InfeasibleProblem
+from qpik.errors import InfeasibleProblem, SolverError
 from qpik.solvers import available_solvers, make_backend
 from qpik.solvers.nullspace import NullSpaceBackend
 
@@ -111,3 +111,14 @@ def test_hard_rows_that_fix_a_dof_outside_its_box_are_infeasible():
     backend.lb[:], backend.ub[:] = -1.0, 1.0
     with pytest.raises(InfeasibleProblem):
         backend.solve(np.eye(2), np.zeros(2))
+
+
+def test_dependent_hard_rows_that_disagree_beyond_the_promise_are_named_as_the_cause():
+    """Two hard tasks on the same motion whose targets disagree by 1e-8 relative: phase 1
+    (1e-7) finds the set feasible, no solver can meet the rows to 1e-9, and the error
+    says so rather than blaming the cost."""
+    backend = make_backend("daqp", 2, 2, 0)
+    backend.A[:] = [[1.0, 1.0], [2.0, 2.0]]
+    backend.b[:] = [1e9, 2e9 * (1.0 + 1e-8)]
+    with pytest.raises(SolverError, match=r"hard rows alone can be met to [0-9.e-]+ \(relative\) at best.*disagree"):
+        GuardedSolve(backend, "daqp").solve(np.eye(2), np.zeros(2))

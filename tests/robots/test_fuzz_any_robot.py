@@ -47,14 +47,24 @@ def test_the_lp_asks_of_a_point_what_a_controller_promises():
     # The smallest point is the one checked: a free dof the LP could put anywhere stays near 0.
     free = np.array([-np.inf, -np.inf]), np.array([np.inf, np.inf])
     assert lp_feasible(np.array([[1e8, 0.0]]), np.array([1.0]), *free, *no_rows, margin=True)
+    # Two hard tasks on one motion whose targets (1e9) agree to 1e-12 relative, rounding:
+    # one point meets both as the promise counts (|Ax − b| relative to |b|), however far
+    # apart they are in absolute terms (1e-3, beyond HiGHS's own 1e-7).
+    dependent = np.array([[1.0, 1.0], [2.0, 2.0]])
+    assert lp_feasible(dependent, np.array([1e9, 2e9 + 1e-3]), *free, *no_rows, margin=True)
+    assert not lp_feasible(dependent, np.array([1e9, 2e9 * (1 + 1e-8)]), *free, *no_rows, margin=True)
+    assert lp_feasible(dependent, np.array([1e9, 2e9 * (1 + 1e-8)]), *free, *no_rows, margin=False)
 
 
-@pytest.mark.parametrize("seed, classes", [(661, ["ok"]), (2728, ["ok"]), (7431, ["ok"]), (9123, ["typed"])])
+@pytest.mark.parametrize("seed, classes", [(661, ["ok"]), (2728, ["ok"]), (7431, ["ok"]), (9123, ["typed"]),
+                                           (5579, ["typed"]), (7286, ["typed"])])
 def test_the_steps_the_solvers_called_infeasible_on_a_stretched_robot(tmp_path, seed, classes):
     """The last full sweep's typed errors on steps an LP found feasible: hard rows of
     1e6–1e10 beside joint ranges 1e-3 wide. Three are solved in the hard rows' null
     space; the fourth (a row of entries 1e6 that only points 3e6 rad/s away meet) cannot
-    be met to the promised 1e-9 in floating point, and its typed error stands."""
+    be met to the promised 1e-9 in floating point, and its typed error stands. 5579 and
+    7286: dependent hard rows of |b| ~ 1e9 that disagree by 3e-9–7e-9 relative, a
+    SolverError that says so, neither feasible to the promise nor infeasible to phase 1."""
     assert run_case(seed, tmp_path)["classes"] == classes
 
 

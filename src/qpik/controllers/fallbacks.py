@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..solvers import available_solvers, make_backend
-from ..solvers.base import ITERATION_LIMIT, TIME_LIMIT
+from ..solvers.base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT
 from ..solvers.nullspace import NullSpaceBackend
 from .closed_form import ClosedFormPause
 from .labels import task_label
@@ -106,6 +106,21 @@ def feasible_in_null_space(backend) -> bool:
     except (InfeasibleProblem, SolverError):
         return False
     return True
+
+
+def _hard_rows_unmet(backend) -> str:
+    """Why no exact answer exists when the hard rows alone cannot be met to their promise
+    (their least-squares fit misses them by more than 1e-9 relative: dependent hard tasks
+    that disagree, by less than phase 1's 1e-7), else ""."""
+    if not backend.meq:
+        return ""
+    fit = np.linalg.lstsq(backend.A, backend.b, rcond=None)[0]
+    miss = float(np.linalg.norm(backend.A @ fit - backend.b)) / (1.0 + float(np.linalg.norm(backend.b)))
+    if not miss > EXACT_EQUALITY_TOLERANCE:
+        return ""
+    return (f"the hard rows alone can be met to {miss:.2g} (relative) at best, not the promised "
+            f"{EXACT_EQUALITY_TOLERANCE:.0e}: hard tasks that constrain the same motion disagree; make one of them "
+            "soft or give it a lower priority")
 
 
 def _copy_constraints(source, target) -> None:
@@ -194,8 +209,9 @@ class GuardedSolve:
             return x
         if not has_feasible_point(self.backend):
             raise InfeasibleProblem(f"{failure}{also}, and no point meets the constraints (a phase-1 problem proves it)") from None
-        raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
-                          "(weight 1e-6 or more), lower the task gains or try another solver") from None
+        raise SolverError(f"{failure}{also}: " + (_hard_rows_unmet(self.backend) or (
+            "the cost is nearly singular or badly scaled; add a DampingTask (weight 1e-6 or more), lower the "
+            "task gains or try another solver"))) from None
 
     def _confirm_infeasible(self, report: InfeasibleProblem, H: np.ndarray, c: np.ndarray,
                             solvers: str) -> np.ndarray:
@@ -211,9 +227,9 @@ class GuardedSolve:
         if x is not None:
             return x
         raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
-                          "point (a phase-1 problem finds one) and no exact solver found the minimiser: the cost is badly "
-                          "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
-                          "or a DampingTask")
+                          "point (a phase-1 problem finds one) and no exact solver found the minimiser: " + (
+                              _hard_rows_unmet(self.backend) or "the cost is badly scaled (a soft task with a target "
+                              "far out of reach?); add LM damping (lm_damping) or a DampingTask"))
 
     def _spare(self, name: str):
         """Solver ``name`` sized like the problem, with the back-end's constraints (a

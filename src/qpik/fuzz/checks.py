@@ -89,7 +89,10 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     the promised 1e-9 (1 + |b|). So the LP asks for the point whose entries weigh least on
     the rows (min Σ (1 + max_i |A_ij|) |q̇_j|), moves it onto A q̇ = b by least squares,
     back into the box, and checks it as a controller's answer is checked: the rows to
-    :data:`LP_EQUALITY_TOLERANCE` and the inequality rows (HiGHS itself works to 1e-7)."""
+    :data:`LP_EQUALITY_TOLERANCE` and the inequality rows. HiGHS gets the hard rows as
+    bands whose widths add up to that tolerance (the promise bounds the residual vector's
+    norm, relative to |b|): its own tolerance is absolute (1e-7), and dependent rows of
+    |b| ~ 1e9 that disagree by 1e-9 of it (rounding) would otherwise have no common point."""
     if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b)) and np.all(np.isfinite(G))):
         return False
     finite_h = np.isfinite(h)
@@ -100,7 +103,9 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     if np.any(low > high):
         return False
     h_margin = h - (LP_MARGIN * np.maximum(1.0, np.abs(h)) if margin else 0.0)
-    x = _lightest_point(A, b, low, high, G, h_margin)
+    # Rows within this of b (each) are within the tolerance together (Euclidean norm).
+    band = LP_EQUALITY_TOLERANCE[margin] * (1.0 + np.linalg.norm(b)) / np.sqrt(max(1, len(b)))
+    x = _lightest_point(A, b, band, low, high, G, h_margin)
     if x is None:
         return False
     if len(b):
@@ -111,18 +116,18 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     return bool(not len(h) or np.all(G @ x <= h + slack))
 
 
-def _lightest_point(A, b, low, high, G, h) -> np.ndarray | None:
-    """HiGHS's point of A x = b, G x <= h, low <= x <= high minimising
+def _lightest_point(A, b, band: float, low, high, G, h) -> np.ndarray | None:
+    """HiGHS's point of |A x − b| <= band (each row), G x <= h, low <= x <= high minimising
     Σ (1 + max_i |A_ij|) |x_j| (through s >= |x|), or None where it finds none."""
     nv = len(low)
     weight = 1.0 + (np.abs(A).max(axis=0) if len(b) else np.zeros(nv))
     identity = np.eye(nv)
-    rows = [np.hstack([identity, -identity]), np.hstack([-identity, -identity])]
+    rows = [np.hstack([identity, -identity]), np.hstack([-identity, -identity]),
+            np.hstack([A, np.zeros_like(A)]), np.hstack([-A, np.zeros_like(A)])]
     if len(h):
         rows.append(np.hstack([G, np.zeros_like(G)]))
     bounds = [(None if not np.isfinite(lo) else lo, None if not np.isfinite(hi) else hi) for lo, hi in zip(low, high)]
     answer = linprog(np.concatenate([np.zeros(nv), weight]), A_ub=np.vstack(rows),
-                     b_ub=np.concatenate([np.zeros(2 * nv), h]),
-                     A_eq=np.hstack([A, np.zeros_like(A)]) if len(b) else None, b_eq=b if len(b) else None,
+                     b_ub=np.concatenate([np.zeros(2 * nv), b + band, band - b, h]),
                      bounds=bounds + [(0, None)] * nv, method="highs")
     return answer.x[:nv] if answer.status == 0 else None
