@@ -9,8 +9,8 @@ and rolls out 25 steps (see qpik.fuzz). Every returned step is checked; a typed 
 checked against an LP on the step's hard rows and box (HiGHS). Failure classes: untyped
 exception, non-finite answer, limit crossing, hard task missed, invalid parameter
 accepted, typed error on an LP-feasible step, misleading diagnosis, nondeterminism (every
-20th case re-run in another process), stray warning, hang (a step over 100 ms, confirmed
-on a re-run, or a case past --cap seconds).
+20th case re-run in another process), stray warning, hang (a step over 100 ms of CPU
+time, confirmed on a re-run, or a case past --cap seconds of wall time).
 
     nice -n 10 python benchmarks/fuzz_any_robot.py --cases 10000 --seed 0 --jobs 2
     python benchmarks/fuzz_any_robot.py --case 17       # one case here, with details

@@ -19,7 +19,8 @@ import pytest
 
 from qpik.fuzz import CLASSES, DEFECTS, run_case
 from qpik.fuzz.checks import lp_feasible
-from qpik.fuzz.sweep import run_workers, summarise, sweep
+from qpik.fuzz.sweep import PROXQP_COST_TOLERANCE, run_workers, same_run, summarise, sweep
+from qpik.io import write_json
 
 SHORT = 300
 
@@ -33,6 +34,114 @@ def test_the_lp_tells_feasible_from_infeasible_steps():
     assert lp_feasible(A, np.array([2.0]), *box, *no_rows, margin=False)
     contradictory = np.array([[1.0, 0.0], [1.0, 0.0]]), np.array([0.5, 0.6])
     assert not lp_feasible(*contradictory, *box, *no_rows, margin=False)
+
+
+def test_the_lp_asks_of_a_point_what_a_controller_promises():
+    """A row of entries 1e8 on dofs the box holds at 1e6 rad/s: floating point evaluates
+    it to about 1e-2, far from the hard rows' promise of 1e-9 (1 + |b|), so no solver can
+    return a point meeting it; with the entries 1 it can."""
+    box = np.array([1e6, -np.inf]), np.array([2e6, np.inf])
+    no_rows = np.zeros((0, 2)), np.zeros(0)
+    assert not lp_feasible(np.array([[1e8, -1e8]]), np.array([1.0]), *box, *no_rows, margin=True)
+    assert lp_feasible(np.array([[1.0, -1.0]]), np.array([1.0]), *box, *no_rows, margin=True)
+    # The smallest point is the one checked: a free dof the LP could put anywhere stays near 0.
+    free = np.array([-np.inf, -np.inf]), np.array([np.inf, np.inf])
+    assert lp_feasible(np.array([[1e8, 0.0]]), np.array([1.0]), *free, *no_rows, margin=True)
+    # Two hard tasks on one motion whose targets (1e9) agree to 1e-12 relative, rounding:
+    # one point meets both as the promise counts (|Ax − b| relative to |b|), however far
+    # apart they are in absolute terms (1e-3, beyond HiGHS's own 1e-7).
+    dependent = np.array([[1.0, 1.0], [2.0, 2.0]])
+    assert lp_feasible(dependent, np.array([1e9, 2e9 + 1e-3]), *free, *no_rows, margin=True)
+    assert not lp_feasible(dependent, np.array([1e9, 2e9 * (1 + 1e-8)]), *free, *no_rows, margin=True)
+    assert lp_feasible(dependent, np.array([1e9, 2e9 * (1 + 1e-8)]), *free, *no_rows, margin=False)
+
+
+@pytest.mark.parametrize("seed, classes", [(661, ["ok"]), (2728, ["ok"]), (7431, ["ok"]), (9123, ["typed"]),
+                                           (5579, ["typed"]), (7286, ["typed"])])
+def test_the_steps_the_solvers_called_infeasible_on_a_stretched_robot(tmp_path, seed, classes):
+    """The last full sweep's typed errors on steps an LP found feasible: hard rows of
+    1e6–1e10 beside joint ranges 1e-3 wide. Three are solved in the hard rows' null
+    space; the fourth (a row of entries 1e6 that only points 3e6 rad/s away meet) cannot
+    be met to the promised 1e-9 in floating point, and its typed error stands. 5579 and
+    7286: dependent hard rows of |b| ~ 1e9 that disagree by 3e-9–7e-9 relative, a
+    SolverError that says so, neither feasible to the promise nor infeasible to phase 1."""
+    assert run_case(seed, tmp_path)["classes"] == classes
+
+
+def test_an_active_set_solve_that_cycles_stops_at_its_cap(tmp_path, monkeypatch):
+    """Case 3586 (53 dofs, a cost whose smallest curvature is 1e-12): DAQP cycled to
+    10,000 iterations on every step before the damped retry solved it in about 40; it now
+    stops at 10 nv + 100."""
+    import daqp
+
+    iterations = []
+    solve = daqp.solve
+
+    def counted(*args, **kwargs):
+        answer = solve(*args, **kwargs)
+        iterations.append((answer[3]["iterations"], len(args[1])))
+        return answer
+
+    monkeypatch.setattr(daqp, "solve", counted)
+    assert run_case(3586, tmp_path)["classes"] == ["ok"]
+    assert iterations and all(count <= 10 * nv + 101 for count, nv in iterations)
+
+
+def test_a_step_is_timed_in_cpu_time(tmp_path, monkeypatch):
+    """A step that waits 0.15 s (a busy machine) is no hang; one that computes for 0.15 s
+    of CPU time is."""
+    from qpik.fuzz import cases
+
+    def slowed(pause):
+        build = cases.Case.build
+
+        def build_slow(case):
+            build(case)
+            step = case.controller.compute_velocity
+
+            def slow_step():
+                pause()
+                return step()
+
+            case.controller.compute_velocity = slow_step
+        return build_slow
+
+    def compute():
+        started = time.process_time()
+        while time.process_time() - started < 0.15:
+            pass
+
+    seed = next(s for s in range(50) if run_case(s, tmp_path)["classes"] == ["ok"])
+    monkeypatch.setattr(cases.Case, "build", slowed(lambda: time.sleep(0.15)))
+    assert run_case(seed, tmp_path)["classes"] == ["ok"]
+    monkeypatch.setattr(cases.Case, "build", slowed(compute))
+    assert "hang" in run_case(seed, tmp_path)["classes"]
+
+
+def test_a_proxqp_repeat_is_judged_by_its_promises_not_its_argmin():
+    """Two ProxQP runs whose q ends 1e-3 apart (a cost whose smallest curvature is 1e-12)
+    but whose every answer costs the same are the same run; a cost that differs, or a
+    run that stops elsewhere, is not. Any other solver must repeat bit for bit."""
+    first = {"classes": ["ok"], "q_hash": "a", "step_costs": [[1.0, 2.0], [0.5, 4.0]], "details": {}}
+    same = {"classes": ["ok"], "q_hash": "b", "step_costs": [[1.0, 2.0 + 1e-12], [0.5, 4.0]], "details": {}}
+    costlier = {"classes": ["ok"], "q_hash": "b", "step_costs": [[1.0, 2.0 + 1e-3], [0.5, 4.0]], "details": {}}
+    shorter = {"classes": ["ok"], "q_hash": "b", "step_costs": [[1.0, 2.0]], "details": {}}
+    assert same_run(first, same) and first["details"]["proxqp_cost_gap"] <= PROXQP_COST_TOLERANCE
+    assert not same_run(first, costlier) and not same_run(first, shorter)
+    other_solver = {"classes": ["ok"], "q_hash": "a", "details": {}}
+    assert same_run(other_solver, dict(other_solver)) and not same_run(other_solver, {**other_solver, "q_hash": "b"})
+
+
+def test_a_proxqp_case_replayed_in_another_process_keeps_its_promises(tmp_path):
+    """Case 5560 (ProxQP, a cost whose smallest curvature is 1e-12) ended 1.9e-3 apart in
+    q between processes; replayed on the first run's configurations, every answer costs
+    the same."""
+    first = run_case(5560, tmp_path)
+    assert len(first["q_steps"]) == len(first["step_costs"]) == 25
+    write_json(tmp_path / "replays.json", {"5560": first["q_steps"]})
+    again = run_workers([5560], jobs=1, chunk=1, cap=120.0, replays=tmp_path / "replays.json")[5560]
+    assert again["q_steps"] == first["q_steps"]
+    assert same_run(first, again), first["details"].get("proxqp_cost_gap")
 
 
 def test_a_case_past_its_budget_is_a_hang_and_the_rest_still_run():

@@ -9,7 +9,9 @@
   the limits it points at; c scaled down to ``COST_SCALE_CAP`` times H's scale keeps its
   direction, and the minimiser stays the same vertex up to 1e-9 relative;
 - a solver failure gets a second try with a little damping (exact solvers) and then the
-  exact solvers DAQP and quadprog;
+  exact solvers DAQP and quadprog, and DAQP on the problem reduced to the hard rows' null
+  space (:class:`~qpik.solvers.nullspace.NullSpaceBackend`: hard rows whose entries span
+  1e-2 to 1e6, as on a robot stretched a million metres, are beyond the dual solvers);
 - a solver's "infeasible", and any failure that no fallback overcomes, is checked by a
   phase-1 problem that has no cost to misjudge (:func:`has_feasible_point`): only a
   problem with no feasible point raises :class:`~qpik.errors.InfeasibleProblem`; a
@@ -25,13 +27,17 @@ import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..solvers import available_solvers, make_backend
-from ..solvers.base import ITERATION_LIMIT, TIME_LIMIT
+from ..solvers.base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT
+from ..solvers.nullspace import NullSpaceBackend
+from .closed_form import ClosedFormPause
 from .labels import task_label
 
 # On solver steps, c is scaled down to at most this times H's diagonal (see tame).
 COST_SCALE_CAP = 1e9
-# Exact solvers a failing step falls back to, in this order.
-FALLBACK_SOLVERS = ("daqp", "quadprog")
+# Exact solvers a failing step falls back to, in this order (the last: DAQP on the problem
+# reduced to the hard rows' null space, for steps with hard rows).
+NULL_SPACE = "daqp in the null space"
+FALLBACK_SOLVERS = ("daqp", "quadprog", NULL_SPACE)
 # has_feasible_point: how far (relative to 1 + |b|) a point may miss an equality and
 # still count as meeting it; the LP that decided before had the same tolerance (HiGHS's).
 FEASIBILITY_TOLERANCE = 1e-7
@@ -67,7 +73,9 @@ def has_feasible_point(backend) -> bool:
     equalities enter as rows b ± ``FEASIBILITY_TOLERANCE`` (1 + |b|): dependent hard rows
     (more rows than dofs, two tasks on one frame) are then rows like any other for the
     active set, not an overdetermined set DAQP refuses to start from. Only DAQP's
-    "primal infeasible" says no; a numerical failure is not a proof of it.
+    "primal infeasible" says no; a numerical failure is not a proof of it. With hard rows,
+    that "no" is checked once more in their null space (:func:`feasible_in_null_space`):
+    DAQP's dual squares the rows' conditioning and can call a feasible set empty.
     """
     import daqp
 
@@ -82,7 +90,43 @@ def has_feasible_point(backend) -> bool:
     _, _, exitflag, _ = daqp.solve(np.eye(nv), np.zeros(nv), np.ascontiguousarray(rows, dtype=float),
                                    upper, lower, np.zeros(len(upper), dtype=c_int),
                                    iter_limit=ITERATION_LIMIT, time_limit=TIME_LIMIT)
-    return exitflag != -1  # -1: primal infeasible
+    return exitflag != -1 or (meq > 0 and feasible_in_null_space(backend))  # -1: primal infeasible
+
+
+def feasible_in_null_space(backend) -> bool:
+    """Whether the phase-1 problem, solved with the hard rows eliminated
+    (:class:`~qpik.solvers.nullspace.NullSpaceBackend`), finds a point that meets them to
+    ``FEASIBILITY_TOLERANCE`` and the limits; a failure to find one keeps the verdict
+    "infeasible"."""
+    phase1 = NullSpaceBackend(backend.nv, backend.meq, backend.mineq)
+    phase1.equality_tolerance = FEASIBILITY_TOLERANCE
+    _copy_constraints(backend, phase1)
+    try:
+        phase1.solve(np.eye(backend.nv), np.zeros(backend.nv))
+    except (InfeasibleProblem, SolverError):
+        return False
+    return True
+
+
+def _hard_rows_unmet(backend) -> str:
+    """Why no exact answer exists when the hard rows alone cannot be met to their promise
+    (their least-squares fit misses them by more than 1e-9 relative: dependent hard tasks
+    that disagree, by less than phase 1's 1e-7), else ""."""
+    if not backend.meq:
+        return ""
+    fit = np.linalg.lstsq(backend.A, backend.b, rcond=None)[0]
+    miss = float(np.linalg.norm(backend.A @ fit - backend.b)) / (1.0 + float(np.linalg.norm(backend.b)))
+    if not miss > EXACT_EQUALITY_TOLERANCE:
+        return ""
+    return (f"the hard rows alone can be met to {miss:.2g} (relative) at best, not the promised "
+            f"{EXACT_EQUALITY_TOLERANCE:.0e}: hard tasks that constrain the same motion disagree; make one of them "
+            "soft or give it a lower priority")
+
+
+def _copy_constraints(source, target) -> None:
+    target.A[:], target.b[:] = source.A, source.b
+    target.G[:], target.h[:] = source.G, source.h
+    target.lb[:], target.ub[:] = source.lb, source.ub
 
 
 class GuardedSolve:
@@ -96,8 +140,14 @@ class GuardedSolve:
     def __init__(self, backend, solver: str):
         self.backend = backend
         self.solver = solver
-        self.fallbacks = 0  # steps the solver failed on and a fallback solved
+        self.fallbacks = 0  # steps a fallback solved (the solver failed, or sat out after failing)
         self._spares = {}
+        # A solver that failed on a step most likely fails on the next (the problem changes
+        # little): it sits out the next few steps, which go to the fallbacks directly, as
+        # the closed form does after a limit binds (8 steps, doubled while it keeps
+        # failing, up to 32). A failing solver then costs its iteration cap once, not
+        # every step (ProxQP: 35 ms a step on a 48-dof tree).
+        self._pause = ClosedFormPause()
 
     def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
         """The checked minimiser.
@@ -107,12 +157,20 @@ class GuardedSolve:
                 is empty (``variable`` set).
             SolverError: a feasible problem that no solver could solve.
         """
+        if not self._pause.ready():
+            return self._retry(SolverError(f"QP solver {self.solver} sat out this step (it failed on a recent one)"),
+                               H, c)
         try:
-            return self.backend.solve(H, tame(c, _scale(H)), hessian_changed=hessian_changed)
+            x = self.backend.solve(H, tame(c, _scale(H)), hessian_changed=hessian_changed)
         except InfeasibleProblem as exc:
+            if exc.variable is None:  # an empty box is no failure of the solver's
+                self._pause.failed()
             return self._confirm_infeasible(exc, H, c, self.solver)
         except SolverError as exc:
+            self._pause.failed()
             return self._retry(exc, H, c)
+        self._pause.succeeded()
+        return x
 
     def _retry(self, failure: SolverError, H: np.ndarray, c: np.ndarray) -> np.ndarray:
         """An exact active-set solver (DAQP, quadprog: cycling) gets one more try with a
@@ -151,8 +209,9 @@ class GuardedSolve:
             return x
         if not has_feasible_point(self.backend):
             raise InfeasibleProblem(f"{failure}{also}, and no point meets the constraints (a phase-1 problem proves it)") from None
-        raise SolverError(f"{failure}{also}: the cost is nearly singular or badly scaled; add a DampingTask "
-                          "(weight 1e-6 or more), lower the task gains or try another solver") from None
+        raise SolverError(f"{failure}{also}: " + (_hard_rows_unmet(self.backend) or (
+            "the cost is nearly singular or badly scaled; add a DampingTask (weight 1e-6 or more), lower the "
+            "task gains or try another solver"))) from None
 
     def _confirm_infeasible(self, report: InfeasibleProblem, H: np.ndarray, c: np.ndarray,
                             solvers: str) -> np.ndarray:
@@ -168,22 +227,25 @@ class GuardedSolve:
         if x is not None:
             return x
         raise SolverError(f"QP solver {solvers} reported infeasibility, but the constraints have a feasible "
-                          "point (a phase-1 problem finds one) and no exact solver found the minimiser: the cost is badly "
-                          "scaled (a soft task with a target far out of reach?); add LM damping (lm_damping) "
-                          "or a DampingTask")
+                          "point (a phase-1 problem finds one) and no exact solver found the minimiser: " + (
+                              _hard_rows_unmet(self.backend) or "the cost is badly scaled (a soft task with a target "
+                              "far out of reach?); add LM damping (lm_damping) or a DampingTask"))
 
     def _spare(self, name: str):
         """Solver ``name`` sized like the problem, with the back-end's constraints (a
-        workspace of its own, even for the solver itself), or None if not installed."""
-        if name not in available_solvers():
-            return None
+        workspace of its own, even for the solver itself), or None if not installed (or,
+        for the null-space reduction, without hard rows to reduce)."""
         backend = self.backend
+        if name == NULL_SPACE:
+            if not backend.meq:
+                return None
+        elif name not in available_solvers():
+            return None
         if name not in self._spares:
-            self._spares[name] = make_backend(name, backend.nv, backend.meq, backend.mineq)
+            self._spares[name] = NullSpaceBackend(backend.nv, backend.meq, backend.mineq) if name == NULL_SPACE \
+                else make_backend(name, backend.nv, backend.meq, backend.mineq)
         spare = self._spares[name]
-        spare.A[:], spare.b[:] = backend.A, backend.b
-        spare.G[:], spare.h[:] = backend.G, backend.h
-        spare.lb[:], spare.ub[:] = backend.lb, backend.ub
+        _copy_constraints(backend, spare)
         return spare
 
     def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:

@@ -26,6 +26,9 @@ from .models import _log_uniform, random_mjcf, short_name, third_party_models
 
 DT = 0.002
 STEPS = 25
+# A step that takes more CPU time than this is a hang. CPU time (the process's, BLAS
+# threads included), not wall time: a step that waits for a busy machine's cores is not
+# slow, one that computes for 100 ms is, however idle the machine.
 SLOW_STEP_S = 0.100
 TOLERANCE = 1e-9
 # A hard row's promise per solver (docs/controllers.md, "answers checked"): 1e-9 for the
@@ -49,7 +52,7 @@ CLASSES = (
     ("misleading", "misleading diagnosis (limits blamed though feasible, or infeasibility as SolverError)", True),
     ("nondeterministic", "another process gave a different q trajectory", True),
     ("stray_warning", "a warning other than GainWarning", True),
-    ("hang", "a step over 100 ms or a case past its time budget", True),
+    ("hang", "a step over 100 ms of CPU time or a case past its time budget", True),
 )
 DEFECTS = tuple(key for key, _, bad in CLASSES if bad)
 INVALID = ("posture_gain", "task_gain", "task_weight", "influence", "damper_rate", "limit_gain", "margin",
@@ -76,6 +79,7 @@ class Case:
         self.refusal_wrong = ""  # how a start outside the ranges was not refused as it must be
         self.kind = str(rng.choice(["qp", "hqp", "sns", "pinv"], p=[0.45, 0.25, 0.15, 0.15]))
         self.params.update(invalid=self.invalid, controller=self.kind)
+        self.levels = None  # the QP's cost levels (one for QPController), once built
 
     def bad(self, where: str, value):
         """``value``, or an invalid one when this case injects one at ``where``."""
@@ -326,6 +330,7 @@ class Case:
         if kind == "qp":
             solver, fast = self.bad("solver", str(rng.choice(solvers()))), bool(rng.random() < 0.5)
             params.update(solver=solver, fast_path=fast)
+            self.levels = [self.tasks]
             return QPController(robot, self.tasks, self.limits, solver=solver, dt=dt, fast_path=fast)
         if kind == "pinv":
             primary = [t for t in self.tasks if not t.joint_space]
@@ -339,7 +344,7 @@ class Case:
             params.update(damping=damping)
             self.limits = []
             return PseudoinverseController(robot, primary, secondary, damping=damping)
-        levels = self._levels()
+        levels = self._levels()  # (kept as self.levels: the costs the ProxQP repeat compares)
         if kind == "sns":
             self.limits = [lim for lim in self.limits if not lim.inequality_rows]  # SNS: boxes only
             return SNSController(robot, limits=self.limits, dt=dt, levels=levels)
@@ -363,6 +368,7 @@ class Case:
             for task in level:
                 task.hard = False
         self.params["levels"] = [len(level) for level in levels]
+        self.levels = levels
         return levels
 
 
@@ -390,8 +396,14 @@ def _stray(records) -> list[str]:
     return [_warning_line(r) for r in records if not issubclass(r.category, GainWarning)]
 
 
-def run_case(seed: int, folder: Path, steps: int = STEPS) -> dict:
-    """Build and roll out case ``seed``; its classes, parameters, details and q hash."""
+def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = None) -> dict:
+    """Build and roll out case ``seed``; its classes, parameters, details and q hash.
+
+    A ProxQP case also records the configuration before each step (``q_steps``) and the
+    cost of each level of its QP at each answer (``step_costs``); ``replay`` (another
+    run's ``q_steps``) sets the robot to those configurations instead of integrating its
+    own answers, so that two processes answer the same problems (see
+    :func:`qpik.fuzz.sweep.same_run`)."""
     result = {"case": seed, "classes": [], "details": {}}
     with warnings.catch_warnings(record=True) as records:
         warnings.simplefilter("always")
@@ -409,7 +421,7 @@ def run_case(seed: int, folder: Path, steps: int = STEPS) -> dict:
             if case.refusal_wrong:
                 result["classes"].append("invalid_accepted")
                 result["details"]["outside_start"] = case.refusal_wrong[:300]
-            _roll_out(case, result, steps)
+            _roll_out(case, result, steps, replay)
         stray = _stray(records)
     if stray:
         result["classes"].append("stray_warning")
@@ -426,13 +438,22 @@ def _untyped(result: dict, exc: Exception, where: str) -> None:
                              site=f"{Path(frame.filename).name}:{frame.lineno}")
 
 
-def _roll_out(case: Case, result: dict, steps: int) -> None:
+def _roll_out(case: Case, result: dict, steps: int, replay: list | None = None) -> None:
     robot, controller, details = case.robot, case.controller, result["details"]
     digest = hashlib.sha256()
     slowest = 0.0
+    record = case.params.get("solver") == "proxqp"
+    if replay is not None:
+        robot.allow_outside_limits = True  # the first run's configurations, wherever they were
+        steps = min(steps, len(replay))
     for step in range(steps):
+        if replay is not None:
+            robot.set_q(np.array(replay[step], dtype=float))
+            robot.update_kinematics()
         q_before = robot.q.copy()
-        started = time.perf_counter()
+        if record:
+            result.setdefault("q_steps", []).append(q_before.tolist())
+        started = time.process_time()
         try:
             qdot = np.array(controller.compute_velocity(), dtype=float)
         except QpikError as exc:
@@ -442,7 +463,7 @@ def _roll_out(case: Case, result: dict, steps: int) -> None:
             _untyped(result, exc, f"step {step}")
             break
         finally:
-            slowest = max(slowest, time.perf_counter() - started)
+            slowest = max(slowest, time.process_time() - started)
         if case.injected:  # the invalid parameter went through a step
             result["classes"].append("invalid_accepted")
             break
@@ -451,18 +472,32 @@ def _roll_out(case: Case, result: dict, steps: int) -> None:
             details["nonfinite_step"] = step
             break
         _check_step(case, result, qdot, q_before)
+        if record:
+            result.setdefault("step_costs", []).append(level_costs(case.levels, qdot))
         robot.integrate(qdot, DT)
         robot.update_kinematics()
         digest.update(robot.q.tobytes())
     else:
         if case.injected:
             result["classes"].append("invalid_accepted")
-    details["max_step_ms"] = slowest * 1e3
+    details["max_step_cpu_ms"] = slowest * 1e3
     if slowest > SLOW_STEP_S:
         result["classes"].append("hang")
     result["q_hash"] = digest.hexdigest()
-    result["q_final"] = robot.q.tolist()  # ProxQP's repeat is compared to a tolerance (sweep._repeat)
     result["classes"] = sorted(set(result["classes"]), key=result["classes"].index)
+
+
+def level_costs(levels: list[list], qdot: np.ndarray) -> list[float]:
+    """Each level's soft cost ½ Σ w (J q̇ − v)² at ``qdot`` (the tasks as last updated)."""
+    costs = []
+    for level in levels:
+        cost = 0.0
+        for task in level:
+            if not task.hard:
+                residual = task.jacobian @ qdot - task.target_velocity
+                cost += 0.5 * float(np.dot(task.weight * residual, residual))
+        costs.append(cost)
+    return costs
 
 
 def _check_step(case: Case, result: dict, qdot: np.ndarray, q_before: np.ndarray) -> None:
@@ -498,7 +533,8 @@ def _typed_step(case: Case, result: dict, exc: QpikError, step: int) -> None:
         result["classes"].append("typed_on_feasible")
     if "limits alone" in str(exc) and lp_feasible(A[:0], b[:0], lb, ub, G, h, margin=False):
         result["classes"].append("misleading")
-    elif isinstance(exc, SolverError) and np.all(np.isfinite(b)) and not lp_feasible(A, b, lb, ub, G, h, margin=False):
+    elif isinstance(exc, SolverError) and np.all(np.isfinite(b)) and not feasible \
+            and not lp_feasible(A, b, lb, ub, G, h, margin=False):
         result["classes"].append("misleading")  # an infeasible step reported as a solver failure
     if not feasible:
         result["classes"].append("typed")

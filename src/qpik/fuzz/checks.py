@@ -15,7 +15,11 @@ from ..limits import JointPositionLimit, JointVelocityLimit, order_limits
 # The LP's box and rows pulled in by this much (relative to each bound's size): a step
 # feasible with this margin is feasible for every solver's tolerance (1e-9 to 1e-6).
 LP_MARGIN = 1e-5
-LP_EQUALITY_TOLERANCE = 1e-9
+# A point meets the hard rows when |A q̇ − b| <= tolerance (1 + |b|) (Euclidean norms), as
+# the controllers promise (docs/controllers.md, "answers checked"). With a margin it must
+# meet them ten times better than the exact solvers' 1e-9; without, to 1e-7, the loosest
+# tolerance at which the controllers call a set feasible (their phase-1 problem).
+LP_EQUALITY_TOLERANCE = {True: 1e-10, False: 1e-7}
 
 
 def hard_residual(task, qdot: np.ndarray) -> float:
@@ -76,9 +80,17 @@ def box_and_rows(robot, hard_tasks, limits, dt: float):
 
 def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     """Whether some q̇ meets A q̇ = b, G q̇ ≤ h and lb ≤ q̇ ≤ ub — with every inequality
-    pulled in by :data:`LP_MARGIN` (relative) when ``margin``. The LP's point is checked
-    here again: its equality residual, after a least-squares correction onto A q̇ = b,
-    must be below 1e-9 relative with the box still kept (HiGHS works to 1e-7)."""
+    pulled in by :data:`LP_MARGIN` (relative) when ``margin``.
+
+    A hard row can be met only as well as floating point evaluates it: to about
+    ε Σ|A_ij||q̇_j|, which a point 1e6 rad/s away on a row of entries 1e6 puts far above
+    the promised 1e-9 (1 + |b|). So the LP asks for the point whose entries weigh least on
+    the rows (min Σ (1 + max_i |A_ij|) |q̇_j|), moves it onto A q̇ = b by least squares,
+    back into the box, and checks it as a controller's answer is checked: the rows to
+    :data:`LP_EQUALITY_TOLERANCE` and the inequality rows. HiGHS gets the hard rows as
+    bands whose widths add up to that tolerance (the promise bounds the residual vector's
+    norm, relative to |b|): its own tolerance is absolute (1e-7), and dependent rows of
+    |b| ~ 1e9 that disagree by 1e-9 of it (rounding) would otherwise have no common point."""
     if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b)) and np.all(np.isfinite(G))):
         return False
     finite_h = np.isfinite(h)
@@ -89,15 +101,31 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     if np.any(low > high):
         return False
     h_margin = h - (LP_MARGIN * np.maximum(1.0, np.abs(h)) if margin else 0.0)
-    bounds = [(None if not np.isfinite(lo) else lo, None if not np.isfinite(hi) else hi) for lo, hi in zip(low, high)]
-    answer = linprog(np.zeros(len(lb)), A_ub=G if len(h) else None, b_ub=h_margin if len(h) else None,
-                     A_eq=A if len(b) else None, b_eq=b if len(b) else None, bounds=bounds, method="highs")
-    if answer.status != 0:
+    # Rows within this of b (each) are within the tolerance together (Euclidean norm).
+    band = LP_EQUALITY_TOLERANCE[margin] * (1.0 + np.linalg.norm(b)) / np.sqrt(max(1, len(b)))
+    x = _lightest_point(A, b, band, low, high, G, h_margin)
+    if x is None:
         return False
-    x = answer.x
     if len(b):
-        x = x + np.linalg.lstsq(A, b - A @ x, rcond=None)[0]
-        scale = max(1.0, float(np.max(np.abs(b))), float(np.max(np.abs(A))) * float(np.max(np.abs(x))))
-        if np.max(np.abs(A @ x - b)) > LP_EQUALITY_TOLERANCE * scale:
+        x = np.clip(x + np.linalg.lstsq(A, b - A @ x, rcond=None)[0], lb, ub)
+        if np.linalg.norm(A @ x - b) > LP_EQUALITY_TOLERANCE[margin] * (1.0 + np.linalg.norm(b)):
             return False
-    return bool(np.all(x >= lb) and np.all(x <= ub) and (not len(h) or np.all(G @ x <= h)))
+    slack = 0.0 if margin else LP_EQUALITY_TOLERANCE[False] * (1.0 + np.abs(h))
+    return bool(not len(h) or np.all(G @ x <= h + slack))
+
+
+def _lightest_point(A, b, band: float, low, high, G, h) -> np.ndarray | None:
+    """HiGHS's point of |A x − b| <= band (each row), G x <= h, low <= x <= high minimising
+    Σ (1 + max_i |A_ij|) |x_j| (through s >= |x|), or None where it finds none."""
+    nv = len(low)
+    weight = 1.0 + (np.abs(A).max(axis=0) if len(b) else np.zeros(nv))
+    identity = np.eye(nv)
+    rows = [np.hstack([identity, -identity]), np.hstack([-identity, -identity]),
+            np.hstack([A, np.zeros_like(A)]), np.hstack([-A, np.zeros_like(A)])]
+    if len(h):
+        rows.append(np.hstack([G, np.zeros_like(G)]))
+    bounds = [(None if not np.isfinite(lo) else lo, None if not np.isfinite(hi) else hi) for lo, hi in zip(low, high)]
+    answer = linprog(np.concatenate([np.zeros(nv), weight]), A_ub=np.vstack(rows),
+                     b_ub=np.concatenate([np.zeros(2 * nv), b + band, band - b, h]),
+                     bounds=bounds + [(0, None)] * nv, method="highs")
+    return answer.x[:nv] if answer.status == 0 else None

@@ -6,7 +6,7 @@ from ctypes import c_int
 
 import numpy as np
 
-from .base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT, QPBackend
+from .base import EXACT_EQUALITY_TOLERANCE, TIME_LIMIT, QPBackend, active_set_iterations
 
 
 class DaqpBackend(QPBackend):
@@ -30,7 +30,8 @@ class DaqpBackend(QPBackend):
         import daqp
 
         self._solve_daqp = daqp.solve
-        self._settings = {"iter_limit": ITERATION_LIMIT, "time_limit": TIME_LIMIT, **settings}
+        self._settings = {"iter_limit": active_set_iterations(nv, meq + mineq), "time_limit": TIME_LIMIT,
+                          **settings}
         m = meq + mineq
         self._constraints = np.zeros((m, nv))
         self.A, self.G = self._constraints[:meq], self._constraints[meq:]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BIG, OSQP_ITERATIONS, TIME_LIMIT, QPBackend
+from .base import BIG, OSQP_ITERATIONS, TIME_LIMIT, QPBackend, iteration_cap
 
 
 class OsqpBackend(QPBackend):
@@ -28,7 +28,7 @@ class OsqpBackend(QPBackend):
 
         self._osqp = osqp
         self._sp = sp
-        self._settings = {**self.SETTINGS, **settings}
+        self._settings = {**self.SETTINGS, "max_iter": iteration_cap(OSQP_ITERATIONS, nv, meq + mineq), **settings}
         rows_p, cols_p = np.triu_indices(nv)
         order = np.lexsort((rows_p, cols_p))  # CSC: column-major, rows sorted
         self._p_rows, self._p_cols = rows_p[order], cols_p[order]
@@ -97,6 +97,10 @@ class OsqpBackend(QPBackend):
         inaccurate_but_feasible = status == Status.OSQP_SOLVED_INACCURATE and info.prim_res <= self._settings["eps_abs"]
         if status != Status.OSQP_SOLVED and not inaccurate_but_feasible:
             infeasible = status in (Status.OSQP_PRIMAL_INFEASIBLE, Status.OSQP_PRIMAL_INFEASIBLE_INACCURATE)
+            # The next step must not warm-start from this run's iterates and step size:
+            # from them OSQP failed again at every step of an 85-dof dog's level, where a
+            # fresh workspace took 75 iterations.
+            self._solver = self._workspace = None
             self._fail(str(info.status), infeasible)
         return np.array(x)  # the workspace reuses its solution buffer
 
