@@ -29,7 +29,7 @@ from ..errors import InfeasibleProblem, InvalidInput, SolverError
 from ..solvers import available_solvers, make_backend
 from ..solvers.base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT
 from ..solvers.nullspace import NullSpaceBackend
-from .closed_form import ClosedFormPause
+from ..problem.backoff import Backoff
 from .labels import task_label
 
 # On solver steps, c is scaled down to at most this times H's diagonal (see tame).
@@ -147,7 +147,7 @@ class GuardedSolve:
         # the closed form does after a limit binds (8 steps, doubled while it keeps
         # failing, up to 32). A failing solver then costs its iteration cap once, not
         # every step (ProxQP: 35 ms a step on a 48-dof tree).
-        self._pause = ClosedFormPause()
+        self._pause = Backoff()
 
     def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
         """The checked minimiser.

@@ -138,7 +138,7 @@ def cmd_sweep(args) -> int:
     todo = [c for c in chunks if c not in done]
     folder.mkdir(parents=True, exist_ok=True)
     progress = Progress(wanted(args.quiet), len(chunks), len(done), args.robot, chunks[0].steps)
-    log = Log(folder, len(done))
+    log = Log(folder, len(done), args.interrupt_guard.shielded)
     begin = time.perf_counter()
     try:
         latency = _run(runner, todo, log, progress)
@@ -172,16 +172,19 @@ def _run(runner, todo, log, progress) -> dict:
 
 
 class Log:
-    """Writes each finished chunk whole and keeps its timing and sizes."""
+    """Writes each finished chunk whole and keeps its timing and sizes. ``shielded``: a
+    context in which Ctrl-C and SIGTERM wait, so that a chunk is written or not at all and
+    no temporary file is left behind."""
 
-    def __init__(self, folder: Path, kept: int):
-        self.folder, self.kept = folder, kept
+    def __init__(self, folder: Path, kept: int, shielded):
+        self.folder, self.kept, self.shielded = folder, kept, shielded
         self.rows: list[dict] = []
 
     def record(self, chunk, result, seconds: float) -> None:
         from .chunks import write_chunk
 
-        size = write_chunk(self.folder, chunk, result, seconds)
+        with self.shielded():
+            size = write_chunk(self.folder, chunk, result, seconds)
         self.kept += 1
         self.rows.append({"controller": chunk.controller, "start": chunk.start, "stop": chunk.stop,
                           "steps": chunk.steps, "compute_s": seconds, "file_bytes": size,
