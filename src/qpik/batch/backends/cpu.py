@@ -2,9 +2,12 @@ r"""The CPU back-end: MuJoCo's own thread pool (``mujoco.batch.Batch``) and NumP
 
 Kinematics: one ``Batch.forward(stage=mjSTAGE_POS)`` per control step computes every
 world's kinematics on MuJoCo's threads; the poses, ``cdof`` and the centres of mass are
-bound (copied out by the batch after each call). Contacts and constraints are disabled in
-the kinematic copy of the model: a control step needs neither, and collision detection
-would dominate the call.
+bound (copied out by the batch after each call). The kinematic copy of the model is
+pared down to what a control step reads: contacts and constraints are disabled (a
+control step needs neither, and collision detection would dominate the call), and its
+bodies list no geoms, so that ``mj_kinematics`` skips the geoms' poses (a tenth of its
+work on a robot with a few meshes per link). A task on a geom frame gets that geom's
+pose from its body's, as ``mj_local2Global`` computes it, after each forward.
 
 Jacobians are then formed across worlds from ``cdof``, as ``mj_jac`` forms them: for a
 point p on body b and each dof j on b's chain,
@@ -28,6 +31,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
+from .. import rotations
 from ..errors import NotBatched
 from .base import KinematicsBackend
 
@@ -35,7 +39,8 @@ _D = mujoco.mjtDisableBit
 # The kinematic copy computes no contact and no constraint: a forward to the position
 # stage then skips collision detection and constraint assembly.
 _KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
-_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
+_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat")}
+_SAME = mujoco.mjtSameFrame
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
 MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
@@ -73,12 +78,13 @@ class CpuBackend(KinematicsBackend):
         self.nthread = default_threads(self.nworld) if nthread is None else int(nthread)
         kinematic = _copy(model)
         kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
-        self._kinematic_model = kinematic  # the batch copies it; kept for the geometry tables
+        kinematic.body_geomnum[:] = 0  # no geom poses: see _geom_pose
         self._batch = mujoco.batch.Batch(kinematic, self.nworld, self.nthread, persistent=False)
         self.qpos = self._batch.bind("qpos")
         self._cdof = self._batch.bind("cdof").reshape(self.nworld, model.nv, 6)
         self._subtree_com = self._batch.bind("subtree_com").reshape(self.nworld, model.nbody, 3)
         self._fields: dict[str, np.ndarray] = {}
+        self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._chains: dict[int, np.ndarray] = {}
         self._subtrees: dict[int, np.ndarray] = {}
         self._physics = None
@@ -87,6 +93,8 @@ class CpuBackend(KinematicsBackend):
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
         self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
+        for geom, pose in self._geoms.items():
+            self._geom_pose(geom, *pose)
 
     def _field(self, name: str) -> np.ndarray:
         """A bound output field, registered on first use (and then filled at once: the
@@ -97,10 +105,40 @@ class CpuBackend(KinematicsBackend):
         return self._fields[name]
 
     def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
+        if frame_type == "geom":
+            if frame_id not in self._geoms:
+                for name in ("xpos", "xmat", "xquat", "xipos", "ximat"):
+                    self._field(name)
+                pose = (np.empty((self.nworld, 3)), np.empty((self.nworld, 3, 3)))
+                self._geom_pose(frame_id, *pose)
+                self._geoms[frame_id] = pose
+            return self._geoms[frame_id]
         position, rotation = _FRAME_FIELDS[frame_type]
         xpos = self._field(position).reshape(self.nworld, -1, 3)
         xmat = self._field(rotation).reshape(self.nworld, -1, 3, 3)
         return xpos[:, frame_id], xmat[:, frame_id]
+
+    def _geom_pose(self, geom: int, position: np.ndarray, rotation: np.ndarray) -> None:
+        """``mj_local2Global`` of a geom across worlds, into ``position``, ``rotation``."""
+        m, n = self.model, self.nworld
+        body, same = int(m.geom_bodyid[geom]), int(m.geom_sameframe[geom])
+        xpos = self._fields["xpos"].reshape(n, -1, 3)[:, body]
+        xmat = self._fields["xmat"].reshape(n, -1, 3, 3)[:, body]
+        if same in (int(_SAME.mjSAMEFRAME_BODY), int(_SAME.mjSAMEFRAME_INERTIA)):
+            frame = "xpos" if same == int(_SAME.mjSAMEFRAME_BODY) else "xipos"
+            position[:] = self._fields[frame].reshape(n, -1, 3)[:, body]
+        else:
+            local = m.geom_pos[geom]
+            for i in range(3):  # mju_mulMatVec3, then mju_addTo3
+                position[:, i] = xmat[:, i, 0] * local[0] + xmat[:, i, 1] * local[1] + xmat[:, i, 2] * local[2]
+            position += xpos
+        if same == int(_SAME.mjSAMEFRAME_NONE):
+            quat = rotations.mul(self._fields["xquat"].reshape(n, -1, 4)[:, body], m.geom_quat[geom][None])
+            rotation[:] = rotations.quat2mat(quat)
+        elif same in (int(_SAME.mjSAMEFRAME_BODY), int(_SAME.mjSAMEFRAME_BODYROT)):
+            rotation[:] = xmat
+        else:
+            rotation[:] = self._fields["ximat"].reshape(n, -1, 3, 3)[:, body]
 
     def chain(self, body: int) -> np.ndarray:
         """The dofs on ``body``'s chain to the world (``mj_jac``'s loop), ascending."""
