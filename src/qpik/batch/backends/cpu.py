@@ -85,6 +85,7 @@ class CpuBackend(KinematicsBackend):
         self._subtree_com = self._batch.bind("subtree_com").reshape(self.nworld, model.nbody, 3)
         self._fields: dict[str, np.ndarray] = {}
         self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._cdof_components = None
         self._chains: dict[int, np.ndarray] = {}
         self._subtrees: dict[int, np.ndarray] = {}
         self._physics = None
@@ -93,6 +94,7 @@ class CpuBackend(KinematicsBackend):
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
         self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
+        self._cdof_components = None
         for geom, pose in self._geoms.items():
             self._geom_pose(geom, *pose)
 
@@ -155,31 +157,45 @@ class CpuBackend(KinematicsBackend):
             self._chains[body] = np.array(sorted(dofs), dtype=np.int64)
         return self._chains[body]
 
+    def _columns(self, dofs: np.ndarray):
+        """``dofs`` as an index of a Jacobian's columns: None for all, a slice when
+        consecutive, else the array."""
+        if len(dofs) == self.model.nv:
+            return None
+        if len(dofs) and dofs[-1] - dofs[0] == len(dofs) - 1:
+            return slice(int(dofs[0]), int(dofs[-1]) + 1)
+        return dofs
+
+    def _cdof_by_component(self) -> np.ndarray:
+        """``cdof`` as (6, N, nv), each component contiguous across worlds: made once per
+        forward and shared by every Jacobian of the step."""
+        if self._cdof_components is None:
+            self._cdof_components = np.ascontiguousarray(self._cdof.transpose(2, 0, 1))
+        return self._cdof_components
+
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
                  out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         n, nv = self.nworld, self.model.nv
-        jacp = np.zeros((n, 3, nv)) if out_p is None else out_p
-        jacr = np.zeros((n, 3, nv)) if out_r is None else out_r
         dofs = self.chain(body)
-        every = len(dofs) == nv
-        if not every and (out_p is not None or out_r is not None):
+        columns = self._columns(dofs)
+        jacp = np.empty((n, 3, nv)) if out_p is None else out_p
+        jacr = np.empty((n, 3, nv)) if out_r is None else out_r
+        if columns is not None:
             jacp.fill(0.0)
             jacr.fill(0.0)
         if not len(dofs):
             return jacp, jacr
         root = int(self.model.body_rootid[body])
         offset = points - self._subtree_com[:, root]
-        cdof = self._cdof if every else self._cdof[:, dofs]  # (N, k, 6): [ω; v] per dof
-        ox, oy, oz = offset[:, 0:1], offset[:, 1:2], offset[:, 2:3]
-        wx, wy, wz = cdof[:, :, 0], cdof[:, :, 1], cdof[:, :, 2]
-        columns = slice(None) if every else dofs
-        # mju_cross(ω, offset) + v, component by component
-        jacp[:, 0, columns] = cdof[:, :, 3] + (wy * oz - wz * oy)
-        jacp[:, 1, columns] = cdof[:, :, 4] + (wz * ox - wx * oz)
-        jacp[:, 2, columns] = cdof[:, :, 5] + (wx * oy - wy * ox)
-        jacr[:, 0, columns] = wx
-        jacr[:, 1, columns] = wy
-        jacr[:, 2, columns] = wz
+        cdof = self._cdof_by_component()  # [ω; v] per dof
+        if columns is not None:
+            cdof = cdof[:, :, columns]
+        columns = slice(None) if columns is None else columns
+        o = [offset[:, i, None] for i in range(3)]
+        for i in range(3):  # v + mju_cross(ω, offset), component by component
+            a, b = (i + 1) % 3, (i + 2) % 3
+            jacp[:, i, columns] = cdof[3 + i] + (cdof[a] * o[b] - cdof[b] * o[a])
+            jacr[:, i, columns] = cdof[i]
         return jacp, jacr
 
     def subtree_com(self, body: int) -> np.ndarray:
