@@ -167,36 +167,49 @@ class CpuBackend(KinematicsBackend):
         return dofs
 
     def _cdof_by_component(self) -> np.ndarray:
-        """``cdof`` as (6, N, nv), each component contiguous across worlds: made once per
-        forward and shared by every Jacobian of the step."""
+        """``cdof`` as (6, nv, N), worlds along the last axis (each operation below is
+        then one pass over contiguous memory, whatever dofs a chain selects): made once
+        per forward and shared by every Jacobian of the step."""
         if self._cdof_components is None:
-            self._cdof_components = np.ascontiguousarray(self._cdof.transpose(2, 0, 1))
+            self._cdof_components = np.ascontiguousarray(self._cdof.transpose(2, 1, 0))
         return self._cdof_components
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
                  out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         n, nv = self.nworld, self.model.nv
-        dofs = self.chain(body)
-        columns = self._columns(dofs)
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
         jacr = np.empty((n, 3, nv)) if out_r is None else out_r
-        if columns is not None:
-            jacp.fill(0.0)
-            jacr.fill(0.0)
-        if not len(dofs):
+        columns, chain_p, chain_r = self._chain_jacobian(body, points)
+        if columns is None:
+            jacp[:], jacr[:] = chain_p, chain_r
             return jacp, jacr
+        jacp.fill(0.0)
+        jacr.fill(0.0)
+        if chain_p is not None:
+            jacp[:, :, columns] = chain_p
+            jacr[:, :, columns] = chain_r
+        return jacp, jacr
+
+    def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
+        """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
+        on ``body``'s chain (``columns`` as :meth:`_columns`; None and None for a body
+        on no dof, jacr None unless ``rotational``)."""
+        dofs = self.chain(body)
+        columns = self._columns(dofs)
+        if not len(dofs):
+            return columns, None, None
         root = int(self.model.body_rootid[body])
-        offset = points - self._subtree_com[:, root]
+        offset = (points - self._subtree_com[:, root]).T  # (3, N)
         cdof = self._cdof_by_component()  # [ω; v] per dof
         if columns is not None:
-            cdof = cdof[:, :, columns]
-        columns = slice(None) if columns is None else columns
-        o = [offset[:, i, None] for i in range(3)]
+            cdof = cdof[:, columns]
+        jacp = np.empty((3, len(dofs), self.nworld))
+        o = offset[:, None, :]
         for i in range(3):  # v + mju_cross(ω, offset), component by component
             a, b = (i + 1) % 3, (i + 2) % 3
-            jacp[:, i, columns] = cdof[3 + i] + (cdof[a] * o[b] - cdof[b] * o[a])
-            jacr[:, i, columns] = cdof[i]
-        return jacp, jacr
+            jacp[i] = cdof[3 + i] + (cdof[a] * o[b] - cdof[b] * o[a])
+        jacr = cdof[:3].transpose(2, 0, 1) if rotational else None
+        return columns, jacp.transpose(2, 0, 1), jacr  # (N, 3, k) views
 
     def subtree_com(self, body: int) -> np.ndarray:
         return self._subtree_com[:, body]
@@ -221,21 +234,32 @@ class CpuBackend(KinematicsBackend):
         return total
 
     def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        residuals, jacobians = [], []
-        for eq in np.asarray(equalities, dtype=np.int64):
-            kind = int(self.model.eq_type[eq])
-            if kind == int(_EQ.mjEQ_CONNECT):
-                r, j = self._connect_rows(int(eq))
-            elif kind == int(_EQ.mjEQ_JOINT):
-                r, j = self._joint_rows(int(eq))
+        equalities = [int(eq) for eq in np.asarray(equalities, dtype=np.int64)]
+        sizes = [self._equality_size(eq) for eq in equalities]
+        n, nv = self.nworld, self.model.nv
+        residual, jacobian = np.empty((n, sum(sizes))), np.zeros((n, sum(sizes), nv))
+        row = 0
+        for eq, size in zip(equalities, sizes):
+            rows = slice(row, row + size)
+            if size == 3:
+                self._connect_rows(eq, residual[:, rows], jacobian[:, rows])
             else:
-                name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, int(eq)) or f"#{eq}"
-                raise NotBatched(f"equality {name!r} is a {_EQ(kind).name}: the batched engine writes rows for "
-                                 "connect and joint equalities only (weld and tendon equalities run in the serial "
-                                 "qpik.EqualityTask)")
-            residuals.append(r)
-            jacobians.append(j)
-        return np.concatenate(residuals, axis=1), np.concatenate(jacobians, axis=1)
+                self._joint_rows(eq, residual[:, rows], jacobian[:, rows])
+            row += size
+        return residual, jacobian
+
+    def _equality_size(self, eq: int) -> int:
+        """Rows of an equality (3 for a connect, 1 for a joint coupling); NotBatched for
+        the other types."""
+        kind = int(self.model.eq_type[eq])
+        if kind == int(_EQ.mjEQ_CONNECT):
+            return 3
+        if kind == int(_EQ.mjEQ_JOINT):
+            return 1
+        name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, eq) or f"#{eq}"
+        raise NotBatched(f"equality {name!r} is a {_EQ(kind).name}: the batched engine writes rows for "
+                         "connect and joint equalities only (weld and tendon equalities run in the serial "
+                         "qpik.EqualityTask)")
 
     def _anchor(self, eq: int, side: int) -> tuple[int, np.ndarray]:
         """(body, world point) of one side of a connect equality (as mj_makeConstraint)."""
@@ -248,28 +272,36 @@ class CpuBackend(KinematicsBackend):
         local = m.eq_data[eq, 3 * side:3 * side + 3]
         return obj, np.einsum("nij,j->ni", xmat, local) + xpos
 
-    def _connect_rows(self, eq: int) -> tuple[np.ndarray, np.ndarray]:
+    def _connect_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
+        """The anchors' difference and the difference of their Jacobians, written into
+        ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros."""
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
-        jac0 = self.jacobian(body0, point0)[0]
-        jac1 = self.jacobian(body1, point1)[0]
-        return point0 - point1, jac0 - jac1
+        np.subtract(point0, point1, out=residual)
+        for body, point, sign in ((body0, point0, 1.0), (body1, point1, -1.0)):
+            columns, jacp, _ = self._chain_jacobian(body, point, rotational=False)
+            if jacp is None:
+                continue
+            columns = slice(None) if columns is None else columns
+            if sign > 0:
+                jacobian[:, :, columns] += jacp  # 0 + J0 = J0: then J0 − J1 as one subtraction
+            else:
+                jacobian[:, :, columns] -= jacp
 
-    def _joint_rows(self, eq: int) -> tuple[np.ndarray, np.ndarray]:
+    def _joint_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         m = self.model
         data = m.eq_data[eq]
         joint0, joint1 = int(m.eq_obj1id[eq]), int(m.eq_obj2id[eq])
         q0 = self.qpos[:, m.jnt_qposadr[joint0]] - m.qpos0[m.jnt_qposadr[joint0]]
-        jac = np.zeros((self.nworld, 1, m.nv))
-        jac[:, 0, m.jnt_dofadr[joint0]] = 1.0
+        jacobian[:, 0, m.jnt_dofadr[joint0]] = 1.0
         if joint1 < 0:
-            return (q0 - data[0])[:, None], jac
+            residual[:, 0] = q0 - data[0]
+            return
         q1 = self.qpos[:, m.jnt_qposadr[joint1]] - m.qpos0[m.jnt_qposadr[joint1]]
-        residual = q0 - data[0] - (data[1] * q1 + data[2] * q1 * q1 + data[3] * q1 * q1 * q1
-                                   + data[4] * q1 * q1 * q1 * q1)
-        jac[:, 0, m.jnt_dofadr[joint1]] = -(data[1] + 2 * data[2] * q1 + 3 * data[3] * q1 * q1
-                                            + 4 * data[4] * q1 * q1 * q1)
-        return residual[:, None], jac
+        residual[:, 0] = q0 - data[0] - (data[1] * q1 + data[2] * q1 * q1 + data[3] * q1 * q1 * q1
+                                         + data[4] * q1 * q1 * q1 * q1)
+        jacobian[:, 0, m.jnt_dofadr[joint1]] = -(data[1] + 2 * data[2] * q1 + 3 * data[3] * q1 * q1
+                                                 + 4 * data[4] * q1 * q1 * q1)
 
     # -- state -------------------------------------------------------------------------
     def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
