@@ -65,24 +65,33 @@ def normalize4(q: np.ndarray) -> np.ndarray:
 
 def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``mju_mulQuat``."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[:, 0] = a[:, 0] * b[:, 0] - a[:, 1] * b[:, 1] - a[:, 2] * b[:, 2] - a[:, 3] * b[:, 3]
-    out[:, 1] = a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0] + a[:, 2] * b[:, 3] - a[:, 3] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 2] - a[:, 1] * b[:, 3] + a[:, 2] * b[:, 0] + a[:, 3] * b[:, 1]
-    out[:, 3] = a[:, 0] * b[:, 3] + a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
-    return out
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    (a0, a1, a2, a3), (b0, b1, b2, b3) = _components(a, shape), _components(b, shape)
+    out = np.empty((4, shape[0]))  # worlds along the last axis: each line one pass
+    out[0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    out[1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    out[2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    out[3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+    return out.T
+
+
+def _components(q: np.ndarray, shape: tuple) -> np.ndarray:
+    """The four components of quaternions (N, 4) (or one, (1, 4)), each contiguous."""
+    return np.ascontiguousarray(np.broadcast_to(q, shape).T)
 
 
 def quat2vel(q: np.ndarray, dt: float = 1.0) -> np.ndarray:
     """``mju_quat2Vel``: the rotation vector (over dt) of unit quaternions."""
-    axis = q[:, 1:].copy()
-    sin_half = np.sqrt(np.einsum("ni,ni->n", axis, axis))
+    w, axis = q[:, 0], np.ascontiguousarray(q[:, 1:].T)  # axis (3, N)
+    sin_half = np.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
     small = sin_half < MINVAL
-    axis = axis / np.where(small, 1.0, sin_half)[:, None]
-    axis[small] = (1.0, 0.0, 0.0)
-    speed = 2.0 * np.arctan2(sin_half, q[:, 0])
+    axis /= np.where(small, 1.0, sin_half)
+    if small.any():
+        axis[:, small] = ((1.0,), (0.0,), (0.0,))
+    speed = 2.0 * np.arctan2(sin_half, w)
     speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
-    return axis * (speed / dt)[:, None]
+    axis *= speed / dt
+    return axis.T
 
 
 def sub(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
