@@ -29,8 +29,14 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
         whose matrix is not numerically positive definite has a pivot that is not > 0
         (zero where the square root would be of a number <= 0), and its X means nothing.
     """
-    n = M.shape[1]
-    Mt, Bt = worlds_last(M), worlds_last(B)  # (n, n, N), (n, m, N)
+    X, pivots = cholesky_solve_last(worlds_last(M), worlds_last(B))
+    return np.moveaxis(X, -1, 0), pivots.T
+
+
+def cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cholesky_solve` with the worlds along the last axis: Mt (n, n, N),
+    Bt (n, m, N); returns X (n, m, N) and the pivots (n, N)."""
+    n = Mt.shape[0]
     L = np.zeros_like(Mt)
     pivots = np.empty((n, Mt.shape[2]))
     for j in range(n):
@@ -52,4 +58,4 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
             X[j] = (Y[j] - (L[j + 1:, j, None] * X[j + 1:]).sum(axis=0)) / L[j, j]
         else:
             X[j] = Y[j] / L[j, j]
-    return np.moveaxis(X, -1, 0), pivots.T
+    return X, pivots

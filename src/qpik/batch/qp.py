@@ -37,7 +37,7 @@ from ctypes import c_int
 import numpy as np
 
 from .backends.base import BatchQP, QPResult, QPStatus
-from .linalg import cholesky_solve
+from .linalg import cholesky_solve_last, worlds_last
 
 # As the serial controller's closed form (qpik.controllers.closed_form.EQUALITY_TOLERANCE).
 CLOSED_FORM_TOLERANCE = 1e-10
@@ -96,41 +96,35 @@ def square_sum(r: np.ndarray) -> np.ndarray:
     return total
 
 
-def gram(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """(k, m, m): P_k Q_kᵀ of every world, P and Q (k, m, n), symmetric (only P_i·Q_j
-    for i <= j is computed)."""
-    m = P.shape[1]
-    if m > 3:
-        return np.matmul(P, Q.transpose(0, 2, 1))
-    S = np.empty((len(P), m, m))
-    for i in range(m):
-        for j in range(i, m):
-            S[:, i, j] = S[:, j, i] = np.einsum("kn,kn->k", P[:, i], Q[:, j])
-    return S
-
-
 def spd_solve(S: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve S_k y_k = r_k, S_k (m, m) symmetric positive definite, in every world;
-    ok False where S_k is not, or is too ill-conditioned for its solution to mean
-    anything (the serial closed form's test: cond(S) > 1e12 for one or two rows,
-    Cholesky pivots further apart than 1e6 beyond)."""
-    m = S.shape[1]
+    S (N, m, m), r (N, m). See :func:`spd_solve_last`."""
+    y, ok = spd_solve_last(worlds_last(S), np.ascontiguousarray(r.T))
+    return y.T, ok
+
+
+def spd_solve_last(S: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve S_k y_k = r_k with the worlds along the last axis: S (m, m, N), r (m, N);
+    ok False where S_k is not positive definite, or too ill-conditioned for its solution
+    to mean anything (the serial closed form's test: cond(S) > 1e12 for one or two
+    rows, Cholesky pivots further apart than 1e6 beyond)."""
+    m = S.shape[0]
     if m == 1:
-        s = S[:, 0, 0]
+        s = S[0, 0]
         ok = s > 0.0
-        return r / np.where(ok, s, 1.0)[:, None], ok
+        return r / np.where(ok, s, 1.0), ok
     if m == 2:
-        a, off, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+        a, off, d = S[0, 0], S[0, 1], S[1, 1]
         det = a * d - off * off
         ok = (det * SINGULAR_RATIO ** 2 > a * d) & (a > 0.0)
         det = np.where(ok, det, 1.0)
         y = np.empty_like(r)
-        y[:, 0] = (d * r[:, 0] - off * r[:, 1]) / det
-        y[:, 1] = (a * r[:, 1] - off * r[:, 0]) / det
+        y[0] = (d * r[0] - off * r[1]) / det
+        y[1] = (a * r[1] - off * r[0]) / det
         return y, ok
-    y, pivots = cholesky_solve(S, r[:, :, None])
-    low = pivots.min(axis=1)
-    return y[:, :, 0], (low > 0.0) & (pivots.max(axis=1) <= SINGULAR_RATIO * low)
+    y, pivots = cholesky_solve_last(S, r[:, None, :])
+    low = pivots.min(axis=0)
+    return y[:, 0], (low > 0.0) & (pivots.max(axis=0) <= SINGULAR_RATIO * low)
 
 
 def reduced_kkt(H: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, fixed: np.ndarray,
@@ -287,42 +281,47 @@ class ActiveSetQP(BatchQP):
         x = −H⁻¹(c + Aᵀλ) with S λ = −r, S = A H⁻¹ Aᵀ, r = b + A H⁻¹ c. H⁻¹[Aᵀ c]
         comes from H's cached inverse when H is shared (a diagonal one elementwise),
         else from one Cholesky solve across worlds; S is solved in closed form for
-        one or two rows (as the serial controller's closed form), by Cholesky beyond."""
+        one or two rows (as the serial controller's closed form), by Cholesky beyond.
+        Computed with the worlds along the last axis (one pass per operation)."""
         k, nv = c.shape
         meq = self.meq
         if meq == nv:  # a single feasible point: x = A⁻¹b
             xs, ok = stacked_solve(A, b[:, :, None])
             x = xs[:, :, 0]
-        else:
-            Hc, HA, ok = self._scaled(H, c, A)  # H⁻¹c (k, nv), A H⁻¹ (k, meq, nv)
-            if meq:
-                S = gram(HA, A)
-                r = b + matvec(A, Hc)
-                lam, ok_s = spd_solve(S, -r)
-                ok &= ok_s
-                x = Hc + lam[:, 0, None] * HA[:, 0]
-                for i in range(1, meq):
-                    x += lam[:, i, None] * HA[:, i]
-                x = -x
-            else:
-                x = -Hc
-        if not np.isfinite(x.sum()):
-            ok &= np.isfinite(x).all(axis=1)
-        ok &= rows_met(A, x, b, CLOSED_FORM_TOLERANCE)
-        return x, ok
+            if not np.isfinite(x.sum()):
+                ok &= np.isfinite(x).all(axis=1)
+            return x, ok & rows_met(A, x, b, CLOSED_FORM_TOLERANCE)
+        At, bt = worlds_last(A), np.ascontiguousarray(b.T)  # (meq, nv, k), (meq, k)
+        xt, HAt, ok = self._scaled(H, c, At)  # H⁻¹c (nv, k), A H⁻¹ (meq, nv, k)
+        if meq:
+            S = np.empty((meq, meq, k))
+            for i in range(meq):
+                for j in range(i, meq):
+                    S[i, j] = S[j, i] = (HAt[i] * At[j]).sum(axis=0)
+            lam, ok_s = spd_solve_last(S, -(bt + (At * xt).sum(axis=1)))
+            ok &= ok_s
+            for i in range(meq):
+                xt += lam[i] * HAt[i]
+        xt = -xt
+        if not np.isfinite(xt.sum()):
+            ok &= np.isfinite(xt).all(axis=0)
+        if meq:
+            residual = (At * xt).sum(axis=1) - bt
+            ok &= (residual * residual).sum(axis=0) <= CLOSED_FORM_TOLERANCE ** 2 * (1.0 + (bt * bt).sum(axis=0))
+        return xt.T, ok
 
-    def _scaled(self, H, c, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(H⁻¹c, A H⁻¹, ok) of every world."""
-        k, nv = c.shape
+    def _scaled(self, H, c, At) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(H⁻¹c (nv, k), A H⁻¹ (meq, nv, k), ok) of every world, worlds last; the first
+        is a new array."""
+        k = len(c)
         if H.ndim == 2:
             dinv, inverse = self._shared_inverse(H)
             if dinv is not None:
-                return c * dinv, A * dinv, np.ones(k, dtype=bool)
-            HA = (A.reshape(-1, nv) @ inverse).reshape(A.shape)  # H symmetric: A H⁻¹ = (H⁻¹ Aᵀ)ᵀ
-            return c @ inverse, HA, np.ones(k, dtype=bool)
-        rhs = np.concatenate([c[:, :, None], A.transpose(0, 2, 1)], axis=2)
-        solved, pivots = cholesky_solve(H, rhs)
-        return solved[:, :, 0], solved[:, :, 1:].transpose(0, 2, 1), (pivots > 0.0).all(axis=1)
+                return c.T * dinv[:, None], At * dinv[:, None], np.ones(k, dtype=bool)
+            return inverse @ c.T, np.matmul(inverse, At), np.ones(k, dtype=bool)  # H symmetric
+        rhs = np.concatenate([c.T[:, None, :], At.transpose(1, 0, 2)], axis=1)  # (nv, 1 + meq, k)
+        solved, pivots = cholesky_solve_last(worlds_last(H), rhs)
+        return solved[:, 0].copy(), solved[:, 1:].transpose(1, 0, 2), (pivots > 0.0).all(axis=0)
 
     def _active_set(self, H, c, A, b, lb, ub, ids, start, x, status) -> tuple[np.ndarray, int]:
         """The worlds ``ids`` whose closed form crossed a bound: first their last step's
