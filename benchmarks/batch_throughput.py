@@ -380,6 +380,37 @@ def profile_shares(robot: str, n: int = 1024, steps: int = 40) -> dict:
             "tasks_limits_and_rest_share": 1.0 - (spent["kinematics"] + spent["qp"]) / total}
 
 
+def mujoco_floor(robot: str, n: int = 1024, number: int = 20) -> dict:
+    """What one thread of ``mujoco.batch`` costs per world on the back-end's kinematic
+    model, whatever runs around it (best of 3 rounds of ``number`` calls on a fixed state):
+    a call that computes nothing (each world's state row loaded and saved, the bound
+    outputs copied), the back-end's call (the position stage, ``mj_fwdPosition``, with
+    MuJoCo's profiling timers off as the back-end runs it) and the same call with the
+    Python bindings' timer on, and ``Batch.jac`` (``mj_kinematics`` + ``mj_comPos`` + one
+    ``mj_jac``, nothing copied out: the kinematics alone, which no call of the batch
+    offers with its outputs)."""
+    import mujoco
+    from timing import call_cost_us
+
+    from qpik.batch.backends.cpu import profiling_timers_off
+
+    run = BatchRun(robot, n, 8, nthread=1)
+    batch = run.robots.backend._batch  # the benchmark looks inside: not an interface
+    stage = mujoco.mjtStage
+
+    def quiet(call):
+        def run_quietly():
+            with profiling_timers_off():
+                call()
+        return run_quietly
+
+    costs = {"nothing": quiet(lambda: batch.forward(stage=int(stage.mjSTAGE_NONE))),
+             "position_stage": run.robots.backend.forward,
+             "position_stage_with_timers": lambda: batch.forward(stage=int(stage.mjSTAGE_POS)),
+             "kinematics_jac": quiet(lambda: batch.jac(0, np.zeros(3)))}
+    return {"n": n, **{f"{key}_us_per_world": call_cost_us(call, number=number) / n for key, call in costs.items()}}
+
+
 def figure(results: dict, path: Path) -> None:
     import matplotlib
 
@@ -437,6 +468,14 @@ def markdown(results: dict) -> str:
             lines += ["", f"Profile at N = {prof['n']}: {prof['step_us_per_world']:.2f} µs per robot-step; kinematics "
                           f"{prof['kinematics_share']:.0%}, QP {prof['qp_share']:.0%}, tasks, limits and the rest "
                           f"{prof['tasks_limits_and_rest_share']:.0%}."]
+        floor = results.get("mujoco_floor", {}).get(robot)
+        if floor:
+            lines += ["", f"mujoco.batch on one thread, N = {floor['n']}, per world: a call computing nothing "
+                          f"{floor['nothing_us_per_world']:.2f} µs, the position stage (the back-end's call) "
+                          f"{floor['position_stage_us_per_world']:.2f} µs ("
+                          f"{floor['position_stage_with_timers_us_per_world']:.2f} µs with the Python bindings' "
+                          f"profiling timer on), Batch.jac (kinematics + comPos + one Jacobian, no output) "
+                          f"{floor['kinematics_jac_us_per_world']:.2f} µs."]
         lines.append("")
     if results.get("mink_warp_accuracy"):
         a = results["mink_warp_accuracy"]
@@ -468,12 +507,13 @@ def main_inside(args) -> None:
             mink_warp, skipped = False, f"mink-warp does not import here ({exc})"
     results = {"command": "python benchmarks/batch_throughput.py " + " ".join(sys.argv[1:]).replace("--inside", "").strip(),
                "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load_before": load()},
-               "throughput": {}, "accuracy": {}, "profile": {}, "mink_warp_version": version,
+               "throughput": {}, "accuracy": {}, "profile": {}, "mujoco_floor": {}, "mink_warp_version": version,
                "mink_warp_skipped": skipped}
     for robot in args.robots:
         results["throughput"][robot] = measure(robot, args.sizes, args.repeats, mink_warp and robot == "pusher")
         results["accuracy"][robot] = batch_accuracy(robot)
         results["profile"][robot] = profile_shares(robot)
+        results["mujoco_floor"][robot] = mujoco_floor(robot)
     if mink_warp and "pusher" in args.robots:
         results["mink_warp_accuracy"] = mink_warp_accuracy()
     results["machine"]["load_after"] = load()

@@ -247,3 +247,27 @@ def test_batch_import_is_light(run_without_modules):
                                  "assert 'qpik.batch.qp' not in sys.modules; print(batch.Robot.__name__)", ("scipy",))
     assert result.returncode == 0, result.stderr
     assert "Robot" in result.stdout
+
+
+def test_forward_leaves_mujocos_timer_callback_as_it_was():
+    """The back-end runs MuJoCo's stages with the profiling timer callback replaced by a
+    constant; the caller's callback is back after each call and times MuJoCo again."""
+    model = mujoco.MjModel.from_xml_path(_scene("arm"))
+    backend = CpuBackend(model, 8, nthread=1)
+    ticks = []
+
+    def timer():
+        ticks.append(None)
+        return float(len(ticks))
+
+    mujoco.set_mjcb_time(timer)
+    try:
+        backend.forward()
+        assert mujoco.get_mjcb_time() is timer and not ticks  # restored; not called by the batch
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        assert ticks  # the caller's timer times MuJoCo again
+    finally:
+        mujoco.set_mjcb_time(None)
+    backend.forward()
+    assert mujoco.get_mjcb_time() is None  # the bindings' own default, as before

@@ -21,10 +21,20 @@ with :math:`c_{root}` the subtree centre of mass of b's root body (``subtree_com
 equals ``mj_jac`` to rounding (tests/batch/test_backend_cpu.py).
 
 Physics: a second batch on the unmodified model, stepped with ``Batch.step``.
+
+MuJoCo's profiling timers: MuJoCo's Python bindings install a timer callback
+(``mjcb_time``, a ``clock_gettime`` per call) that every stage of ``mj_fwdPosition``
+calls twice, to fill ``MjData.timer``; on the planar arm that was about a third of the
+position stage's cost per world. The batch's own ``MjData`` are never shown to anyone,
+so during the back-end's batch calls the callback is a C function that returns a
+constant (CPython's ``PyFloat_GetMax``): the timers add zero, nothing else changes,
+and the caller's callback (``mujoco.get_mjcb_time()``) is put back after each call.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 
 import mujoco
@@ -49,6 +59,34 @@ MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
 # Worlds per MuJoCo thread by default: waking a thread costs more than a few hundred
 # small worlds' kinematics, more so on a busy machine.
 WORLDS_PER_THREAD = 512
+
+
+def _constant_timer():
+    """A C function taking nothing and returning a double that never changes: as MuJoCo's
+    timer callback it makes every profiling interval zero, at the cost of a call. None
+    where CPython's C API is not reachable through ctypes."""
+    try:
+        return ctypes.cast(ctypes.pythonapi.PyFloat_GetMax, ctypes.CFUNCTYPE(ctypes.c_double))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+_NO_TIMER = _constant_timer()
+
+
+@contextlib.contextmanager
+def profiling_timers_off():
+    """MuJoCo's timer callback replaced by a constant for the duration (see the module's
+    description), the previous one restored after, even on an error."""
+    if _NO_TIMER is None:
+        yield
+        return
+    previous = mujoco.get_mjcb_time()
+    mujoco.set_mjcb_time(_NO_TIMER)
+    try:
+        yield
+    finally:
+        mujoco.set_mjcb_time(previous)
 
 
 def default_threads(nworld: int) -> int:
@@ -93,7 +131,8 @@ class CpuBackend(KinematicsBackend):
 
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
-        self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
+        with profiling_timers_off():
+            self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
         self._cdof_components = None
         for geom, pose in self._geoms.items():
             self._geom_pose(geom, *pose)
@@ -328,7 +367,8 @@ class CpuBackend(KinematicsBackend):
     def physics_step(self, ctrl: np.ndarray, nstep: int) -> tuple[np.ndarray, np.ndarray]:
         batch = self._physics
         self._physics_ctrl[:] = ctrl
-        batch.step(nstep=int(nstep))
+        with profiling_timers_off():
+            batch.step(nstep=int(nstep))
         counts = batch.warning[:, :, 0]
         unstable = (counts != self._warnings).any(axis=1)
         self._warnings = counts.copy()
