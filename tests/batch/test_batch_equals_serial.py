@@ -99,7 +99,9 @@ def test_every_batched_task_has_the_rows_of_its_serial_twin(model):
         frame, frame_type = ("end_effector", "site") if model == "arm" else ("platform_center", "site")
     tasks = _frame_tasks(robots, frame, frame_type, rng)
     if model == "arm":
-        tasks.append(batch.ManipulabilityTask(robots, batch.SigmaProxy(robots, ["theta2", "theta3"]), gain=5.0))
+        sigma = batch.SigmaProxy(robots, ["theta2", "theta3"])
+        tasks.append(batch.ManipulabilityTask(robots, sigma, gain=5.0))
+        tasks.append(batch.ManipulabilityTask(robots, sigma, gain=5.0, joints=["theta2", "theta3"]))
     if model == "hexapod":
         tasks.append(batch.EqualityTask(robots, gain=300.0))
         tasks.append(batch.RelativeFrameTask(robots, "platform_center", "leg1_tip", position_gain=10.0,

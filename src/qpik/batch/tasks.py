@@ -521,8 +521,12 @@ class SigmaProxy:
 
     def gradient(self) -> np.ndarray:
         out = np.zeros((self.robots.n, self.robots.nv))
-        out[:, self.dof_index] = 0.5 * np.sin(2.0 * self.robots.q[:, self.qpos_index])
+        out[:, self.dof_index] = self.partial_gradient()
         return out
+
+    def partial_gradient(self) -> np.ndarray:
+        """(N, len(joints)): the gradient's entries on the measure's own dofs."""
+        return 0.5 * np.sin(2.0 * self.robots.q[:, self.qpos_index])
 
 
 class ManipulabilityTask(_JointSpace):
@@ -538,12 +542,17 @@ class ManipulabilityTask(_JointSpace):
         super().__init__(robots, joints, weight)
         self.measure = measure
         self.gain = positive_scalar(gain, "manipulability gain", allow_zero=True)
+        self._own_dofs = np.array_equal(self.dofs, measure.dof_index)
+        self._take = row_selection(self.dofs, robots.nv)
 
     def feedback_gains(self) -> None:
         return None
 
     def update(self) -> None:
-        self.target_velocity = self.measure.gradient()[:, self.dofs] * self.gain
+        if self._own_dofs:  # the task's dofs are the measure's: no (N, nv) gradient
+            self.target_velocity = self.measure.partial_gradient() * self.gain
+        else:
+            self.target_velocity = select(self.measure.gradient(), self._take) * self.gain
 
     def serial_twin(self, robot, world: int):
         measure = serial.SigmaProxy(robot, list(self.measure.joints))
