@@ -16,7 +16,7 @@ Contestants, per N, block-interleaved in one process (benchmarks/timing.py: bloc
 few steps, the order rotated, ``--repeats`` fresh runs):
 
 - ``qpik.batch``: one batched step of all N worlds (``mujoco.batch``, its default
-  thread count: one per 512 worlds, at most the CPUs); where that is more than one,
+  thread count: one per 2048 worlds, at most the CPUs); where that is more than one,
   ``qpik.batch (1 thread)`` as well (on a busy machine a second thread can cost more
   than it brings);
 - ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
