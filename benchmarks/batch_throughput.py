@@ -16,9 +16,10 @@ Contestants, per N, block-interleaved in one process (benchmarks/timing.py: bloc
 few steps, the order rotated, ``--repeats`` fresh runs):
 
 - ``qpik.batch``: one batched step of all N worlds (``mujoco.batch``, its default
-  thread count: one per 2048 worlds, at most the CPUs); where that is more than one,
-  ``qpik.batch (1 thread)`` as well (on a busy machine a second thread can cost more
-  than it brings);
+  thread count: one per 2048 worlds, at most the CPUs); beside it, from N = 1024 on,
+  ``qpik.batch (1 thread)`` where the default uses more and ``qpik.batch (2 threads)``
+  where it uses one (the machine has more): whether a second thread pays depends on
+  the load, and these columns are what the default is chosen from;
 - ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
   other, per robot-step; ``qpik serial (1 robot)``: one robot stepped again and again,
   its data always in the caches — the serial loop's best case, the conservative
@@ -316,18 +317,30 @@ def batch_accuracy(name: str, n: int = 32, steps: int = 500) -> dict:
 
 
 # -- the measurement ------------------------------------------------------------------------
-def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
-    from timing import Contestant, interleave
+def other_threads(n: int, steps: int, robot: str) -> list:
+    """From N = 1024 on, qpik.batch on another thread count than its default: one thread
+    where the default uses more, two where it uses one and the machine has two CPUs."""
+    from timing import Contestant
 
     from qpik.batch.backends.cpu import default_threads
+
+    if n < 1024:
+        return []
+    if default_threads(n) > 1:
+        return [Contestant("qpik.batch (1 thread)", lambda: BatchRun(robot, n, steps, nthread=1))]
+    if (os.cpu_count() or 1) > 1:
+        return [Contestant("qpik.batch (2 threads)", lambda: BatchRun(robot, n, steps, nthread=2))]
+    return []
+
+
+def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
+    from timing import Contestant, interleave
 
     rows = []
     for n in sizes:
         steps = run_steps(n)
         block = max(1, steps // 8)
-        contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)),
-                       *([Contestant("qpik.batch (1 thread)", lambda n=n, s=steps: BatchRun(robot, n, s, nthread=1))]
-                         if default_threads(n) > 1 else []),
+        contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)), *other_threads(n, steps, robot),
                        Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s)),
                        Contestant("qpik serial (1 robot)", lambda n=n, s=steps: SerialRun(robot, n, s, count=1, inner=SERIAL_ROBOTS))]
         if mink_warp:
@@ -335,7 +348,8 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
                             Contestant("mink-warp constrained", lambda n=n, s=steps: MinkWarpRun("constrained", n, s))]
         timing = interleave(contestants, repeats=repeats, block=block)
         per_step = {c.label: c.repeat_medians_us for c in timing.contestants.values()}
-        robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+        robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik.batch (2 threads)": n,
+                           "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
                            "mink-warp dls": n, "mink-warp constrained": n}
         row = {"n": n, "steps": steps}
         for label, medians in per_step.items():
@@ -421,7 +435,8 @@ def figure(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, len(robots), figsize=(5 * len(robots), 4), squeeze=False)
     for ax, robot in zip(axes[0], robots):
         rows = results["throughput"][robot]["rows"]
-        for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
+        for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik.batch (2 threads)", "d:"),
+                             ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
                              ("mink-warp dls", "^:"),
                              ("mink-warp constrained", "v-.")):
             points = [(r["n"], r[label]["robot_steps_per_s"]) for r in rows if label in r]
