@@ -16,9 +16,10 @@ Contestants, per N, block-interleaved in one process (benchmarks/timing.py: bloc
 few steps, the order rotated, ``--repeats`` fresh runs):
 
 - ``qpik.batch``: one batched step of all N worlds (``mujoco.batch``, its default
-  thread count: one per 512 worlds, at most the CPUs); where that is more than one,
-  ``qpik.batch (1 thread)`` as well (on a busy machine a second thread can cost more
-  than it brings);
+  thread count: one per 2048 worlds, at most the CPUs); beside it, from N = 1024 on,
+  ``qpik.batch (1 thread)`` where the default uses more and ``qpik.batch (2 threads)``
+  where it uses one (the machine has more): whether a second thread pays depends on
+  the load, and these columns are what the default is chosen from;
 - ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
   other, per robot-step; ``qpik serial (1 robot)``: one robot stepped again and again,
   its data always in the caches — the serial loop's best case, the conservative
@@ -316,18 +317,30 @@ def batch_accuracy(name: str, n: int = 32, steps: int = 500) -> dict:
 
 
 # -- the measurement ------------------------------------------------------------------------
-def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
-    from timing import Contestant, interleave
+def other_threads(n: int, steps: int, robot: str) -> list:
+    """From N = 1024 on, qpik.batch on another thread count than its default: one thread
+    where the default uses more, two where it uses one and the machine has two CPUs."""
+    from timing import Contestant
 
     from qpik.batch.backends.cpu import default_threads
+
+    if n < 1024:
+        return []
+    if default_threads(n) > 1:
+        return [Contestant("qpik.batch (1 thread)", lambda: BatchRun(robot, n, steps, nthread=1))]
+    if (os.cpu_count() or 1) > 1:
+        return [Contestant("qpik.batch (2 threads)", lambda: BatchRun(robot, n, steps, nthread=2))]
+    return []
+
+
+def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
+    from timing import Contestant, interleave
 
     rows = []
     for n in sizes:
         steps = run_steps(n)
         block = max(1, steps // 8)
-        contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)),
-                       *([Contestant("qpik.batch (1 thread)", lambda n=n, s=steps: BatchRun(robot, n, s, nthread=1))]
-                         if default_threads(n) > 1 else []),
+        contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)), *other_threads(n, steps, robot),
                        Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s)),
                        Contestant("qpik serial (1 robot)", lambda n=n, s=steps: SerialRun(robot, n, s, count=1, inner=SERIAL_ROBOTS))]
         if mink_warp:
@@ -335,7 +348,8 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
                             Contestant("mink-warp constrained", lambda n=n, s=steps: MinkWarpRun("constrained", n, s))]
         timing = interleave(contestants, repeats=repeats, block=block)
         per_step = {c.label: c.repeat_medians_us for c in timing.contestants.values()}
-        robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+        robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik.batch (2 threads)": n,
+                           "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
                            "mink-warp dls": n, "mink-warp constrained": n}
         row = {"n": n, "steps": steps}
         for label, medians in per_step.items():
@@ -380,6 +394,37 @@ def profile_shares(robot: str, n: int = 1024, steps: int = 40) -> dict:
             "tasks_limits_and_rest_share": 1.0 - (spent["kinematics"] + spent["qp"]) / total}
 
 
+def mujoco_floor(robot: str, n: int = 1024, number: int = 20) -> dict:
+    """What one thread of ``mujoco.batch`` costs per world on the back-end's kinematic
+    model, whatever runs around it (best of 3 rounds of ``number`` calls on a fixed state):
+    a call that computes nothing (each world's state row loaded and saved, the bound
+    outputs copied), the back-end's call (the position stage, ``mj_fwdPosition``, with
+    MuJoCo's profiling timers off as the back-end runs it) and the same call with the
+    Python bindings' timer on, and ``Batch.jac`` (``mj_kinematics`` + ``mj_comPos`` + one
+    ``mj_jac``, nothing copied out: the kinematics alone, which no call of the batch
+    offers with its outputs)."""
+    import mujoco
+    from timing import call_cost_us
+
+    from qpik.batch.backends.cpu import profiling_timers_off
+
+    run = BatchRun(robot, n, 8, nthread=1)
+    batch = run.robots.backend._batch  # the benchmark looks inside: not an interface
+    stage = mujoco.mjtStage
+
+    def quiet(call):
+        def run_quietly():
+            with profiling_timers_off():
+                call()
+        return run_quietly
+
+    costs = {"nothing": quiet(lambda: batch.forward(stage=int(stage.mjSTAGE_NONE))),
+             "position_stage": run.robots.backend.forward,
+             "position_stage_with_timers": lambda: batch.forward(stage=int(stage.mjSTAGE_POS)),
+             "kinematics_jac": quiet(lambda: batch.jac(0, np.zeros(3)))}
+    return {"n": n, **{f"{key}_us_per_world": call_cost_us(call, number=number) / n for key, call in costs.items()}}
+
+
 def figure(results: dict, path: Path) -> None:
     import matplotlib
 
@@ -390,7 +435,8 @@ def figure(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, len(robots), figsize=(5 * len(robots), 4), squeeze=False)
     for ax, robot in zip(axes[0], robots):
         rows = results["throughput"][robot]["rows"]
-        for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
+        for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik.batch (2 threads)", "d:"),
+                             ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
                              ("mink-warp dls", "^:"),
                              ("mink-warp constrained", "v-.")):
             points = [(r["n"], r[label]["robot_steps_per_s"]) for r in rows if label in r]
@@ -437,6 +483,14 @@ def markdown(results: dict) -> str:
             lines += ["", f"Profile at N = {prof['n']}: {prof['step_us_per_world']:.2f} µs per robot-step; kinematics "
                           f"{prof['kinematics_share']:.0%}, QP {prof['qp_share']:.0%}, tasks, limits and the rest "
                           f"{prof['tasks_limits_and_rest_share']:.0%}."]
+        floor = results.get("mujoco_floor", {}).get(robot)
+        if floor:
+            lines += ["", f"mujoco.batch on one thread, N = {floor['n']}, per world: a call computing nothing "
+                          f"{floor['nothing_us_per_world']:.2f} µs, the position stage (the back-end's call) "
+                          f"{floor['position_stage_us_per_world']:.2f} µs ("
+                          f"{floor['position_stage_with_timers_us_per_world']:.2f} µs with the Python bindings' "
+                          f"profiling timer on), Batch.jac (kinematics + comPos + one Jacobian, no output) "
+                          f"{floor['kinematics_jac_us_per_world']:.2f} µs."]
         lines.append("")
     if results.get("mink_warp_accuracy"):
         a = results["mink_warp_accuracy"]
@@ -468,12 +522,13 @@ def main_inside(args) -> None:
             mink_warp, skipped = False, f"mink-warp does not import here ({exc})"
     results = {"command": "python benchmarks/batch_throughput.py " + " ".join(sys.argv[1:]).replace("--inside", "").strip(),
                "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load_before": load()},
-               "throughput": {}, "accuracy": {}, "profile": {}, "mink_warp_version": version,
+               "throughput": {}, "accuracy": {}, "profile": {}, "mujoco_floor": {}, "mink_warp_version": version,
                "mink_warp_skipped": skipped}
     for robot in args.robots:
         results["throughput"][robot] = measure(robot, args.sizes, args.repeats, mink_warp and robot == "pusher")
         results["accuracy"][robot] = batch_accuracy(robot)
         results["profile"][robot] = profile_shares(robot)
+        results["mujoco_floor"][robot] = mujoco_floor(robot)
     if mink_warp and "pusher" in args.robots:
         results["mink_warp_accuracy"] = mink_warp_accuracy()
     results["machine"]["load_after"] = load()

@@ -99,7 +99,9 @@ def test_every_batched_task_has_the_rows_of_its_serial_twin(model):
         frame, frame_type = ("end_effector", "site") if model == "arm" else ("platform_center", "site")
     tasks = _frame_tasks(robots, frame, frame_type, rng)
     if model == "arm":
-        tasks.append(batch.ManipulabilityTask(robots, batch.SigmaProxy(robots, ["theta2", "theta3"]), gain=5.0))
+        sigma = batch.SigmaProxy(robots, ["theta2", "theta3"])
+        tasks.append(batch.ManipulabilityTask(robots, sigma, gain=5.0))
+        tasks.append(batch.ManipulabilityTask(robots, sigma, gain=5.0, joints=["theta2", "theta3"]))
     if model == "hexapod":
         tasks.append(batch.EqualityTask(robots, gain=300.0))
         tasks.append(batch.RelativeFrameTask(robots, "platform_center", "leg1_tip", position_gain=10.0,
@@ -199,3 +201,46 @@ def test_pseudoinverse_worlds_equal_the_serial_law():
         serials.append((robot, qpik.PseudoinverseController(robot, [task.serial_twin(robot, w)],
                                                             sigma.serial_twin(robot, w))))
     assert _closed_loop(controller, robots, serials, 200) <= 1e-9
+
+
+COUPLED = """
+<mujoco>
+  <compiler angle="radian"/>
+  <worldbody>
+    <body name="a">
+      <joint name="j1" axis="0 0 1" range="-2 2"/>
+      <geom type="capsule" size="0.05" fromto="0 0 0 1 0 0"/>
+      <body name="b" pos="1 0 0">
+        <joint name="j2" axis="0 1 0" range="-2 2"/>
+        <geom type="capsule" size="0.05" fromto="0 0 0 1 0 0"/>
+      </body>
+    </body>
+    <body name="c" pos="0 1 0">
+      <joint name="j3" axis="1 0 0" range="-2 2"/>
+      <geom type="capsule" size="0.05" fromto="0 0 0 0 0 1"/>
+      <body name="d" pos="0 0 1">
+        <joint name="j4" type="slide" axis="0 0 1" range="-1 1"/>
+        <geom type="box" size="0.05 0.05 0.05"/>
+      </body>
+    </body>
+  </worldbody>
+  <equality>
+    <joint joint1="j3" joint2="j1" polycoef="0.1 0.5 0.2 -0.3 0.05"/>
+    <connect body1="b" body2="d" anchor="0.5 0 0"/>
+    <joint joint1="j4" polycoef="0.2 0 0 0 0"/>
+  </equality>
+</mujoco>
+"""
+
+
+def test_joint_couplings_and_body_anchored_connects_have_the_rows_of_their_serial_twin():
+    import mujoco
+
+    robots = batch.Robot(mujoco.MjModel.from_xml_string(COUPLED), 5)
+    rng = np.random.default_rng(11)
+    robots.set_q(rng.uniform(-0.8, 0.8, (robots.n, robots.nq)))
+    robots.ensure_kinematics()
+    task = batch.EqualityTask(robots, gain=200.0)
+    assert task.dim == 5  # 1 + 3 + 1 rows, in the equalities' order
+    task.attach(DT)
+    check_rows(task, robots, *twins_of(task, robots))

@@ -108,12 +108,18 @@ def test_bad_input_is_a_typed_error():
         robots.integrate(np.zeros((3, 4)), -1.0)
 
 
-@pytest.mark.parametrize("nv, meq, shared", [(4, 2, True), (7, 0, False), (7, 3, False), (12, 6, False), (5, 5, True)])
-def test_batched_qp_equals_daqp_world_by_world(nv, meq, shared):
+@pytest.mark.parametrize("nv, meq, hessian", [(4, 2, "diagonal"), (7, 0, "per world"), (7, 3, "per world"),
+                                             (12, 6, "per world"), (5, 5, "diagonal"), (6, 1, "dense"),
+                                             (6, 2, "per world"), (8, 4, "dense"), (4, 0, "diagonal")])
+def test_batched_qp_equals_daqp_world_by_world(nv, meq, hessian):
     rng = np.random.default_rng(nv * 10 + meq)
     n = 120
-    if shared:
+    shared = hessian != "per world"
+    if hessian == "diagonal":
         H = np.diag(rng.uniform(0.5, 2.0, nv))
+    elif hessian == "dense":
+        M = rng.normal(size=(nv, nv))
+        H = M @ M.T + 0.1 * np.eye(nv)
     else:
         M = rng.normal(size=(n, nv, nv))
         H = M @ M.transpose(0, 2, 1) + 0.1 * np.eye(nv)
@@ -177,6 +183,44 @@ def test_cpu_backend_equals_mujoco(name, model_path):
     np.testing.assert_allclose(backend.qpos, expected, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["arm", "hexapod", "pusher", "humanoid"])
+def test_pared_kinematic_model_changes_no_value_a_task_reads(name, model_path):
+    """The back-end's kinematic copy (no contacts, no constraints, no geoms listed on its
+    bodies) gives every pose, cdof and centre of mass of MuJoCo on the full model, and
+    geom frames as mj_kinematics writes them."""
+    if name == "pusher":
+        from qpik.models import pusher_arm
+
+        model = pusher_arm()
+    else:
+        model = mujoco.MjModel.from_xml_path(_scene(name) if name in ("arm", "hexapod") else str(model_path(name)))
+    rng = np.random.default_rng(8)
+    n = 5
+    backend = CpuBackend(model, n, nthread=1)
+    states = np.tile(model.qpos0, (n, 1))
+    for i in range(n):
+        mujoco.mj_integratePos(model, states[i], rng.normal(size=model.nv), 0.5)
+    backend.qpos[:] = states
+    frames = {(kind, i): backend.frame_pose(kind, i) for kind, count in
+              (("site", model.nsite), ("body", model.nbody), ("geom", model.ngeom)) for i in range(count)}
+    backend.forward()
+    fields = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
+    data = mujoco.MjData(model)
+    for i in range(n):
+        data.qpos[:] = states[i]
+        mujoco.mj_fwdPosition(model, data)  # the full model's position stage: geoms, contacts, all
+        for (kind, k), (position, rotation) in frames.items():
+            # MuJoCo's own outputs bit for bit; a geom's pose, formed here from its
+            # body's, to 1e-15 (MuJoCo's compiled products may round the last bit otherwise)
+            atol = 1e-15 if kind == "geom" else 0.0
+            np.testing.assert_allclose(position[i], getattr(data, fields[kind][0])[k], rtol=0, atol=atol,
+                                       err_msg=f"{kind} {k}")
+            np.testing.assert_allclose(rotation[i].ravel(), getattr(data, fields[kind][1])[k], rtol=0, atol=atol,
+                                       err_msg=f"{kind} {k}")
+        np.testing.assert_array_equal(backend._cdof[i], data.cdof)
+        np.testing.assert_array_equal(backend._subtree_com[i], data.subtree_com)
+
+
 def _scene(name: str) -> str:
     from qpik.robot import scene_path
 
@@ -203,3 +247,27 @@ def test_batch_import_is_light(run_without_modules):
                                  "assert 'qpik.batch.qp' not in sys.modules; print(batch.Robot.__name__)", ("scipy",))
     assert result.returncode == 0, result.stderr
     assert "Robot" in result.stdout
+
+
+def test_forward_leaves_mujocos_timer_callback_as_it_was():
+    """The back-end runs MuJoCo's stages with the profiling timer callback replaced by a
+    constant; the caller's callback is back after each call and times MuJoCo again."""
+    model = mujoco.MjModel.from_xml_path(_scene("arm"))
+    backend = CpuBackend(model, 8, nthread=1)
+    ticks = []
+
+    def timer():
+        ticks.append(None)
+        return float(len(ticks))
+
+    mujoco.set_mjcb_time(timer)
+    try:
+        backend.forward()
+        assert mujoco.get_mjcb_time() is timer and not ticks  # restored; not called by the batch
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        assert ticks  # the caller's timer times MuJoCo again
+    finally:
+        mujoco.set_mjcb_time(None)
+    backend.forward()
+    assert mujoco.get_mjcb_time() is None  # the bindings' own default, as before

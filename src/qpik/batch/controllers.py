@@ -52,15 +52,20 @@ def check_same_robots(robots: Robot, items, what: str) -> None:
 def non_finite_worlds(tasks: Sequence[Task], reasons: dict[int, str]) -> np.ndarray:
     """(N,) bool: worlds where a task's velocity or Jacobian is not finite, each named in
     ``reasons`` with the first such task."""
-    bad = None
+    bad = np.zeros(len(tasks[0].target_velocity), dtype=bool)
     for task in tasks:
+        # A sum is finite when every entry is (an overflowing sum only sends it on to
+        # the per-world test).
+        arrays = [task.target_velocity] + ([] if task.joint_space else [task.jacobian])
+        if np.isfinite([a.sum() for a in arrays]).all():
+            continue
         rows = ~np.isfinite(task.target_velocity).all(axis=1)
         if not task.joint_space:
             rows |= ~np.isfinite(task.jacobian).all(axis=(1, 2))
         for w in np.flatnonzero(rows):
             reasons.setdefault(int(w), f"the {task.name}'s target velocity or Jacobian is NaN or inf "
                                        "(a NaN or inf target or configuration?)")
-        bad = rows if bad is None else bad | rows
+        bad |= rows
     return bad
 
 
@@ -97,6 +102,10 @@ class QPController:
         self.H0 = np.eye(nv) * float(regularization)
         for task in self._diagonal:
             self.H0[task.dofs, task.dofs] += task.weight
+        self._H0_diagonal = np.diag(self.H0).copy()
+        if self._general:  # H per world, built in place every step
+            self._H = np.empty((n, nv, nv))
+            self._product = np.empty((n, nv, nv)) if len(self._general) > 1 else None
         self._lb0, self._ub0 = np.full((n, nv), -np.inf), np.full((n, nv), np.inf)
         for limit in self.limits:
             if limit.constant:
@@ -145,15 +154,20 @@ class QPController:
             c[:, task.dofs] -= task.weight * task.target_velocity
         if not self._general:
             return self.H0, c
-        H = np.broadcast_to(self.H0, (n, nv, nv)).copy()
+        H = self._H
         lm_total = np.zeros(n)
-        for task in self._general:
+        diagonal = H.reshape(n, nv * nv)[:, ::nv + 1]
+        for k, task in enumerate(self._general):
             weighted = task.weight[None, :, None] * task.jacobian
-            H += np.matmul(task.jacobian.transpose(0, 2, 1), weighted)
-            c -= np.matmul(task.target_velocity[:, None, :], weighted)[:, 0]
+            if k == 0:  # H = H0 + JᵀWJ, H0 diagonal
+                np.matmul(task.jacobian.transpose(0, 2, 1), weighted, out=H)
+                diagonal += self._H0_diagonal
+            else:
+                H += np.matmul(task.jacobian.transpose(0, 2, 1), weighted, out=self._product)
+            c -= np.einsum("nk,nkj->nj", task.target_velocity, weighted)
             if task.lm_damping:
                 lm = task.lm_damping * np.einsum("nk,k,nk->n", task.error, task.weight, task.error)
-                H[:, np.arange(nv), np.arange(nv)] += lm[:, None]
+                diagonal += lm[:, None]
                 lm_total += lm
         big = lm_total > LM_RESCALE
         if big.any():

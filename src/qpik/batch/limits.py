@@ -17,6 +17,14 @@ from .tasks import _Difference
 __all__ = ["AccelerationLimit", "CollisionAvoidanceLimit", "JointPositionLimit", "JointVelocityLimit", "Limit"]
 
 
+def consecutive(index: np.ndarray):
+    """``index`` as a slice when its entries are consecutive (a view instead of a copy)."""
+    index = np.asarray(index, dtype=np.int64)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
+
+
 class Limit:
     """Base class: :meth:`apply` tightens the (N, nv) box in place; ``constant`` limits
     are applied once, when a controller is built."""
@@ -44,9 +52,10 @@ class JointPositionLimit(Limit):
         self._lower = self.limits.lower + self.margin
         self._upper = self.limits.upper - self.margin
         self._rate = damper_rate / influence if influence > 0 else 0.0
+        self._qpos, self._dofs = consecutive(self.limits.qpos_index), consecutive(self.limits.dof_index)
 
     def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
-        q = self.robots.q[:, self.limits.qpos_index]
+        q = self.robots.q[:, self._qpos]
         low, high = self._lower - q, self._upper - q
         step_rate = self.gain / dt
         if self.influence > 0.0:
@@ -55,7 +64,7 @@ class JointPositionLimit(Limit):
             high = high * np.where(np.abs(high) < self.influence, damped, step_rate)
         else:
             low, high = low * step_rate, high * step_rate
-        dofs = self.limits.dof_index
+        dofs = self._dofs
         vel_lo, vel_hi = lb[:, dofs], ub[:, dofs]
         # Recovery from outside the range never asks for more than the velocity box.
         low = np.minimum(low, vel_hi)

@@ -37,6 +37,7 @@ from ctypes import c_int
 import numpy as np
 
 from .backends.base import BatchQP, QPResult, QPStatus
+from .linalg import cholesky_solve_last, worlds_last
 
 # As the serial controller's closed form (qpik.controllers.closed_form.EQUALITY_TOLERANCE).
 CLOSED_FORM_TOLERANCE = 1e-10
@@ -48,6 +49,9 @@ BOUND_TOLERANCE = 1e-9
 ACTIVATION_TOLERANCE = 1e-12
 # A fixed variable whose multiplier is below −this (relative to the gradient's scale) is freed.
 MULTIPLIER_TOLERANCE = 1e-12
+# S counts as singular (dependent hard rows) past this conditioning, as in the serial
+# closed form (qpik.controllers.closed_form.SINGULAR_RATIO).
+SINGULAR_RATIO = 1e6
 # DAQP's settings in the serial back-end (qpik.solvers.base).
 DAQP_ITERATIONS = 10000
 DAQP_TIME_LIMIT = 1.0
@@ -74,9 +78,53 @@ def rows_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> n
     """Per world, whether |Ax − b| <= tolerance (1 + |b|) (Euclidean), as the serial check."""
     if A.shape[1] == 0:
         return np.ones(len(x), dtype=bool)
-    residual = np.matmul(A, x[:, :, None])[:, :, 0] - b
-    miss = (residual * residual).sum(axis=1)
-    return miss <= tolerance * tolerance * (1.0 + (b * b).sum(axis=1))
+    residual = matvec(A, x) - b
+    return square_sum(residual) <= tolerance * tolerance * (1.0 + square_sum(b))
+
+
+def matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(k, m): A_k x_k of every world, A (k, m, n), x (k, n)."""
+    return np.einsum("kij,kj->ki", A, x)
+
+
+def square_sum(r: np.ndarray) -> np.ndarray:
+    """(k,): the squared norm of each row of r (k, m); columns added one by one, since
+    NumPy's reduction over a short last axis costs more than m additions."""
+    total = r[:, 0] * r[:, 0] if r.shape[1] else np.zeros(len(r))
+    for i in range(1, r.shape[1]):
+        total = total + r[:, i] * r[:, i]
+    return total
+
+
+def spd_solve(S: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve S_k y_k = r_k, S_k (m, m) symmetric positive definite, in every world;
+    S (N, m, m), r (N, m). See :func:`spd_solve_last`."""
+    y, ok = spd_solve_last(worlds_last(S), np.ascontiguousarray(r.T))
+    return y.T, ok
+
+
+def spd_solve_last(S: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve S_k y_k = r_k with the worlds along the last axis: S (m, m, N), r (m, N);
+    ok False where S_k is not positive definite, or too ill-conditioned for its solution
+    to mean anything (the serial closed form's test: cond(S) > 1e12 for one or two
+    rows, Cholesky pivots further apart than 1e6 beyond)."""
+    m = S.shape[0]
+    if m == 1:
+        s = S[0, 0]
+        ok = s > 0.0
+        return r / np.where(ok, s, 1.0), ok
+    if m == 2:
+        a, off, d = S[0, 0], S[0, 1], S[1, 1]
+        det = a * d - off * off
+        ok = (det * SINGULAR_RATIO ** 2 > a * d) & (a > 0.0)
+        det = np.where(ok, det, 1.0)
+        y = np.empty_like(r)
+        y[0] = (d * r[0] - off * r[1]) / det
+        y[1] = (a * r[1] - off * r[0]) / det
+        return y, ok
+    y, pivots = cholesky_solve_last(S, r[:, None, :])
+    low = pivots.min(axis=0)
+    return y[:, 0], (low > 0.0) & (pivots.max(axis=0) <= SINGULAR_RATIO * low)
 
 
 def reduced_kkt(H: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, fixed: np.ndarray,
@@ -136,6 +184,7 @@ class ActiveSetQP(BatchQP):
         self._upper = np.zeros((nworld, nv), dtype=bool)
         self.x = np.zeros((nworld, nv))
         self.stats = {"closed_form": 0, "active_set": 0, "daqp": 0, "iterations": 0}
+        self._shared = None  # (H, 1/diag(H) or None, H⁻¹ or None) of the last shared H
 
     def reset(self) -> None:
         self._lower.fill(False)
@@ -154,10 +203,21 @@ class ActiveSetQP(BatchQP):
         ids = np.flatnonzero(todo)
         if not len(ids):
             return QPResult(x, status, reasons, closed, fallback)
-        shared = H.ndim == 2
-        Hs = H if shared else H[ids]
-        xc, ok = self._closed_form(Hs, c[ids], A[ids], b[ids])
-        inside = ok & (xc >= lb[ids]).all(axis=1) & (xc <= ub[ids]).all(axis=1)
+        every = len(ids) == n  # then whole arrays, not copies of their rows
+        pick = (lambda a: a) if every else (lambda a: a[ids])
+        Hs = H if H.ndim == 2 else pick(H)
+        lo, hi = pick(lb), pick(ub)
+        xc, ok = self._closed_form(Hs, pick(c), pick(A), pick(b))
+        if every and ok.all() and not (xc < lo).any() and not (xc > hi).any():
+            # the common step: no bound binds anywhere
+            x[:] = xc
+            status.fill(QPStatus.SOLVED)
+            closed.fill(True)
+            self._lower.fill(False)
+            self._upper.fill(False)
+            self.stats["closed_form"] += n
+            return QPResult(x, status, reasons, closed, fallback)
+        inside = ok & (xc >= lo).all(axis=1) & (xc <= hi).all(axis=1)
         done = ids[inside]
         x[done] = xc[inside]
         status[done] = QPStatus.SOLVED
@@ -181,45 +241,87 @@ class ActiveSetQP(BatchQP):
 
     def _screen(self, H, c, A, b, lb, ub, todo, status, reasons) -> None:
         """Worlds with non-finite data or an empty box are not solved (reasons given)."""
-        finite = np.isfinite(c).all(axis=1) & np.isfinite(b).all(axis=1) & np.isfinite(A).all(axis=(1, 2))
-        if H.ndim == 3:
-            finite &= np.isfinite(H).all(axis=(1, 2))
-        finite &= ~np.isnan(lb).any(axis=1) & ~np.isnan(ub).any(axis=1)
-        for w in np.flatnonzero(todo & ~finite):
-            status[w] = QPStatus.FAILED
-            reasons[int(w)] = "the QP's data contain NaN or inf (a target, a task velocity or a bound)"
-        todo &= finite
-        empty = todo & (lb > ub).any(axis=1)
+        # One sum per array settles the usual case; a sum that overflows only sends the
+        # check to the per-world test.
+        finite_sums = [c.sum(), b.sum(), A.sum()] + ([H.sum()] if H.ndim == 3 else [])
+        if not np.isfinite(finite_sums).all() or np.isnan(lb).any() or np.isnan(ub).any():
+            finite = np.isfinite(c).all(axis=1) & np.isfinite(b).all(axis=1) & np.isfinite(A).all(axis=(1, 2))
+            if H.ndim == 3:
+                finite &= np.isfinite(H).all(axis=(1, 2))
+            finite &= ~np.isnan(lb).any(axis=1) & ~np.isnan(ub).any(axis=1)
+            for w in np.flatnonzero(todo & ~finite):
+                status[w] = QPStatus.FAILED
+                reasons[int(w)] = "the QP's data contain NaN or inf (a target, a task velocity or a bound)"
+            todo &= finite
+        crossed = lb > ub
+        if not crossed.any():
+            return
+        empty = todo & crossed.any(axis=1)
         for w in np.flatnonzero(empty):
             i = int(np.argmax(lb[w] > ub[w]))
             status[w] = QPStatus.INFEASIBLE
             reasons[int(w)] = f"QP infeasible: variable {i} must lie in the empty interval [{lb[w, i]:.6g}, {ub[w, i]:.6g}]"
         todo &= ~empty
 
+    def _shared_inverse(self, H: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(1/diag(H), None) for a diagonal H shared by every world, else (None, H⁻¹);
+        computed once while H stays the same."""
+        cached = self._shared
+        if cached is None or not np.array_equal(cached[0], H):
+            diagonal = np.diag(H).copy()
+            if np.count_nonzero(H - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
+                cached = (H.copy(), 1.0 / diagonal, None)
+            else:
+                cached = (H.copy(), None, np.linalg.inv(H))
+            self._shared = cached
+        return cached[1], cached[2]
+
     def _closed_form(self, H, c, A, b) -> tuple[np.ndarray, np.ndarray]:
-        """The equality-constrained minimiser of every world (no bound held): H⁻¹[Aᵀ c] in
-        one product when H is shared, one stacked solve otherwise; then S λ = −r."""
+        """The equality-constrained minimiser of every world (no bound held):
+        x = −H⁻¹(c + Aᵀλ) with S λ = −r, S = A H⁻¹ Aᵀ, r = b + A H⁻¹ c. H⁻¹[Aᵀ c]
+        comes from H's cached inverse when H is shared (a diagonal one elementwise),
+        else from one Cholesky solve across worlds; S is solved in closed form for
+        one or two rows (as the serial controller's closed form), by Cholesky beyond.
+        Computed with the worlds along the last axis (one pass per operation)."""
         k, nv = c.shape
         meq = self.meq
         if meq == nv:  # a single feasible point: x = A⁻¹b
             xs, ok = stacked_solve(A, b[:, :, None])
             x = xs[:, :, 0]
-        else:
-            rhs = np.concatenate([A.transpose(0, 2, 1), c[:, :, None]], axis=2)
-            if H.ndim == 2:
-                scaled, ok = np.matmul(np.linalg.inv(H), rhs), np.ones(k, dtype=bool)
-            else:
-                scaled, ok = stacked_solve(H, rhs)
-            if meq:
-                S = np.matmul(A, scaled[:, :, :meq])
-                r = b + np.matmul(A, scaled[:, :, meq:])[:, :, 0]
-                lam, ok_s = stacked_solve(S, -r[:, :, None])
-                ok &= ok_s
-                x = -scaled[:, :, meq] - np.matmul(scaled[:, :, :meq], lam)[:, :, 0]
-            else:
-                x = -scaled[:, :, 0]
-        ok &= np.isfinite(x).all(axis=1) & rows_met(A, x, b, CLOSED_FORM_TOLERANCE)
-        return x, ok
+            if not np.isfinite(x.sum()):
+                ok &= np.isfinite(x).all(axis=1)
+            return x, ok & rows_met(A, x, b, CLOSED_FORM_TOLERANCE)
+        At, bt = worlds_last(A), np.ascontiguousarray(b.T)  # (meq, nv, k), (meq, k)
+        xt, HAt, ok = self._scaled(H, c, At)  # H⁻¹c (nv, k), A H⁻¹ (meq, nv, k)
+        if meq:
+            S = np.empty((meq, meq, k))
+            for i in range(meq):
+                for j in range(i, meq):
+                    S[i, j] = S[j, i] = (HAt[i] * At[j]).sum(axis=0)
+            lam, ok_s = spd_solve_last(S, -(bt + (At * xt).sum(axis=1)))
+            ok &= ok_s
+            for i in range(meq):
+                xt += lam[i] * HAt[i]
+        xt = -xt
+        if not np.isfinite(xt.sum()):
+            ok &= np.isfinite(xt).all(axis=0)
+        if meq:
+            residual = (At * xt).sum(axis=1) - bt
+            ok &= (residual * residual).sum(axis=0) <= CLOSED_FORM_TOLERANCE ** 2 * (1.0 + (bt * bt).sum(axis=0))
+        return xt.T, ok
+
+    def _scaled(self, H, c, At) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(H⁻¹c (nv, k), A H⁻¹ (meq, nv, k), ok) of every world, worlds last; the first
+        is a new array."""
+        k = len(c)
+        if H.ndim == 2:
+            dinv, inverse = self._shared_inverse(H)
+            if dinv is not None:
+                return c.T * dinv[:, None], At * dinv[:, None], np.ones(k, dtype=bool)
+            return inverse @ c.T, np.matmul(inverse, At), np.ones(k, dtype=bool)  # H symmetric
+        rhs = np.concatenate([c.T[:, None, :], At.transpose(1, 0, 2)], axis=1)  # (nv, 1 + meq, k)
+        solved, pivots = cholesky_solve_last(worlds_last(H), rhs)
+        return solved[:, 0].copy(), solved[:, 1:].transpose(1, 0, 2), (pivots > 0.0).all(axis=0)
 
     def _active_set(self, H, c, A, b, lb, ub, ids, start, x, status) -> tuple[np.ndarray, int]:
         """The worlds ``ids`` whose closed form crossed a bound: first their last step's

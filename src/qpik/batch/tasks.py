@@ -27,6 +27,7 @@ from .. import tasks as serial
 from ..errors import GainWarning, InvalidInput
 from ..tasks.task import axis_rows, check_axes_frame, feedback_gain, joint_dofs, positive, positive_scalar
 from . import rotations
+from .linalg import worlds_last
 from .errors import InvalidWorlds, NotBatched
 from .robot import Robot, listed
 
@@ -63,13 +64,33 @@ def world_rotations(robots: Robot, value, what: str = "target rotation") -> np.n
                                 np.flatnonzero(bad))
         return rotations.quat2mat(quats)
     mats = world_values(robots, arr, (3, 3), what)
-    finite = np.isfinite(mats).all(axis=(1, 2))
-    safe = np.where(finite[:, None, None], mats, np.eye(3))
-    deviation = np.abs(np.matmul(safe.transpose(0, 2, 1), safe) - np.eye(3)).max(axis=(1, 2))
-    bad = (deviation > 1e-6) | ((np.cross(safe[:, :, 0], safe[:, :, 1]) * safe[:, :, 2]).sum(axis=1) < 0)
+    C = worlds_last(mats)  # C[a, i]: row a, column i, every world along the last axis
+    if not np.isfinite(C.sum()):
+        C = np.where(np.isfinite(C).all(axis=(0, 1)), C, np.eye(3)[:, :, None])
+    gram = (C[:, :, None, :] * C[:, None, :, :]).sum(axis=0)  # columns' dot products, RᵀR
+    deviation = np.abs(gram - np.eye(3)[:, :, None]).max(axis=(0, 1))
+    det = (C[0, 0] * (C[1, 1] * C[2, 2] - C[2, 1] * C[1, 2]) - C[1, 0] * (C[0, 1] * C[2, 2] - C[2, 1] * C[0, 2])
+           + C[2, 0] * (C[0, 1] * C[1, 2] - C[1, 1] * C[0, 2]))
+    bad = (deviation > 1e-6) | (det < 0)
     if bad.any():
         raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))} is not a rotation matrix", np.flatnonzero(bad))
     return mats
+
+
+def row_selection(rows: np.ndarray, size: int):
+    """``rows`` of a ``size``-row array as an index: None for all of them, a slice when
+    they are consecutive (a view, not a copy), else the array."""
+    rows = np.asarray(rows, dtype=int)
+    if len(rows) == size and np.array_equal(rows, np.arange(size)):
+        return None
+    if len(rows) and np.array_equal(rows, np.arange(rows[0], rows[0] + len(rows))):
+        return slice(int(rows[0]), int(rows[0]) + len(rows))
+    return rows
+
+
+def select(array: np.ndarray, rows) -> np.ndarray:
+    """``array[:, rows]`` for a :func:`row_selection`."""
+    return array if rows is None else array[:, rows]
 
 
 class Task:
@@ -136,7 +157,8 @@ class Task:
 
 class _PoseRows:
     """The masked position/orientation rows of a frame, world or local axes (the serial
-    ``PoseRows``)."""
+    ``PoseRows``). Its Jacobian is written into buffers it keeps (the task's
+    ``jacobian`` is valid until its next update)."""
 
     def __init__(self, robots: Robot, frame, position_rows, orientation_rows, local: bool):
         self.robots, self.frame, self.local = robots, frame, local
@@ -147,15 +169,30 @@ class _PoseRows:
         parts = ([position_rows] if self.has_position else []) + \
                 ([offset + orientation_rows] if self.has_orientation else [])
         self.rows = np.concatenate(parts).astype(int)
+        blocks = int(self.has_position) + int(self.has_orientation)
+        self._take = row_selection(self.rows, 3 * blocks)
+        n, nv = robots.n, robots.nv
+        self._jac = np.empty((n, 3 * blocks, nv))
+        spare = np.empty((n, 3, nv))  # the block a pure position or orientation task does not read
+        self._out_p = self._jac[:, :3] if self.has_position else spare
+        self._out_r = self._jac[:, offset:offset + 3] if self.has_orientation else spare
+        self._target_quat = None  # (the rotations it was computed from, their quaternions)
 
     def jacobian(self) -> np.ndarray:
-        jacp, jacr = self.frame.jacobian(self.robots)
-        blocks = ([jacp] if self.has_position else []) + ([jacr] if self.has_orientation else [])
-        jac = np.concatenate(blocks, axis=1)
+        self.frame.jacobian(self.robots, self._out_p, self._out_r)
+        jac = self._jac
         if self.local:
             Rt = self.frame.rotation.transpose(0, 2, 1)
-            jac = np.concatenate([Rt @ jac[:, 3 * b:3 * b + 3] for b in range(len(blocks))], axis=1)
-        return jac[:, self.rows]
+            jac = np.concatenate([Rt @ jac[:, 3 * b:3 * b + 3] for b in range(jac.shape[1] // 3)], axis=1)
+        return select(jac, self._take)
+
+    def desired_quat(self, target_rotation: np.ndarray) -> np.ndarray:
+        """``mju_mat2Quat`` of the target rotations, recomputed only when they change."""
+        cached = self._target_quat
+        if cached is None or not np.array_equal(cached[0], target_rotation):
+            cached = (np.array(target_rotation), rotations.mat2quat(target_rotation))
+            self._target_quat = cached
+        return cached[1]
 
     def errors(self, target_position, target_rotation, linear_velocity, angular_velocity):
         R = self.frame.rotation
@@ -168,13 +205,16 @@ class _PoseRows:
             errors.append(e)
             feedforward.append(f)
         if self.has_orientation:
+            desired = self.desired_quat(target_rotation)
             if self.local:
-                errors.append(rotations.rotation_error_local(target_rotation, R))
+                errors.append(rotations.rotation_error_local(target_rotation, R, desired))
                 feedforward.append(np.einsum("nj,nji->ni", angular_velocity, R))
             else:
-                errors.append(rotations.rotation_error_world(target_rotation, R))
+                errors.append(rotations.rotation_error_world(target_rotation, R, desired))
                 feedforward.append(angular_velocity)
-        return np.concatenate(errors, axis=1)[:, self.rows], np.concatenate(feedforward, axis=1)[:, self.rows]
+        if len(errors) > 1:
+            errors, feedforward = [np.concatenate(errors, axis=1)], [np.concatenate(feedforward, axis=1)]
+        return select(errors[0], self._take), select(feedforward[0], self._take)
 
 
 class FrameTask(Task):
@@ -244,6 +284,8 @@ class PositionTask(Task):
         self._args = dict(frame=frame, frame_type=frame_type, axes=axes, axes_frame=axes_frame)
         self.frame = robots.frame(frame, frame_type)
         self._pose = _PoseRows(robots, self.frame, self.rows, None, self.local)
+        self._take = row_selection(self.rows, 3)
+        self._jacp, self._jacr = np.empty((robots.n, 3, robots.nv)), np.empty((robots.n, 3, robots.nv))
         robots.ensure_kinematics()
         self.target = self.frame.position.copy() if self.local else self.frame.position[:, self.rows].copy()
         self.target_rate = np.zeros_like(self.target)
@@ -259,9 +301,9 @@ class PositionTask(Task):
             self.jacobian = self._pose.jacobian()
             self.error, feedforward = self._pose.errors(self.target, None, self.target_rate, None)
         else:
-            jacp = self.frame.jacobian(self.robots)[0]
-            self.jacobian = jacp[:, self.rows]
-            self.error = self.target - self.frame.position[:, self.rows]
+            self.frame.jacobian(self.robots, self._jacp, self._jacr)
+            self.jacobian = select(self._jacp, self._take)
+            self.error = self.target - select(self.frame.position, self._take)
             feedforward = self.target_rate
         self.target_velocity = self.gain * self.error + feedforward
 
@@ -479,8 +521,12 @@ class SigmaProxy:
 
     def gradient(self) -> np.ndarray:
         out = np.zeros((self.robots.n, self.robots.nv))
-        out[:, self.dof_index] = 0.5 * np.sin(2.0 * self.robots.q[:, self.qpos_index])
+        out[:, self.dof_index] = self.partial_gradient()
         return out
+
+    def partial_gradient(self) -> np.ndarray:
+        """(N, len(joints)): the gradient's entries on the measure's own dofs."""
+        return 0.5 * np.sin(2.0 * self.robots.q[:, self.qpos_index])
 
 
 class ManipulabilityTask(_JointSpace):
@@ -496,12 +542,17 @@ class ManipulabilityTask(_JointSpace):
         super().__init__(robots, joints, weight)
         self.measure = measure
         self.gain = positive_scalar(gain, "manipulability gain", allow_zero=True)
+        self._own_dofs = np.array_equal(self.dofs, measure.dof_index)
+        self._take = row_selection(self.dofs, robots.nv)
 
     def feedback_gains(self) -> None:
         return None
 
     def update(self) -> None:
-        self.target_velocity = self.measure.gradient()[:, self.dofs] * self.gain
+        if self._own_dofs:  # the task's dofs are the measure's: no (N, nv) gradient
+            self.target_velocity = self.measure.partial_gradient() * self.gain
+        else:
+            self.target_velocity = select(self.measure.gradient(), self._take) * self.gain
 
     def serial_twin(self, robot, world: int):
         measure = serial.SigmaProxy(robot, list(self.measure.joints))
