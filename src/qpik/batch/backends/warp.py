@@ -294,9 +294,7 @@ class WarpQP(BatchQP):
             self._warm = wp.zeros((nworld, n), dtype=int)
             self._n_warm = wp.zeros(nworld, dtype=int)
             self._status, self._iterations, self._n_bound = (wp.zeros(nworld, dtype=int) for _ in range(3))
-            self._work3 = [wp.zeros((nworld, n, n), dtype=f8) for _ in range(4)]
-            self._work2 = [wp.zeros((nworld, n), dtype=f8) for _ in range(5)]
-            self._act = wp.zeros((nworld, n), dtype=int)
+            self._work3, self._work2, self._act = warp_qp.workspace(nworld, n, f8)
         self.x = np.zeros((nworld, n))
 
     def reset(self) -> None:
