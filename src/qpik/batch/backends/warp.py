@@ -5,7 +5,10 @@ kernels on the CPU, slowly, which is how the test suite checks this back-end).
 What runs where:
 
 - the N configurations live on the host in float64 (``qpos``, as the interface asks)
-  and are copied to the device before each :meth:`WarpBackend.forward`;
+  and are copied to the device before each :meth:`WarpBackend.forward`; a
+  device-resident step (:meth:`WarpBackend.make_step`,
+  :mod:`qpik.batch.backends.warp_step`) keeps them on the device, in float64, and
+  ``qpos`` copies them back when it is read;
 - MuJoCo Warp computes the kinematics (``kinematics``, ``com_pos``), the Jacobians
   (``jac``) and the equality-constraint rows (``make_constraint``, its own rows: loop
   closures are never rebuilt on the host) on the device, in float32, MuJoCo Warp's only
@@ -116,12 +119,50 @@ class WarpBackend(KinematicsBackend):
             self._points = wp.zeros(self.nworld, dtype=wp.vec3)
             self._jacp = wp.zeros((self.nworld, 3, model.nv), dtype=float)
             self._jacr = wp.zeros((self.nworld, 3, model.nv), dtype=float)
-        self.qpos = np.zeros((self.nworld, model.nq))
-        self.qpos[:] = model.qpos0
+        self._qpos = np.zeros((self.nworld, model.nq))
+        self._qpos[:] = model.qpos0
+        # A device-resident step (warp_step) keeps the float64 state on the device.
+        self._device_qpos = None
+        self._device_qpos_newer = False
+        self._host_qpos_touched = True
         self._host: dict[str, np.ndarray] = {}  # device field -> float64 host mirror
         self._rows_current = False
         self._integration = _Integration(model)
         self._physics = None
+
+    # -- the state, on the host or the device ------------------------------------------
+    @property
+    def qpos(self) -> np.ndarray:
+        """``(N, nq)`` float64 on the host, writable; after a device-resident step it is
+        first copied back from the device (and goes up again before the next one)."""
+        if self._device_qpos_newer:
+            self._qpos[:] = self._device_qpos.numpy()
+            self._device_qpos_newer = False
+        self._host_qpos_touched = True
+        return self._qpos
+
+    def device_qpos(self):
+        """The state as a float64 device array (N, nq), current: what a device-resident
+        step reads and advances (the same array every call)."""
+        if self._device_qpos is None:
+            self._device_qpos = wp.zeros(self._qpos.shape, dtype=wp.float64, device=self.device)
+        if self._host_qpos_touched:
+            self._device_qpos.assign(self._qpos)
+            self._host_qpos_touched = False
+        return self._device_qpos
+
+    def device_qpos_moved(self) -> None:
+        """A device step advanced the state (and ran the kinematics on the device)."""
+        self._device_qpos_newer = True
+        self._rows_current = False
+
+    def make_step(self, controller):
+        """The device-resident control step of ``controller``
+        (:class:`~qpik.batch.backends.warp_step.DeviceStep`); NotBatched, with the
+        reason, when a task or limit has no device kernel."""
+        from .warp_step import DeviceStep
+
+        return DeviceStep(self, controller)
 
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
