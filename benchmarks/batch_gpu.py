@@ -179,6 +179,20 @@ def throughput(robot: str, sizes, repeats: int, device: str, mink_warp: bool) ->
     return rows
 
 
+def target_cost(robot: str, sizes, device: str, calls: int = 20) -> dict:
+    """Microseconds per step that qpik's step spends in ``set_target`` on the host (the
+    targets' checks), inside each timed step above: on a GPU, where the device step is
+    short, this share says how much of a step the host's target API takes."""
+    out = {}
+    for n in sizes:
+        run = QpikRun(robot, n, calls, backend="warp", device=device)
+        start = time.perf_counter()
+        for k in range(calls):
+            run.mover(run.offset[k], run.velocity[k])
+        out[str(n)] = (time.perf_counter() - start) / calls * 1e6
+    return out
+
+
 def exactness(robot: str, n: int, device: str, steps: int = 50) -> dict:
     """After ``steps`` warp steps (``QPController.step``): each world's q̇ of the next
     step against the CPU back-end's exact step at the same state and targets (float64
@@ -269,7 +283,9 @@ def markdown(results: dict) -> str:
         path = ("the device-resident step" + (" (one CUDA graph per step)" if ex["cuda_graph"] else
                                               " (kernels launched one by one: no CUDA graph)")
                 if ex["step_path"] == "device" else f"the host path ({ex['host_step_reason']})")
-        lines += ["", f"qpik warp ran {path}.", f"Latency at N = 1 (median step): {lat}.",
+        cost = ", ".join(f"{us:.0f} µs at N = {n}" for n, us in data.get("set_target_us", {}).items())
+        lines += ["", f"qpik warp ran {path}.", f"Of each qpik step, set_target on the host took {cost}.",
+                  f"Latency at N = 1 (median step): {lat}.",
                   f"First step in a fresh process: {comp}.",
                   f"qpik warp against the CPU back-end's exact step at the same states ({ex['worlds']} worlds, after "
                   f"{ex['steps']} steps): max |Δq̇| = {ex['max_qdot_difference']:.2g} ({ex['relative']:.2g} relative: "
@@ -301,6 +317,7 @@ def main_inside(args) -> None:
         results["robots"][robot] = {
             "compile": compile_times(robot, device, mink_warp),
             "throughput": throughput(robot, sizes, args.repeats, device, mink_warp),
+            "set_target_us": target_cost(robot, sizes, device),
             "latency": latency(robot, device, mink_warp, args.repeats),
             "exactness": exactness(robot, min(64, max(sizes)), device),
         }
