@@ -146,7 +146,7 @@ def test_device_rows_equal_the_host_rows_and_the_serial_twins(name, pusher_model
         limits.append(batch.JointPositionLimit(robots, influence=0.1, damper_rate=2.0))
     controller = batch.QPController(robots, tasks, limits, dt=DT)
     robots.set_q(_random_states(robots, rng))
-    device = robots.backend.make_step(controller)
+    device = DeviceStep(robots.backend, controller)
     device.assemble()
 
     recorder = controller.qp = _Recorder(controller.qp)

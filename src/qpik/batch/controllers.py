@@ -166,12 +166,14 @@ class QPController:
         self.robots.integrate(qdot, self.dt)
 
     def _choose_step_path(self) -> None:
-        make_step = getattr(self.robots.backend, "make_step", None)
-        self.step_path, self.host_step_reason = "host", f"the {self.robots.backend.name} back-end steps on the host"
-        if make_step is None:
+        backend = self.robots.backend
+        self.step_path, self.host_step_reason = "host", f"the {backend.name} back-end steps on the host"
+        if backend.name != "warp":
             return
+        from .backends.warp_step import DeviceStep  # the warp back-end's device-resident step
+
         try:
-            self.device_step, self.step_path, self.host_step_reason = make_step(self), "device", None
+            self.device_step, self.step_path, self.host_step_reason = DeviceStep(backend, self), "device", None
         except NotBatched as why:
             self.host_step_reason = str(why)
             warnings.warn(f"batch.QPController.step runs on the host: {why}", HostStepWarning, stacklevel=3)

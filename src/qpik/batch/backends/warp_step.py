@@ -42,9 +42,13 @@ from ...errors import InvalidInput
 from ..errors import NotBatched, WorldsFailed
 from ..limits import JointPositionLimit, JointVelocityLimit
 from ..tasks import DampingTask, EqualityTask, FrameTask, OrientationTask, PositionTask, PostureTask
-from .warp import TOLERANCE, _daqp, mjw, wp
+from ...extras import require
 from . import warp_kernels as K
 from . import warp_qp
+from .daqp_fallback import TOLERANCE, daqp_solve
+
+wp = require("warp", "the warp batch back-end", extra="gpu")
+mjw = require("mujoco_warp", "the warp batch back-end", extra="gpu")
 
 F64 = wp.float64
 _FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
@@ -81,7 +85,8 @@ def _pose_rows(task):
 
 class _Mirror:
     """A task's per-world target array on the device, copied when the task holds a new
-    array (the old one is then read-only: in-place writes raise)."""
+    array; the copied array is made read-only, so that an in-place write raises instead
+    of being missed (a view, which cannot be guarded so, is copied every step)."""
 
     def __init__(self, task, attribute: str, device):
         self.task, self.attribute = task, attribute
@@ -99,7 +104,9 @@ class _Mirror:
         self.array.assign(np.ascontiguousarray(host, dtype=np.float64))
         if host.flags.owndata:
             host.flags.writeable = False
-        self._last = host
+            self._last = host
+        else:
+            self._last = None
 
 
 class _Parameters:
@@ -296,8 +303,8 @@ def _chain(model: mujoco.MjModel, body: int) -> np.ndarray:
 class DeviceStep:
     """A ``batch.QPController``'s control step, resident on the warp back-end's device.
 
-    Built by :meth:`WarpBackend.make_step <qpik.batch.backends.warp.WarpBackend.make_step>`
-    (``QPController.step`` does it); the task set is fixed at construction.
+    Built by ``QPController.step`` on the warp back-end (``DeviceStep(backend,
+    controller)``); the task set is fixed at construction.
 
     Attributes:
         captured: the step replays a CUDA graph (False on Warp's CPU device, and
@@ -470,7 +477,7 @@ class DeviceStep:
         for k, w in enumerate(worlds):
             why = self._fault_reason(*codes[k], lb[k], ub[k])
             if why is None:
-                answers[k], status, why = _daqp(H[k], c[k], A[k, :meq], b[k, :meq], lb[k], ub[k])
+                answers[k], status, why = daqp_solve(H[k], c[k], A[k, :meq], b[k, :meq], lb[k], ub[k])
             if why:
                 reasons[int(w)] = why
         with wp.ScopedDevice(self.device):
