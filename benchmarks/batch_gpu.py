@@ -11,16 +11,22 @@ velocity limits, its joint-range bug under mujoco 4.0 patched as there).
 Contestants, per N, block-interleaved in one process (benchmarks/timing.py):
 
 - ``qpik warp``: ``batch.Robot.load(..., backend="warp", device=D)`` and
-  ``batch.QPController``: MuJoCo Warp kinematics, Jacobians and loop rows on the device
-  (float32), the tasks on the host (NumPy), the QP on the device (float64, exact);
+  ``batch.QPController.step()``: where every task and limit has a device kernel (the
+  pusher, the hexapod) the device-resident step — kinematics, rows, QP (float64,
+  exact), check and integration on the device, one CUDA graph per step on a GPU;
+  otherwise (the arm's manipulability task) the host path below; the path that ran is
+  in the results;
+- ``qpik warp host``: the same back-end stepped by ``compute_velocity()`` and
+  ``robots.integrate``: MuJoCo Warp kinematics, Jacobians and loop rows on the device
+  (float32), the tasks on the host (NumPy), the QP on the device;
 - ``qpik cpu``: the same problem on the CPU back-end (this machine's CPUs), for scale;
 - ``mink-warp dls`` / ``mink-warp constrained`` (pusher), on the same device.
 
 Also: the latency at N = 1 (median step), and the compile time: a fresh process with an
 empty Warp kernel cache builds each contestant and takes its first step.
 
-Exactness beside speed: every qpik warp world's q̇ against the CPU back-end's exact step
-at the same state (float64 kinematics), after the run.
+Exactness beside speed: every qpik warp world's q̇ (from the path that ran) against the
+CPU back-end's exact step at the same state (float64 kinematics), after the run.
 
 mink-warp is installed into a throwaway virtual environment, with this repository's
 constraints (so that MuJoCo Warp and Warp are the versions qpik uses); the measurement
@@ -42,6 +48,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -77,19 +84,35 @@ class _BatchOn:
 
 
 class QpikRun:
+    """One qpik problem; ``host=True`` steps by compute_velocity + integrate, else by
+    ``QPController.step()`` (the device-resident step where the tasks allow it)."""
+
     failures = ()
 
-    def __init__(self, name: str, n: int, steps: int, **backend):
+    def __init__(self, name: str, n: int, steps: int, host: bool = False, **backend):
         from qpik import batch
 
         self.robots, tasks, limits, self.mover = bt.build(_BatchOn(**backend), name, n)
         self.controller = batch.QPController(self.robots, tasks, limits, dt=bt.DT)
         self.offset, self.velocity = bt.circle(n, steps, bt.RADIUS[name], axes=(0, 2) if name == "pusher" else (0, 1))
-        self.steps = steps
+        self.steps, self.host = steps, host
 
     def step(self, k: int) -> None:
         self.mover(self.offset[k], self.velocity[k])
-        self.robots.integrate(self.controller.compute_velocity(), bt.DT)
+        if self.host:
+            self.robots.integrate(self.controller.compute_velocity(), bt.DT)
+        else:
+            self.controller.step()
+
+    def last_qdot(self) -> np.ndarray:
+        device = self.controller.device_step
+        return self.controller.qdot if self.host or device is None else device.qdot()
+
+    def path(self) -> dict:
+        c = self.controller
+        device = c.device_step
+        return {"step_path": c.step_path if not self.host else "host", "host_step_reason": c.host_step_reason,
+                "cuda_graph": bool(device is not None and device.captured)}
 
     def after(self, k: int) -> None:
         pass
@@ -130,6 +153,7 @@ def contestants(robot: str, n: int, steps: int, device: str, mink_warp: bool):
     from timing import Contestant
 
     out = [Contestant("qpik warp", lambda: QpikRun(robot, n, steps, backend="warp", device=device)),
+           Contestant("qpik warp host", lambda: QpikRun(robot, n, steps, host=True, backend="warp", device=device)),
            Contestant("qpik cpu", lambda: QpikRun(robot, n, steps))]
     if mink_warp and robot == "pusher":
         out += [Contestant("mink-warp dls", lambda: MinkWarpRun("dls", n, steps, device)),
@@ -155,16 +179,32 @@ def throughput(robot: str, sizes, repeats: int, device: str, mink_warp: bool) ->
     return rows
 
 
+def target_cost(robot: str, sizes, device: str, calls: int = 20) -> dict:
+    """Microseconds per step that qpik's step spends in ``set_target`` on the host (the
+    targets' checks), inside each timed step above: on a GPU, where the device step is
+    short, this share says how much of a step the host's target API takes."""
+    out = {}
+    for n in sizes:
+        run = QpikRun(robot, n, calls, backend="warp", device=device)
+        start = time.perf_counter()
+        for k in range(calls):
+            run.mover(run.offset[k], run.velocity[k])
+        out[str(n)] = (time.perf_counter() - start) / calls * 1e6
+    return out
+
+
 def exactness(robot: str, n: int, device: str, steps: int = 50) -> dict:
-    """After ``steps`` warp steps: each world's q̇ on the warp back-end against the CPU
-    back-end's exact step at the same state and targets (float64 kinematics)."""
+    """After ``steps`` warp steps (``QPController.step``): each world's q̇ of the next
+    step against the CPU back-end's exact step at the same state and targets (float64
+    kinematics)."""
     run = QpikRun(robot, n, steps + 1, backend="warp", device=device)
     for k in range(steps):
         run.step(k)
-    run.mover(run.offset[steps], run.velocity[steps])
-    qdot = run.controller.compute_velocity()
+    state = run.robots.q.copy()
+    run.step(steps)
+    qdot = run.last_qdot()
     reference = QpikRun(robot, n, steps + 1)
-    reference.robots.set_q(run.robots.q.copy())
+    reference.robots.set_q(state)
     reference.mover(run.offset[steps], run.velocity[steps])
     exact = reference.controller.compute_velocity()
     scale = max(1.0, float(np.abs(exact).max()))
@@ -173,7 +213,7 @@ def exactness(robot: str, n: int, device: str, steps: int = 50) -> dict:
     return {"worlds": n, "steps": steps, "max_qdot_difference": float(np.abs(qdot - exact).max()),
             "relative": float(np.abs(qdot - exact).max() / scale),
             "max_beyond_range": float(max((limits.lower - q).max(), (q - limits.upper).max())),
-            "device_qp": type(run.controller.qp).__name__}
+            "device_qp": type(run.controller.qp).__name__, **run.path()}
 
 
 def latency(robot: str, device: str, mink_warp: bool, repeats: int) -> dict:
@@ -240,7 +280,13 @@ def markdown(results: dict) -> str:
         lat = ", ".join(f"{k} {v['median_us']:.0f} µs" for k, v in data["latency"].items())
         comp = ", ".join(f"{k} {v['cold_s']:.1f} s (cached {v['cached_s']:.1f} s)" for k, v in data["compile"].items())
         ex = data["exactness"]
-        lines += ["", f"Latency at N = 1 (median step): {lat}.", f"First step in a fresh process: {comp}.",
+        path = ("the device-resident step" + (" (one CUDA graph per step)" if ex["cuda_graph"] else
+                                              " (kernels launched one by one: no CUDA graph)")
+                if ex["step_path"] == "device" else f"the host path ({ex['host_step_reason']})")
+        cost = ", ".join(f"{us:.0f} µs at N = {n}" for n, us in data.get("set_target_us", {}).items())
+        lines += ["", f"qpik warp ran {path}.", f"Of each qpik step, set_target on the host took {cost}.",
+                  f"Latency at N = 1 (median step): {lat}.",
+                  f"First step in a fresh process: {comp}.",
                   f"qpik warp against the CPU back-end's exact step at the same states ({ex['worlds']} worlds, after "
                   f"{ex['steps']} steps): max |Δq̇| = {ex['max_qdot_difference']:.2g} ({ex['relative']:.2g} relative: "
                   f"float32 kinematics); farthest beyond a joint range {ex['max_beyond_range']:.2g}.", ""]
@@ -251,6 +297,9 @@ def markdown(results: dict) -> str:
 
 def main_inside(args) -> None:
     import warp as wp
+    from qpik import batch
+
+    warnings.simplefilter("ignore", batch.HostStepWarning)  # the path that ran is in the results
 
     device = args.device or ("cuda:0" if wp.get_cuda_device_count() else "cpu")
     sizes = args.sizes or (GPU_SIZES if device.startswith("cuda") else CPU_SIZES)
@@ -268,6 +317,7 @@ def main_inside(args) -> None:
         results["robots"][robot] = {
             "compile": compile_times(robot, device, mink_warp),
             "throughput": throughput(robot, sizes, args.repeats, device, mink_warp),
+            "set_target_us": target_cost(robot, sizes, device),
             "latency": latency(robot, device, mink_warp, args.repeats),
             "exactness": exactness(robot, min(64, max(sizes)), device),
         }

@@ -41,6 +41,7 @@ _EXPORTS = {
     "NotBatched": "qpik.batch.errors",
     "WorldsFailed": "qpik.batch.errors",
     "InvalidWorlds": "qpik.batch.errors",
+    "HostStepWarning": "qpik.batch.errors",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -14,12 +14,13 @@ failing worlds and why (its ``qdot`` holds every world's answer).
 
 from __future__ import annotations
 
+import warnings
 from typing import Sequence
 
 import numpy as np
 
 from ..errors import InvalidInput
-from .errors import WorldsFailed
+from .errors import HostStepWarning, NotBatched, WorldsFailed
 from .limits import Limit
 from .qp import ActiveSetQP
 from .robot import Robot
@@ -82,6 +83,9 @@ class QPController:
     """
 
     kind = "qp"
+    step_path: str | None = None  # how step() runs: "device" or "host" (None before the first step)
+    host_step_reason: str | None = None
+    device_step = None  # the back-end's device-resident step, when step() runs there
 
     def __init__(self, robots: Robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), dt: float | None = None,
                  regularization: float = 1e-12, max_iterations: int | None = None):
@@ -145,6 +149,43 @@ class QPController:
         if reasons:
             raise WorldsFailed(reasons, self.qdot, "batch.QPController")
         return self.qdot
+
+    def step(self) -> None:
+        """One control step of every world: q ← q ⊕ q̇·dt.
+
+        On a back-end with a device-resident step (warp) and tasks and limits it covers,
+        the whole step stays on the device (``device_step``); otherwise it is
+        :meth:`compute_velocity` and ``robots.integrate``, and on a device back-end a
+        :class:`~qpik.batch.HostStepWarning` says why (``step_path``, ``host_step_reason``).
+
+        Raises:
+            WorldsFailed: some worlds have no answer (listed, with why): they keep their
+                configuration, the others moved.
+        """
+        if self.step_path is None:
+            self._choose_step_path()
+        if self.device_step is not None:
+            self.device_step.run()
+            return
+        try:
+            qdot = self.compute_velocity()
+        except WorldsFailed as failed:
+            self.robots.integrate(failed.qdot, self.dt)
+            raise
+        self.robots.integrate(qdot, self.dt)
+
+    def _choose_step_path(self) -> None:
+        backend = self.robots.backend
+        self.step_path, self.host_step_reason = "host", f"the {backend.name} back-end steps on the host"
+        if backend.name != "warp":
+            return
+        from .backends.warp_step import DeviceStep  # the warp back-end's device-resident step
+
+        try:
+            self.device_step, self.step_path, self.host_step_reason = DeviceStep(backend, self), "device", None
+        except NotBatched as why:
+            self.host_step_reason = str(why)
+            warnings.warn(f"batch.QPController.step runs on the host: {why}", HostStepWarning, stacklevel=3)
 
     def _cost(self) -> tuple[np.ndarray, np.ndarray]:
         """H ((nv, nv) shared, or (N, nv, nv) with general soft tasks) and c (N, nv)."""

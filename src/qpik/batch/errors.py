@@ -42,3 +42,9 @@ class InvalidWorlds(InvalidInput):
     def __init__(self, message: str, worlds):
         super().__init__(message)
         self.worlds = np.asarray(worlds, dtype=np.int64)
+
+
+class HostStepWarning(UserWarning):
+    """``QPController.step`` on a device back-end runs on the host: a task or limit has
+    no device kernel (the message names it). The answers are the same; the step is
+    slower (the tasks' rows cross between device and host)."""

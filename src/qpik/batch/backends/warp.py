@@ -5,7 +5,9 @@ kernels on the CPU, slowly, which is how the test suite checks this back-end).
 What runs where:
 
 - the N configurations live on the host in float64 (``qpos``, as the interface asks)
-  and are copied to the device before each :meth:`WarpBackend.forward`;
+  and are copied to the device before each :meth:`WarpBackend.forward`; a
+  device-resident step (``QPController.step``, :mod:`qpik.batch.backends.warp_step`)
+  keeps them on the device, in float64, and ``qpos`` copies them back when read;
 - MuJoCo Warp computes the kinematics (``kinematics``, ``com_pos``), the Jacobians
   (``jac``) and the equality-constraint rows (``make_constraint``, its own rows: loop
   closures are never rebuilt on the host) on the device, in float32, MuJoCo Warp's only
@@ -19,8 +21,6 @@ Install with the ``gpu`` extra: ``pip install -e ".[gpu]"``.
 
 from __future__ import annotations
 
-import ctypes
-
 import mujoco
 import numpy as np
 
@@ -29,6 +29,7 @@ from ...extras import require
 from ..errors import NotBatched
 from .base import BatchQP, KinematicsBackend, QPResult, QPStatus
 from .cpu import _Integration
+from .daqp_fallback import answers_hold, daqp_solve
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 mjw = require("mujoco_warp", "the warp batch back-end", extra="gpu")
@@ -40,8 +41,6 @@ _KINEMATIC_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDS
 _KINEMATIC_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
 _FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
 _EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
-# Hard rows and bounds are checked to this (relative to 1 + |value|), as the CPU back-end.
-TOLERANCE = 1e-9
 
 
 def warp_device(device: str | None):
@@ -116,12 +115,42 @@ class WarpBackend(KinematicsBackend):
             self._points = wp.zeros(self.nworld, dtype=wp.vec3)
             self._jacp = wp.zeros((self.nworld, 3, model.nv), dtype=float)
             self._jacr = wp.zeros((self.nworld, 3, model.nv), dtype=float)
-        self.qpos = np.zeros((self.nworld, model.nq))
-        self.qpos[:] = model.qpos0
+        self._qpos = np.zeros((self.nworld, model.nq))
+        self._qpos[:] = model.qpos0
+        # A device-resident step (warp_step) keeps the float64 state on the device.
+        self._device_qpos = None
+        self._device_qpos_newer = False
+        self._host_qpos_touched = True
         self._host: dict[str, np.ndarray] = {}  # device field -> float64 host mirror
         self._rows_current = False
         self._integration = _Integration(model)
         self._physics = None
+
+    # -- the state, on the host or the device ------------------------------------------
+    @property
+    def qpos(self) -> np.ndarray:
+        """``(N, nq)`` float64 on the host, writable; after a device-resident step it is
+        first copied back from the device (and goes up again before the next one)."""
+        if self._device_qpos_newer:
+            self._qpos[:] = self._device_qpos.numpy()
+            self._device_qpos_newer = False
+        self._host_qpos_touched = True
+        return self._qpos
+
+    def device_qpos(self):
+        """The state as a float64 device array (N, nq), current: what a device-resident
+        step reads and advances (the same array every call)."""
+        if self._device_qpos is None:
+            self._device_qpos = wp.zeros(self._qpos.shape, dtype=wp.float64, device=self.device)
+        if self._host_qpos_touched:
+            self._device_qpos.assign(self._qpos)
+            self._host_qpos_touched = False
+        return self._device_qpos
+
+    def device_qpos_moved(self) -> None:
+        """A device step advanced the state (and ran the kinematics on the device)."""
+        self._device_qpos_newer = True
+        self._rows_current = False
 
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
@@ -294,9 +323,7 @@ class WarpQP(BatchQP):
             self._warm = wp.zeros((nworld, n), dtype=int)
             self._n_warm = wp.zeros(nworld, dtype=int)
             self._status, self._iterations, self._n_bound = (wp.zeros(nworld, dtype=int) for _ in range(3))
-            self._work3 = [wp.zeros((nworld, n, n), dtype=f8) for _ in range(4)]
-            self._work2 = [wp.zeros((nworld, n), dtype=f8) for _ in range(5)]
-            self._act = wp.zeros((nworld, n), dtype=int)
+            self._work3, self._work2, self._act = warp_qp.workspace(nworld, n, f8)
         self.x = np.zeros((nworld, n))
 
     def reset(self) -> None:
@@ -311,11 +338,11 @@ class WarpQP(BatchQP):
         self._refuse_bad_worlds(H, c, A, b, lb, ub, mask, status, reasons)
         x = self._device_solve(H, c, A, b, lb, ub, mask, status)
         fallback = np.zeros(N, dtype=bool)
-        unsure = np.flatnonzero(mask & ((status != QPStatus.SOLVED) | ~_answers_hold(x, A, b, lb, ub)))
+        unsure = np.flatnonzero(mask & ((status != QPStatus.SOLVED) | ~answers_hold(x, A, b, lb, ub)))
         for w in unsure:
             fallback[w] = True
             hessian = H if H.ndim == 2 else H[w]
-            x[w], status[w], why = _daqp(hessian, c[w], A[w], b[w], lb[w], ub[w])
+            x[w], status[w], why = daqp_solve(hessian, c[w], A[w], b[w], lb[w], ub[w])
             if why:
                 reasons[int(w)] = why
         solved = status == QPStatus.SOLVED
@@ -363,43 +390,3 @@ class WarpQP(BatchQP):
         device_status = self._status.numpy()
         status[mask] = device_status[mask]
         return self._x.numpy().astype(np.float64, copy=True)
-
-
-def _answers_hold(x, A, b, lb, ub, box_tolerance: float = TOLERANCE) -> np.ndarray:
-    """Per world: x finite, hard rows to 1e-9 (1 + |b|), bounds to ``box_tolerance``
-    (1 + |bound|) (the caller then clips x into the box)."""
-    ok = np.isfinite(x).all(axis=1)
-    if A.shape[1]:
-        residual = np.abs(np.einsum("nij,nj->ni", A, x) - b)
-        ok &= (residual <= TOLERANCE * (1.0 + np.abs(b))).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        ok &= (x >= lb - box_tolerance * (1.0 + np.abs(lb))).all(axis=1)
-        ok &= (x <= ub + box_tolerance * (1.0 + np.abs(ub))).all(axis=1)
-    return ok
-
-
-_DAQP_INF = 1e30
-DAQP_PRIMAL_TOLERANCE = 1e-6
-
-
-def _daqp(H, c, A, b, lb, ub) -> tuple[np.ndarray, int, str]:
-    """One world by DAQP: (x, status, reason), checked as the device answers are."""
-    import daqp
-
-    n, m = len(c), len(b)
-    rows = np.vstack([A, np.eye(n)])
-    upper = np.concatenate([b, np.minimum(ub, _DAQP_INF)])
-    lower = np.concatenate([b, np.maximum(lb, -_DAQP_INF)])
-    sense = np.zeros(m + n, dtype=ctypes.c_int)
-    sense[:m] = 5  # DAQP's "equality, immutable"
-    x, _, exitflag, _ = daqp.solve(np.ascontiguousarray(H), np.ascontiguousarray(c), rows, upper, lower, sense)
-    x = np.asarray(x, dtype=np.float64)
-    if exitflag in (-1, -2):  # DAQP's infeasible and overdetermined initial active set
-        return np.zeros(n), QPStatus.INFEASIBLE, "no point meets the hard rows inside the box (DAQP)"
-    # DAQP meets the bounds to its primal tolerance, 1e-6: such a point is clipped into the
-    # box, as the serial solver layer does, and must then still meet the hard rows.
-    if exitflag >= 1 and _answers_hold(x[None], A[None], b[None], lb[None], ub[None], DAQP_PRIMAL_TOLERANCE)[0]:
-        x = np.clip(x, lb, ub)
-    if exitflag < 1 or not _answers_hold(x[None], A[None], b[None], lb[None], ub[None])[0]:
-        return np.zeros(n), QPStatus.FAILED, f"neither the device active set nor DAQP (exit {exitflag}) solved it"
-    return x, QPStatus.SOLVED, ""

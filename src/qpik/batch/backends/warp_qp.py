@@ -492,7 +492,8 @@ def dual_active_set_kernel(scalar):
       is ``x_i <= ub_i``);
     - outputs: ``x (N, n)`` (zero unless SOLVED), ``status (N,)``, ``iterations (N,)``,
       ``n_bound (N,)`` the number of active bounds at the solution;
-    - workspace: ``L, Q, R, W (N, n, n)``, ``g, z, u, r, tmp (N, n)``, ``act (N, n)``.
+    - workspace (:func:`workspace`): ``L, Q, R (N, n, n)``, ``W (N, n + 1, n)``,
+      ``g, z, u, r, tmp (N, n)``, ``act (N, n)``.
     """
     zero = scalar(0.0)
     cholesky, _, _ = _triangular(scalar)
@@ -525,3 +526,13 @@ def dual_active_set_kernel(scalar):
                 x[w, j] = zero
 
     return solve
+
+
+def workspace(nworld: int, n: int, scalar) -> tuple[list, list, wp.array]:
+    """The solve kernel's workspace on the current device: ``[L, Q, R, W]``,
+    ``[g, z, u, r, tmp]``, ``act``. W has n + 1 columns: the column of the row being
+    added is formed before its step is known, when all n may already be active."""
+    square = [wp.zeros((nworld, n, n), dtype=scalar) for _ in range(3)]
+    columns = wp.zeros((nworld, n + 1, n), dtype=scalar)
+    vectors = [wp.zeros((nworld, n), dtype=scalar) for _ in range(5)]
+    return [*square, columns], vectors, wp.zeros((nworld, n), dtype=int)
