@@ -104,6 +104,24 @@ def test_loop_closure_rows_are_mujoco_warps_own_and_equal_mujoco():
     np.testing.assert_array_equal(sub_residual, residual[:, [3, 4, 5, 12, 13, 14]])
 
 
+def test_equality_rows_are_found_in_each_worlds_own_order():
+    """On a GPU MuJoCo Warp numbers the rows with atomic counters: each world may hold the
+    equalities' blocks in another order, with other rows between them."""
+    from qpik.batch.backends.warp import equality_row_index
+
+    m = qpik.Robot.load("hexapod").model
+    eq, other = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
+    # world 0: eq 0, eq 1, a joint-limit row; world 1: the limit row, eq 1, eq 0 (3 rows each)
+    kind = np.array([[eq] * 6 + [other], [other] + [eq] * 6])
+    ids = np.array([[0, 0, 0, 1, 1, 1, 0], [0, 1, 1, 1, 0, 0, 0]])
+    index = equality_row_index(kind, ids, np.array([0, 1]), m)
+    np.testing.assert_array_equal(index, [[0, 1, 2, 3, 4, 5], [4, 5, 6, 1, 2, 3]])
+    np.testing.assert_array_equal(equality_row_index(kind, ids, np.array([1]), m), [[3, 4, 5], [1, 2, 3]])
+    kind[1, 1] = other  # equality 1 loses a row in world 1
+    with pytest.raises(ModelError, match="rows for equality"):
+        equality_row_index(kind, ids, np.array([1]), m)
+
+
 def _random_qps(n_world: int, nv: int, meq: int, seed: int):
     rng = np.random.default_rng(seed)
     M = rng.standard_normal((n_world, nv, nv))

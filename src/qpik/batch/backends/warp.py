@@ -43,6 +43,28 @@ _FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "
 _EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
 
 
+def equality_row_index(kind: np.ndarray, ids: np.ndarray, equalities: np.ndarray, model: mujoco.MjModel) -> np.ndarray:
+    """(N, m): in each world, the columns of the constraint rows of ``equalities``, in
+    their order. MuJoCo Warp numbers rows with atomic counters, so on a GPU the
+    equalities' blocks come in a different order in each world (each block's own rows
+    stay together, in order).
+
+    Raises:
+        ModelError: an equality without rows in some world, or with a different number
+            of rows in different worlds.
+    """
+    blocks = []
+    for eq in equalities:
+        mask = (kind == _EQUALITY_ROW) & (ids == eq)
+        counts = mask.sum(axis=1)
+        if counts.min() == 0 or counts.max() != counts.min():
+            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_EQUALITY, int(eq)) or f"#{int(eq)}"
+            raise ModelError(f"MuJoCo Warp made {sorted(set(counts.tolist()))} constraint rows for equality "
+                             f"{name!r} across the worlds (inactive, or acting on no dof, somewhere)")
+        blocks.append(np.nonzero(mask)[1].reshape(len(kind), int(counts[0])))  # row-major: each world's in order
+    return np.concatenate(blocks, axis=1)
+
+
 def warp_device(device: str | None):
     """The Warp device called ``device`` (default: Warp's preferred one, a GPU when there
     is one), or InvalidInput naming the devices this machine has."""
@@ -205,18 +227,12 @@ class WarpBackend(KinematicsBackend):
     def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         equalities = np.asarray(equalities, dtype=np.int64)
         self._make_rows()
-        kind = self._efc_type[0, : self._nefc]
-        ids = self._efc_id[0, : self._nefc]
-        rows = [np.flatnonzero((kind == _EQUALITY_ROW) & (ids == eq)) for eq in equalities]
-        missing = [int(eq) for eq, r in zip(equalities, rows) if not len(r)]
-        if missing:
-            names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, e) or f"#{e}" for e in missing]
-            raise ModelError(f"MuJoCo Warp made no constraint rows for equalities {names} (inactive, or acting "
-                             "on no dof)")
-        index = np.concatenate(rows)
-        residual = self._d.efc.pos.numpy()[:, index].astype(np.float64)
-        jacobian = self._d.efc.J.numpy()[:, index, : self.model.nv].astype(np.float64)
-        return residual, jacobian
+        index = equality_row_index(self._efc_type[:, : self._nefc], self._efc_id[:, : self._nefc], equalities,
+                                   self.model)
+        residual = np.take_along_axis(self._d.efc.pos.numpy()[:, : self._nefc], index, axis=1)
+        jacobian = np.take_along_axis(self._d.efc.J.numpy()[:, : self._nefc, : self.model.nv], index[:, :, None],
+                                      axis=1)
+        return residual.astype(np.float64), jacobian.astype(np.float64)
 
     def _make_rows(self) -> None:
         """MuJoCo Warp's constraint rows at the current kinematics (once per forward)."""
