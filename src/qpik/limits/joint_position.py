@@ -71,11 +71,35 @@ class JointPositionLimit(Limit):
         self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
                         zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
-        """Tighten the velocity box [lb, ub] (nv,) in place."""
-        if type(lb) is list:
-            self._apply_to_floats(dt, lb, ub)
+    def apply(self, dt: float, lb, ub, G=None, h=None) -> None:
+        """Tighten the velocity box [lb, ub] (nv,) in place: lists of floats joint by joint
+        (a robot of a few dofs), NumPy arrays in a few vector operations."""
+        if type(lb) is not list:
+            self._apply_to_arrays(dt, lb, ub)
             return
+        q = self._q.tolist()
+        step_rate = self.gain / dt
+        influence = self.influence
+        damped = self._rate if self._rate < step_rate else step_rate
+        for qi, di, lo, hi in self._joints:
+            x = q[qi]
+            low, high = lo - x, hi - x
+            if influence > 0.0:
+                low *= damped if abs(low) < influence else step_rate
+                high *= damped if abs(high) < influence else step_rate
+            else:
+                low *= step_rate
+                high *= step_rate
+            # Into the velocity box: recovery from outside the range never asks for more.
+            v_lo, v_hi = lb[di], ub[di]
+            if low > v_lo:
+                lb[di] = low if low < v_hi else v_hi
+            if high < v_hi:
+                ub[di] = high if high > v_lo else v_lo
+        if not math.isfinite(sum(q)):  # NaN or inf somewhere in q: name the limited joint
+            self._non_finite()
+
+    def _apply_to_arrays(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
         positions = self._positions if self._positions is not None else self._q[self._qpos]
         np.subtract(self._bounds, positions, out=steps)
@@ -101,36 +125,6 @@ class JointPositionLimit(Limit):
         if not isinstance(self._dofs, slice):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
-
-    def _apply_to_floats(self, dt: float, lbs: list, ubs: list) -> None:
-        """:meth:`apply` joint by joint in floats: the same operations in the same order."""
-        q = self._q.tolist()
-        step_rate = self.gain / dt
-        influence = self.influence
-        damped = self._rate if self._rate < step_rate else step_rate
-        total = 0.0  # one finiteness test for all the joints, after the loop
-        for qi, di, lo, hi in self._joints:
-            x = q[qi]
-            total += x
-            low, high = lo - x, hi - x
-            if influence > 0.0:
-                low *= damped if abs(low) < influence else step_rate
-                high *= damped if abs(high) < influence else step_rate
-            else:
-                low *= step_rate
-                high *= step_rate
-            v_lo, v_hi = lbs[di], ubs[di]
-            # Recovery from outside the range never asks for more than the velocity box.
-            if low > v_hi:
-                low = v_hi
-            if high < v_lo:
-                high = v_lo
-            if low > v_lo:
-                lbs[di] = low
-            if high < v_hi:
-                ubs[di] = high
-        if not math.isfinite(total):
-            self._non_finite()
 
     def _non_finite(self) -> None:
         q = self.robot.data.qpos

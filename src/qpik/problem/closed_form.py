@@ -75,7 +75,7 @@ class KKTStep:
         meq = self.meq
         if not meq:
             return -d * scaled[0]
-        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d); np.dot: cheaper than @
+        M = scaled.dot(Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
         if meq <= 2:  # in floats: cheaper than any call
             return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
         # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
@@ -90,9 +90,9 @@ class KKTStep:
             return None
         if z is not rhs:
             rhs[:] = z
-        x = np.dot(self._tail, scaled)
+        x = self._tail.dot(scaled)
         if meq <= FLOAT_CHECK_ROWS:  # the same check, in floats (fewer NumPy calls)
-            return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
+            return x if equalities_met_in_floats(Ac.dot(x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
         return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
 
     def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
@@ -114,8 +114,8 @@ class KKTStep:
             r1 = d * r1 + rhs[1]
             tail[0] = d * (d_ * r0 - b_ * r1) / det
             tail[1] = d * (a * r1 - b_ * r0) / det
-        x = np.dot(tail, scaled)
-        return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
+        x = tail.dot(scaled)
+        return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
 
 class SquareRows(KKTStep):
@@ -282,8 +282,8 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     """
     m = R.shape[0]
     scaled = R * dinv
-    K = np.dot(scaled, R.T)
-    right = rhs if c is None else rhs + np.dot(scaled, c)
+    K = scaled.dot(R.T)
+    right = rhs if c is None else rhs + scaled.dot(c)
     if m <= SMALL_SYSTEM:
         z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
         if z is None:

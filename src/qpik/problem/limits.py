@@ -106,4 +106,4 @@ class Inequalities:
             np.minimum(gap, self._ub - x, gap)  # NaN (a NaN x, or ±inf on an absent bound) fails
             if not np.minimum.reduce(gap) >= 0.0:
                 return False
-        return not self.rows or bool((np.dot(self.G, x) <= self.h).all())
+        return not self.rows or bool((self.G.dot(x) <= self.h).all())

@@ -170,7 +170,7 @@ class EqualityTask(Task):
         model, data = self.robot.model, self.robot.data
         make_equality_rows(model, data, self._tendons)
         self._read_rows(data)
-        np.multiply(-self.gain, self.error, out=self.target_velocity)
+        np.multiply(-self.gain, self.error, self.target_velocity)
 
     def _read_rows(self, data: mujoco.MjData) -> None:
         ne = self._ne
@@ -180,7 +180,7 @@ class EqualityTask(Task):
         if self._all_rows:
             self.error[:] = data.efc_pos
         else:
-            np.take(data.efc_pos, self._rows, out=self.error)
+            data.efc_pos.take(self._rows, None, self.error)
         if self._sparse:
             dense = self.jacobian if self._all_rows else self._dense
             mujoco.mju_sparse2dense(dense, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
@@ -190,7 +190,7 @@ class EqualityTask(Task):
             if self._all_rows:
                 self.jacobian[:] = dense
         if not self._all_rows:
-            np.take(dense, self._rows, axis=0, out=self.jacobian)
+            dense.take(self._rows, 0, self.jacobian)
 
     def residuals(self, robot: Robot | None = None) -> np.ndarray:
         """The norm of each equality's residual (its units: m, rad, ...), in row order, at

@@ -159,7 +159,7 @@ class FrameTask(Task):
                               self.target_angular_velocity, self.error, self._feedforward)
             self._track(self._feedforward)
             return
-        np.subtract(self.target_position, self.frame.position, out=self.position_error)
+        np.subtract(self.target_position, self.frame.position, self.position_error)
         self._rotation_error.world_flat(self._target_flat, self._current_flat, self.frame.rotation,
-                                        out=self.orientation_error)
+                                        self.orientation_error)
         self._track(self._twist)

@@ -128,7 +128,7 @@ class PositionTask(Task):
         else:
             self.frame.jacobian(self._jacp)
             if not self._views:
-                np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
+                self._jacp.take(self.rows, 0, self.jacobian)
         self.update_target_velocity()
 
     def update_target_velocity(self) -> None:
@@ -138,6 +138,6 @@ class PositionTask(Task):
             self._track(self._feedforward)
             return
         if not self._views:
-            np.take(self.frame.position, self.rows, out=self.position)
+            self.frame.position.take(self.rows, None, self.position)
         np.subtract(self.target, self.position, self.error)
         self._track(self.target_rate)

@@ -50,5 +50,5 @@ class PostureTask(JointSpaceTask):
     def update(self) -> None:
         mujoco.mj_differentiatePos(self._model, self._difference, 1.0, self._qpos, self.target)
         if self._copy_error:
-            np.take(self._difference, self.dofs, out=self.error)
-        np.multiply(self.gain, self.error, out=self.target_velocity)
+            self._difference.take(self.dofs, None, self.error)
+        np.multiply(self.gain, self.error, self.target_velocity)
