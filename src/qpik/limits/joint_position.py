@@ -50,14 +50,11 @@ class JointPositionLimit(Limit):
                                                               self.limits.upper) if not hi - lo > 2.0 * margin]
             raise InvalidInput(f"joint range narrower than twice the limit margin ({margin:g}) or empty: "
                                f"{', '.join(bad)}")
-        self.robot = robot
-        self.gain = gain
-        self.influence = influence
-        self.damper_rate = damper_rate
-        self.margin = float(margin)
+        self.robot, self.gain, self.influence, self.damper_rate, self.margin = robot, gain, influence, damper_rate, \
+            float(margin)
         # Rows: lower then upper bound, pulled in by the margin.
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
-        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter costs ~0.5 µs)
+        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter makes a new one)
         qpos = as_slice(self.limits.qpos_index)
         # The limited joints' positions: a view of it when they are consecutive.
         self._positions = self._q[qpos] if isinstance(qpos, slice) else None
@@ -72,8 +69,7 @@ class JointPositionLimit(Limit):
                         zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
 
     def apply(self, dt: float, lb, ub, G=None, h=None) -> None:
-        """Tighten the velocity box [lb, ub] (nv,) in place: lists of floats joint by joint
-        (a robot of a few dofs), NumPy arrays in a few vector operations."""
+        """Tighten the velocity box [lb, ub] (nv,) in place (lists of floats: joint by joint)."""
         if type(lb) is not list:
             self._apply_to_arrays(dt, lb, ub)
             return
@@ -90,12 +86,15 @@ class JointPositionLimit(Limit):
             else:
                 low *= step_rate
                 high *= step_rate
-            # Into the velocity box: recovery from outside the range never asks for more.
             v_lo, v_hi = lb[di], ub[di]
+            if low > v_hi:  # recovery from outside the range never asks for more than the velocity box
+                low = v_hi
+            if high < v_lo:
+                high = v_lo
             if low > v_lo:
-                lb[di] = low if low < v_hi else v_hi
+                lb[di] = low
             if high < v_hi:
-                ub[di] = high if high > v_lo else v_lo
+                ub[di] = high
         if not math.isfinite(sum(q)):  # NaN or inf somewhere in q: name the limited joint
             self._non_finite()
 

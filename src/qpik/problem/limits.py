@@ -18,8 +18,7 @@ from .rows import row_slices
 
 # A box of up to this many dofs (with no general rows) is written and checked in floats
 # when every limit that changes it takes lists (``Limit.takes_lists``): NumPy's per-call
-# cost exceeds the arithmetic on arrays this small (the arm's box and check: 1.4 µs in
-# floats, 5 in arrays; the hexapod's 24 dofs: 4.5 against 8).
+# cost exceeds the arithmetic on arrays this small.
 FLOAT_BOX_MAX_DOFS = 32
 
 
@@ -97,7 +96,8 @@ class Inequalities:
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            for value, low, high in zip(values, *self.box()):
+            lower, upper = (self.lower, self.upper) if self._in_floats else self.box()
+            for value, low, high in zip(values, lower, upper):
                 if not low <= value <= high:
                     return False
         else:
