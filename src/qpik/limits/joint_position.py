@@ -86,15 +86,13 @@ class JointPositionLimit(Limit):
             else:
                 low *= step_rate
                 high *= step_rate
+            # Into the velocity box (recovery from outside the range never asks for more than
+            # it; an empty incoming box stays as it is): most joints need one comparison a side.
             v_lo, v_hi = lb[di], ub[di]
-            if low > v_hi:  # recovery from outside the range never asks for more than the velocity box
-                low = v_hi
-            if high < v_lo:
-                high = v_lo
             if low > v_lo:
-                lb[di] = low
+                lb[di] = low if low <= v_hi else (v_hi if v_hi > v_lo else v_lo)
             if high < v_hi:
-                ub[di] = high
+                ub[di] = high if high >= v_lo else (v_lo if v_lo < v_hi else v_hi)
         if not math.isfinite(sum(q)):  # NaN or inf somewhere in q: name the limited joint
             self._non_finite()
 
