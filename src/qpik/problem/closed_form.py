@@ -59,6 +59,8 @@ class KKTStep:
         self.meq, self.d, self.uniform = meq, d, uniform
         self._tail = np.array([0.0] * meq + [-d])  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
         self._y = self._tail[:meq]  # solved in place where LAPACK allows
+        self._M = np.empty((meq + 1, meq + 1))  # [A H⁻¹; cᵀH⁻¹] [A; cᵀ]ᵀ, written in place
+        self._S, self._Ahc, self._d = self._M[:meq, :meq], self._M[:meq, meq], np.array(d)  # (views; d as an array)
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
@@ -68,19 +70,19 @@ class KKTStep:
             return None
         if not meq:
             return -d * scaled[0]
-        M = scaled.dot(Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        M = scaled.dot(Ac.T, self._M)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
         rhs = b.tolist()
-        if not (self._small_rows(M.tolist(), rhs, d) if meq <= 2 else self._rows(M, b, d)):
+        if not (self._small_rows(M.tolist(), rhs, d) if meq <= 2 else self._rows(b)):
             return None
         x = self._tail.dot(scaled)  # checked as the solvers' answers are, in floats (fewer NumPy calls)
         return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
-    def _rows(self, M: np.ndarray, b: np.ndarray, d: float) -> bool:
+    def _rows(self, b: np.ndarray) -> bool:
         """d y = d S⁻¹r into the tail: (S/d) z = r by LAPACK's Cholesky (z is d y); False where S is singular."""
-        meq, rhs = self.meq, self._y
-        np.multiply(M[:meq, meq], d, rhs)
+        rhs = self._y
+        np.multiply(self._Ahc, self._d, rhs)
         rhs += b
-        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
+        factor, z, info = linalg.dposv(self._S, rhs, overwrite_b=1)
         if info != 0:
             return False
         pivots = factor.diagonal().tolist()

@@ -178,14 +178,6 @@ class RotationError:
         """The error in world axes, written into ``out``."""
         return current.dot(self.compute(desired, current), out)
 
-    def world_flat(self, desired_flat: np.ndarray, current_flat: np.ndarray, current: np.ndarray,
-                   out: np.ndarray) -> np.ndarray:
-        """:meth:`world` given the rotations also as 9-vectors (views kept by the caller)."""
-        mujoco.mju_mat2Quat(self._desired, desired_flat)
-        mujoco.mju_mat2Quat(self._current, current_flat)
-        mujoco.mju_subQuat(self.local, self._desired, self._current)
-        return current.dot(self.local, out)
-
 
 def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
     """World-frame rotation vector e with exp([e]) R_current = R_desired."""
@@ -266,6 +258,21 @@ def positive_scalar(value, what: str, allow_zero: bool = False) -> float:
     if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
         raise InvalidInput(f"{what} must be a number, got {value!r}")
     return float(positive(value, 1, what, allow_zero)[0])
+
+
+class ScalarGain:
+    """A task's scalar gain K >= 0 (1/s) as an attribute, checked when set and kept as a
+    0-d array too (``task._k``): NumPy multiplies by it with less overhead than by a float."""
+
+    def __init__(self, what: str):
+        self.what = what
+
+    def __get__(self, task, owner=None):
+        return self if task is None else task._gain
+
+    def __set__(self, task, value) -> None:
+        task._gain = positive_scalar(value, self.what, allow_zero=True)
+        task._k = np.array(task._gain)
 
 
 def _row_count(dim, name: str) -> int:
