@@ -51,7 +51,7 @@ class Inequalities:
         self._lower0, self._upper0 = self.lower0.tolist(), self.upper0.tolist()
         self.lower, self.upper = list(self._lower0), list(self._upper0)  # the box in floats (small boxes)
         self._stale = False  # whether lb and ub lag behind the box in floats
-        self._scratch = np.zeros(nv)
+        self._scratch, self._check_in_floats = np.zeros(nv), nv <= FLOAT_BOX_MAX_DOFS
 
     def write(self) -> None:
         """The step's box and rows."""
@@ -92,7 +92,7 @@ class Inequalities:
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if len(self.lower) <= FLOAT_BOX_MAX_DOFS:  # in floats (the box's own, or its arrays')
+        if self._check_in_floats:  # in floats (the box's own, or its arrays')
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
