@@ -37,13 +37,17 @@ def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool
     opt = model.opt if opt is None else opt
     disable, enable = opt.disableflags, opt.enableflags
     opt.disableflags = (disable | _DISABLE) & ~_ENABLE
-    opt.enableflags = enable & ~_SLEEP
+    sleep = enable & _SLEEP  # the enable flags touched only when sleep is on (each access is a call)
+    if sleep:
+        opt.enableflags = enable & ~_SLEEP
     try:
         if tendons:
             mujoco.mj_tendon(model, data)
         mujoco.mj_makeConstraint(model, data)
     finally:
-        opt.disableflags, opt.enableflags = disable, enable
+        opt.disableflags = disable
+        if sleep:
+            opt.enableflags = enable
 
 
 class EqualityTask(Task):
@@ -157,6 +161,16 @@ class EqualityTask(Task):
                              "on a dof")
         return acting
 
+    @property
+    def gain(self) -> float:
+        """K (1/s); NaN until a controller gives its period when dead-beat."""
+        return self._gain
+
+    @gain.setter
+    def gain(self, value: float) -> None:
+        self._gain = value
+        self._neg_k = np.array(-value)  # a 0-d array: NumPy multiplies by it faster than by a float
+
     def feedback_gains(self) -> np.ndarray:
         return np.full(self.dim, self.gain)
 
@@ -174,7 +188,7 @@ class EqualityTask(Task):
         data = self._data
         make_equality_rows(self.robot.model, data, self._tendons, self._opt)
         self._read_rows(data)
-        np.multiply(-self.gain, self.error, self.target_velocity)
+        np.multiply(self._neg_k, self.error, self.target_velocity)
 
     def _read_rows(self, data: mujoco.MjData) -> None:
         ne = self._ne
