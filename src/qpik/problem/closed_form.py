@@ -82,7 +82,7 @@ class KKTStep:
         rhs = self._y
         np.multiply(self._Ahc, self._d, rhs)
         rhs += b
-        factor, z, info = linalg.dposv(self._S, rhs, overwrite_b=1)
+        factor, z, info = linalg.dposv(self._S, rhs, 0, 0, 1)  # overwrite_b (positional: cheaper)
         if info != 0:
             return False
         pivots = factor.diagonal().tolist()
