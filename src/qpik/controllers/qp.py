@@ -6,10 +6,7 @@ r"""QPController: a stack of tasks and limits turned into one QP per control ste
     \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
     G \dot q \le h,\quad lb \le \dot q \le ub \ (\text{limits})
 
-With a hard position task and the manipulability task
-(:math:`\tfrac12\|\dot q - k_0\nabla\sigma\|^2`) the solution is exactly the
-null-space law :math:`J^\dagger v + (I - J^\dagger J) k_0 \nabla\sigma` whenever no
-limit is active (Lagrange conditions of the equality-constrained least squares).
+With a hard task and a joint-space one it is the null-space law while no limit binds (docs/clik.md).
 """
 
 from __future__ import annotations

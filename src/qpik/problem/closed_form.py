@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from .. import linalg
-from ..solvers.base import equalities_met, equalities_met_in_floats
+from ..solvers.base import equalities_met_in_floats
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -33,6 +33,14 @@ CLOSED_FORM_PAUSE_MAX = 32
 HELD_TRIES = 3
 
 
+def rows_met(A: np.ndarray, x: np.ndarray, b: np.ndarray) -> bool:
+    """The solvers' check of the hard rows (``qpik.solvers.base.equalities_met``) at
+    ``EQUALITY_TOLERANCE``, written with array methods (NumPy's functions cost more here)."""
+    residual = A.dot(x)
+    residual -= b
+    return residual.dot(residual) <= EQUALITY_TOLERANCE * EQUALITY_TOLERANCE * (1.0 + b.dot(b))
+
+
 def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
     """The closed-form solve for ``nv`` dofs and ``meq`` equality rows, chosen once: A⁻¹b
     when the rows are as many as the dofs; else through H⁻¹, kept when ``H0`` (the Hessian
@@ -47,13 +55,10 @@ def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
 
 
 class KKTStep:
-    """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot
-    (H not positive definite, S singular, or x misses the equalities by more than
-    ``EQUALITY_TOLERANCE``: a nearly singular H or S loses digits no cheaper test
-    foresees; the solver then decides). ``Ac`` stacks the equality rows A (meq x nv) and
-    the cost vector cᵀ as its last row. A subclass gives ``scaled(H, Ac)``, [A H⁻¹; cᵀH⁻¹]
-    or None where H is not positive definite; with ``uniform`` (H = I/d) [A; cᵀ] is its
-    own scaled form: no product with H⁻¹ at all, d applied to the scalars."""
+    """Solves min ½xᵀHx + cᵀx s.t. Ax = b (``Ac``: A, meq x nv, and cᵀ as its last row);
+    :meth:`solve` returns None where H is not positive definite, S is singular or x misses
+    the equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
+    cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars."""
 
     def __init__(self, meq: int, d: float = 1.0, uniform: bool = False):
         self.meq, self.d, self.uniform = meq, d, uniform
@@ -74,7 +79,9 @@ class KKTStep:
         rhs = b.tolist()
         if not (self._small_rows(M.tolist(), rhs, d) if meq <= 2 else self._rows(b)):
             return None
-        x = self._tail.dot(scaled)  # checked as the solvers' answers are, in floats (fewer NumPy calls)
+        x = self._tail.dot(scaled)  # checked as the solvers' answers are (a few rows: in floats)
+        if meq > 8:
+            return x if rows_met(Ac[:meq], x, b) else None
         return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
     def _rows(self, b: np.ndarray) -> bool:
@@ -119,12 +126,8 @@ class SquareRows(KKTStep):
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         A = Ac[: self.meq]
         lu, _, x, info = linalg.dgesv(A, b)
-        if info != 0:
-            return None
         pivots = np.abs(lu.diagonal()).tolist()
-        if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
-            return None
-        return x if equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
+        return x if info == 0 and max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots) and rows_met(A, x, b) else None
 
 
 class DiagonalHessian(KKTStep):
@@ -273,7 +276,7 @@ class HeldBounds(ClosedForm):
             return None, None
         x = solution[:nv]
         x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
-        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
+        if not rows_met(Ac[:meq], x, b):  # the hard rows, once x is on them
             return None, None
         return x, -solution[nv + meq:]
 
@@ -309,7 +312,7 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     if c is not None:
         x -= c
     x *= dinv
-    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
+    if soft_rows < m and not rows_met(R[soft_rows:], x, rhs[soft_rows:]):
         return None
     return x
 
