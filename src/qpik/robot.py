@@ -437,9 +437,11 @@ class Robot:
             self._check_inside(self._qpos, "the start configuration", "start inside them (set_q(q) or "
                                "keyframe=name), or load with allow_outside_limits=True")
             self._start_unchecked = False
-        state = self._state_bytes()
-        if state != self._kinematics_state:
-            self.update_kinematics(state)
+        state = self._state_bytes() if self._has_mocap else self._qpos.tobytes()
+        if state != self._kinematics_state:  # update_kinematics, inline (every step)
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_comPos(self.model, self.data)
+            self._kinematics_state = state
 
     def _state_bytes(self) -> bytes:
         if self._has_mocap:

@@ -50,6 +50,29 @@ def test_the_box_follows_the_rule_joint_by_joint(scene, influence):
         assert np.all(q_next[inside] <= ranges.upper[inside])  # the upper bound is never stepped past
 
 
+@pytest.mark.parametrize("scene", ["arm", "hexapod"])
+@pytest.mark.parametrize("influence", [0.0, 0.8])
+def test_an_empty_incoming_box_stays_empty_in_floats_and_in_arrays(scene, influence):
+    """A box an earlier limit left empty (lb > ub on some dofs) is not made feasible by
+    the clipping into it: the solver layer must still see it empty and say so."""
+    robot = Robot.load(scene)
+    limit = JointPositionLimit(robot, influence=influence, damper_rate=2.0)
+    rng = np.random.default_rng(2)
+    ranges = robot.joint_limits
+    for _ in range(200):
+        robot.q[ranges.qpos_index] = rng.uniform(ranges.lower - 0.3, ranges.upper + 0.3)
+        lb, ub = -rng.uniform(0.5, 500.0, robot.nv), rng.uniform(0.5, 500.0, robot.nv)
+        empty = rng.random(robot.nv) < 0.5
+        lb[empty], ub[empty] = rng.uniform(-500.0, 500.0, (2, int(empty.sum())))
+        empty = lb > ub
+        expected = reference_box(limit, robot.q, 0.002, lb.tolist(), ub.tolist())
+        lists = (lb.tolist(), ub.tolist())
+        limit.apply(0.002, *lists)
+        limit.apply(0.002, lb, ub)
+        assert lists == (lb.tolist(), ub.tolist()) == expected
+        assert np.all(lb[empty] > ub[empty])
+
+
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
 def test_non_finite_position_is_an_error(value):
     robot = Robot.load("arm")

@@ -6,10 +6,7 @@ r"""QPController: a stack of tasks and limits turned into one QP per control ste
     \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
     G \dot q \le h,\quad lb \le \dot q \le ub \ (\text{limits})
 
-With a hard position task and the manipulability task
-(:math:`\tfrac12\|\dot q - k_0\nabla\sigma\|^2`) the solution is exactly the
-null-space law :math:`J^\dagger v + (I - J^\dagger J) k_0 \nabla\sigma` whenever no
-limit is active (Lagrange conditions of the equality-constrained least squares).
+With a hard task and a joint-space one it is the null-space law while no limit binds (docs/clik.md).
 """
 
 from __future__ import annotations
@@ -20,7 +17,7 @@ import numpy as np
 
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
-from ..problem import ClosedForm, Cost, HeldBounds, Problem, Stack, check_dt, closed_form_step
+from ..problem import Cost, HeldBounds, Problem, Stack, check_dt, closed_form_step
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
@@ -70,13 +67,10 @@ class QPController:
         self.hard_rows = Stack(robot.nv, self.problem.hard, out=(self._Ac[:meq], np.zeros(meq)))
         self.cost = Cost(robot.nv, self.problem.soft, float(regularization), c=self._Ac[meq])
         self._step = closed_form_step(robot.nv, meq, None if self.cost.general else self.cost.H0)
-        # With an active-set solver the closed form also holds the bounds that bind (HeldBounds);
-        # a tolerance-based solver's answers stay its own (its runs unchanged).
-        self._held = HeldBounds(robot.nv, meq, self._step, self.problem.inequalities) \
-            if backend.exact and fast_path else None
-        self._solve_closed = self._step.solve if self._held is None else self._held.solve
-        self._closed_form = None if not fast_path else \
-            ClosedForm(self.problem.inequalities.admits if self._held is None else None)
+        # With an active-set solver the closed form also holds the bounds that bind; a
+        # tolerance-based solver's answers stay its own (its runs unchanged).
+        self._closed_form = HeldBounds(robot.nv, meq, self._step, self.problem.inequalities, hold=backend.exact) \
+            if fast_path else None
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.qdot = np.zeros(robot.nv)
         self.solver_calls = 0  # steps that needed the solver (a limit would bind)
@@ -98,7 +92,7 @@ class QPController:
         self.cost.write()
         self.hard_rows.stack()
         if self._closed_form is not None:
-            x = self._closed_form.attempt(self._solve_closed, self.cost.H, self._Ac, self.hard_rows.v)
+            x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)
             if x is not None:
                 self.qdot = x
                 return x
@@ -117,8 +111,8 @@ class QPController:
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, exc.variable)}",
                                     exc.variable) from None
-        if self._held is not None and not self._closed_form.skip:  # the next step tries the closed form
-            self._held.remember(self.qdot)  # with the active bounds of this answer held
+        if self._closed_form is not None and self._closed_form.hold and not self._closed_form.skip:
+            self._closed_form.remember(self.qdot)  # its active bounds, held when the closed form is next tried
         return self.qdot
 
     @property

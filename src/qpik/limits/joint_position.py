@@ -50,14 +50,11 @@ class JointPositionLimit(Limit):
                                                               self.limits.upper) if not hi - lo > 2.0 * margin]
             raise InvalidInput(f"joint range narrower than twice the limit margin ({margin:g}) or empty: "
                                f"{', '.join(bad)}")
-        self.robot = robot
-        self.gain = gain
-        self.influence = influence
-        self.damper_rate = damper_rate
-        self.margin = float(margin)
+        self.robot, self.gain, self.influence, self.damper_rate, self.margin = robot, gain, influence, damper_rate, \
+            float(margin)
         # Rows: lower then upper bound, pulled in by the margin.
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])
-        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter costs ~0.5 µs)
+        self._q = robot.data.qpos  # a view, valid for the robot's life (MuJoCo's getter makes a new one)
         qpos = as_slice(self.limits.qpos_index)
         # The limited joints' positions: a view of it when they are consecutive.
         self._positions = self._q[qpos] if isinstance(qpos, slice) else None
@@ -71,11 +68,35 @@ class JointPositionLimit(Limit):
         self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
                         zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
-        """Tighten the velocity box [lb, ub] (nv,) in place."""
-        if type(lb) is list:
-            self._apply_to_floats(dt, lb, ub)
+    def apply(self, dt: float, lb, ub, G=None, h=None) -> None:
+        """Tighten the velocity box [lb, ub] (nv,) in place (lists of floats: joint by joint)."""
+        if type(lb) is not list:
+            self._apply_to_arrays(dt, lb, ub)
             return
+        q = self._q.tolist()
+        step_rate = self.gain / dt
+        influence = self.influence
+        damped = self._rate if self._rate < step_rate else step_rate
+        for qi, di, lo, hi in self._joints:
+            x = q[qi]
+            low, high = lo - x, hi - x
+            if influence > 0.0:
+                low *= damped if abs(low) < influence else step_rate
+                high *= damped if abs(high) < influence else step_rate
+            else:
+                low *= step_rate
+                high *= step_rate
+            # Into the velocity box (recovery from outside the range never asks for more than
+            # it; an empty incoming box stays as it is): most joints need one comparison a side.
+            v_lo, v_hi = lb[di], ub[di]
+            if low > v_lo:
+                lb[di] = low if low <= v_hi else (v_hi if v_hi > v_lo else v_lo)
+            if high < v_hi:
+                ub[di] = high if high >= v_lo else (v_lo if v_lo < v_hi else v_hi)
+        if not math.isfinite(sum(q)):  # NaN or inf somewhere in q: name the limited joint
+            self._non_finite()
+
+    def _apply_to_arrays(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range
         positions = self._positions if self._positions is not None else self._q[self._qpos]
         np.subtract(self._bounds, positions, out=steps)
@@ -101,36 +122,6 @@ class JointPositionLimit(Limit):
         if not isinstance(self._dofs, slice):
             lb[self._dofs] = vel_lo
             ub[self._dofs] = vel_hi
-
-    def _apply_to_floats(self, dt: float, lbs: list, ubs: list) -> None:
-        """:meth:`apply` joint by joint in floats: the same operations in the same order."""
-        q = self._q.tolist()
-        step_rate = self.gain / dt
-        influence = self.influence
-        damped = self._rate if self._rate < step_rate else step_rate
-        total = 0.0  # one finiteness test for all the joints, after the loop
-        for qi, di, lo, hi in self._joints:
-            x = q[qi]
-            total += x
-            low, high = lo - x, hi - x
-            if influence > 0.0:
-                low *= damped if abs(low) < influence else step_rate
-                high *= damped if abs(high) < influence else step_rate
-            else:
-                low *= step_rate
-                high *= step_rate
-            v_lo, v_hi = lbs[di], ubs[di]
-            # Recovery from outside the range never asks for more than the velocity box.
-            if low > v_hi:
-                low = v_hi
-            if high < v_lo:
-                high = v_lo
-            if low > v_lo:
-                lbs[di] = low
-            if high < v_hi:
-                ubs[di] = high
-        if not math.isfinite(total):
-            self._non_finite()
 
     def _non_finite(self) -> None:
         q = self.robot.data.qpos

@@ -1,13 +1,12 @@
 r"""The equality-constrained QP in closed form: the fast path of a control step.
 
-When no limit binds, the QP's minimiser is that of the equality-constrained problem
-:math:`\min \tfrac12 x^THx + c^Tx` s.t. :math:`Ax = b`, whose KKT system gives
-:math:`x = H^{-1}A^TS^{-1}r - H^{-1}c` with :math:`S = AH^{-1}A^T`,
-:math:`r = b + AH^{-1}c`. The QP being strictly convex, an x that also meets every
-inequality *is* its solution. :func:`closed_form_step` chooses once how to compute it;
-:class:`HeldBounds` holds the bounds a solver found active and checks the KKT conditions;
-:class:`ClosedForm` tries it before the solver. Every answer is checked against the hard
-rows (``EQUALITY_TOLERANCE``); one that fails any check goes to the solver.
+When no limit binds, the QP's minimiser is that of :math:`\min \tfrac12 x^THx + c^Tx`
+s.t. :math:`Ax = b`: :math:`x = H^{-1}A^TS^{-1}r - H^{-1}c` with :math:`S = AH^{-1}A^T`,
+:math:`r = b + AH^{-1}c`; the QP being strictly convex, an x that also meets every
+inequality *is* its solution. :func:`closed_form_step` chooses once how to compute it,
+:class:`ClosedForm` tries it before the solver, :class:`HeldBounds` (the QP's) with the
+bounds a solver found active held. Every answer is checked against the hard rows
+(``EQUALITY_TOLERANCE``); one that fails any check goes to the solver.
 """
 
 from __future__ import annotations
@@ -17,18 +16,14 @@ from typing import Callable
 import numpy as np
 
 from .. import linalg
-from ..solvers.base import equalities_met, equalities_met_in_floats
+from ..solvers.base import equalities_met_in_floats
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
 SINGULAR_RATIO = 1e6
-# Equality residual (relative to 1 + |b|) a closed-form step may leave: every answer is
-# checked against it (qpik.solvers.base.equalities_met, the solvers' check), since a
-# nearly singular H or S loses digits no cheaper test foresees.
+# Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
+# answer as the solvers' are: a nearly singular H or S loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
-# Up to this many hard rows the closed form's answer is checked against them in floats.
-FLOAT_CHECK_ROWS = 8
-
 
 # After a step where the closed form crossed a limit, the solver is called directly for
 # this many steps, twice as many after each attempt that fails again, up to the maximum.
@@ -38,11 +33,18 @@ CLOSED_FORM_PAUSE_MAX = 32
 HELD_TRIES = 3
 
 
+def rows_met(A: np.ndarray, x: np.ndarray, b: np.ndarray) -> bool:
+    """The solvers' check of the hard rows (``qpik.solvers.base.equalities_met``) at
+    ``EQUALITY_TOLERANCE``, written with array methods (NumPy's functions cost more here)."""
+    residual = A.dot(x)
+    residual -= b
+    return residual.dot(residual) <= EQUALITY_TOLERANCE * EQUALITY_TOLERANCE * (1.0 + b.dot(b))
+
+
 def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
-    """The closed-form solve for a problem of ``nv`` dofs and ``meq`` equality rows,
-    chosen once: A⁻¹b when the rows are as many as the dofs; else through H⁻¹, kept when
-    ``H0`` (the Hessian when it is the same every step, else None) is a positive
-    diagonal (a scalar when uniform), factorised every step otherwise."""
+    """The closed-form solve for ``nv`` dofs and ``meq`` equality rows, chosen once: A⁻¹b
+    when the rows are as many as the dofs; else through H⁻¹, kept when ``H0`` (the Hessian
+    when the same every step, else None) is a positive diagonal, else factorised every step."""
     if meq and meq == nv:
         return SquareRows(meq)
     if H0 is not None:
@@ -53,69 +55,69 @@ def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
 
 
 class KKTStep:
-    """Solves min ½xᵀHx + cᵀx s.t. Ax = b; :meth:`solve` returns None where it cannot
-    (H not positive definite, S singular, or x misses the equalities by more than
-    ``EQUALITY_TOLERANCE``: a nearly singular H or S loses digits no cheaper test
-    foresees; the solver then decides). ``Ac`` stacks the equality rows A (meq x nv) and
-    the cost vector cᵀ as its last row."""
+    """Solves min ½xᵀHx + cᵀx s.t. Ax = b (``Ac``: A, meq x nv, and cᵀ as its last row);
+    :meth:`solve` returns None where H is not positive definite, S is singular or x misses
+    the equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
+    cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars."""
 
-    def __init__(self, meq: int, d: float = 1.0):
-        self.meq, self.d = meq, d
-        self._tail = np.zeros(meq + 1)  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
-        self._tail[meq] = -d
+    def __init__(self, meq: int, d: float = 1.0, uniform: bool = False):
+        self.meq, self.d, self.uniform = meq, d, uniform
+        self._tail = np.array([0.0] * meq + [-d])  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
         self._y = self._tail[:meq]  # solved in place where LAPACK allows
+        self._M = np.empty((meq + 1, meq + 1))  # [A H⁻¹; cᵀH⁻¹] [A; cᵀ]ᵀ, written in place
+        self._S, self._Ahc, self._d = self._M[:meq, :meq], self._M[:meq, meq], np.array(d)  # (views; d as an array)
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
-        raise NotImplementedError
-
-    def _eliminate(self, scaled: np.ndarray, Ac: np.ndarray, b: np.ndarray, d: float) -> np.ndarray | None:
-        """x from ``scaled`` = [A H⁻¹; cᵀH⁻¹] (with H = I/d: [A; cᵀ], d applied to the
-        scalars S, A H⁻¹c and x here)."""
-        meq = self.meq
+        meq, d = self.meq, self.d
+        scaled = Ac if self.uniform else self.scaled(H, Ac)
+        if scaled is None:
+            return None
         if not meq:
             return -d * scaled[0]
-        M = np.dot(scaled, Ac.T)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d); np.dot: cheaper than @
-        if meq <= 2:  # in floats: cheaper than any call
-            return self._small_rows(M.tolist(), b.tolist(), d, scaled, Ac)
-        # d S⁻¹r with S = d A Aᵀ (or A H⁻¹Aᵀ, d = 1): solve (S/d) z = r, and z is d y itself.
-        rhs = self._y
-        np.multiply(M[:meq, meq], d, rhs)
-        rhs += b
-        factor, z, info = linalg.dposv(M[:meq, :meq], rhs, overwrite_b=1)
-        if info != 0:
+        M = scaled.dot(Ac.T, self._M)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        rhs = b.tolist()
+        if not (self._small_rows(M.tolist(), rhs, d) if meq <= 2 else self._rows(b)):
             return None
+        x = self._tail.dot(scaled)  # checked as the solvers' answers are (a few rows: in floats)
+        if meq > 8:
+            return x if rows_met(Ac[:meq], x, b) else None
+        return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
+
+    def _rows(self, b: np.ndarray) -> bool:
+        """d y = d S⁻¹r into the tail: (S/d) z = r by LAPACK's Cholesky (z is d y); False where S is singular."""
+        rhs = self._y
+        np.multiply(self._Ahc, self._d, rhs)
+        rhs += b
+        factor, z, info = linalg.dposv(self._S, rhs, 0, 0, 1)  # overwrite_b (positional: cheaper)
+        if info != 0:
+            return False
         pivots = factor.diagonal().tolist()
         if max(pivots) > SINGULAR_RATIO * min(pivots):
-            return None
+            return False
         if z is not rhs:
             rhs[:] = z
-        x = np.dot(self._tail, scaled)
-        if meq <= FLOAT_CHECK_ROWS:  # the same check, in floats (fewer NumPy calls)
-            return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), b.tolist(), EQUALITY_TOLERANCE) else None
-        return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
+        return True
 
-    def _small_rows(self, rows: list, rhs: list, d: float, scaled: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
-        """The end of :meth:`_eliminate` for one or two rows, in floats: ``rows`` is M as
-        lists; x checked against the rows as there, in floats."""
+    def _small_rows(self, rows: list, rhs: list, d: float) -> bool:
+        """:meth:`_rows` for one or two rows, in floats (``rows``: M as lists)."""
         tail = self._tail
         if self.meq == 1:
             s = d * rows[0][0]
             if not s > 0.0:
-                return None
+                return False
             tail[0] = d * (d * rows[0][1] + rhs[0]) / s
-        else:
-            (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
-            a, b_, d_ = d * a, d * b_, d * d_
-            det = a * d_ - b_ * b_
-            if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
-                return None
-            r0 = d * r0 + rhs[0]
-            r1 = d * r1 + rhs[1]
-            tail[0] = d * (d_ * r0 - b_ * r1) / det
-            tail[1] = d * (a * r1 - b_ * r0) / det
-        x = np.dot(tail, scaled)
-        return x if equalities_met_in_floats(np.dot(Ac, x).tolist(), rhs, EQUALITY_TOLERANCE) else None
+            return True
+        (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
+        a, b_, d_ = d * a, d * b_, d * d_
+        det = a * d_ - b_ * b_
+        if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
+            return False
+        r0 = d * r0 + rhs[0]
+        r1 = d * r1 + rhs[1]
+        tail[0] = d * (d_ * r0 - b_ * r1) / det
+        tail[1] = d * (a * r1 - b_ * r0) / det
+        return True
 
 
 class SquareRows(KKTStep):
@@ -124,37 +126,65 @@ class SquareRows(KKTStep):
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         A = Ac[: self.meq]
         lu, _, x, info = linalg.dgesv(A, b)
-        if info != 0:
-            return None
         pivots = np.abs(lu.diagonal()).tolist()
-        if max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
-            return None
-        return x if equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
+        return x if info == 0 and max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots) and rows_met(A, x, b) else None
 
 
 class DiagonalHessian(KKTStep):
-    """H a constant positive diagonal: H⁻¹ is the vector ``inverse`` (a scalar d when it is
-    uniform, H = I/d: no product with H⁻¹ at all, d applied to the scalars)."""
+    """H a constant positive diagonal: H⁻¹ is the vector ``inverse`` (uniform: H = I/d)."""
 
     def __init__(self, meq: int, inverse: np.ndarray):
         uniform = bool(np.all(inverse == inverse[0]))
-        super().__init__(meq, float(inverse[0]) if uniform else 1.0)
-        self.inverse = None if uniform else inverse
+        super().__init__(meq, float(inverse[0]) if uniform else 1.0, uniform)
+        self.inverse = inverse
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        return self._eliminate(Ac if self.inverse is None else Ac * self.inverse, Ac, b, self.d)
+    def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
+        return Ac * self.inverse
 
 
 class FactorisedHessian(KKTStep):
     """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
         factor, scaled_t, info = linalg.dposv(H, Ac.T)
-        return None if info != 0 else self._eliminate(scaled_t.T, Ac, b, 1.0)
+        return None if info != 0 else scaled_t.T
 
 
-class HeldBounds:
-    r"""The closed form with the bounds the last solver step found active held.
+class ClosedForm:
+    """The closed form tried before the solver: its answer is kept when it meets every
+    limit (then it is the QP's solution). ``admits``: the limits' check (None: none).
+
+    A limit that binds usually still binds next step, where the closed form is wasted
+    work: after a miss the next few steps go to the solver directly (the same answer),
+    twice as many after each miss again; a success brings the pause back to its start.
+    """
+
+    def __init__(self, admits: Callable[[np.ndarray], bool] | None):
+        self.admits = admits
+        self.skip = 0  # steps left before the next attempt
+        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
+
+    def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
+        """``solve(*arguments)`` when it is tried this step and meets the limits, else None
+        (one step of the pause used up, or a miss that starts the next pause)."""
+        if self.skip:
+            self.skip -= 1
+            return None
+        x = solve(*arguments)
+        return self.kept(x if x is None or self.admits is None or self.admits(x) else None)
+
+    def kept(self, x: np.ndarray | None) -> np.ndarray | None:
+        """x, the pause back at its start; or None (a miss), the next pause begun."""
+        if x is None:
+            self.skip, self.next = self.next, min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
+        else:
+            self.next = CLOSED_FORM_PAUSE
+        return x
+
+
+class HeldBounds(ClosedForm):
+    r"""The QP's closed form (:class:`ClosedForm` of ``plain``), the bounds the last solver step
+    found active held for an active-set solver (``hold``; a tolerance-based one's stay its own).
 
     The held dofs are equality rows :math:`x_i = v_i` (this step's bound values) beside
     the hard rows; the KKT system :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` is solved by LU
@@ -165,10 +195,23 @@ class HeldBounds:
     (``HELD_TRIES`` at most); then None: the solver decides (docs/controllers.md).
     """
 
-    def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities):
-        self.nv, self.meq, self.plain, self.inequalities = nv, meq, plain, inequalities
+    def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities, hold: bool = True):
+        super().__init__(inequalities.admits)
+        self.nv, self.meq, self.plain, self.inequalities, self.hold = nv, meq, plain, inequalities, hold
         self.lower, self.upper = [], []  # the dofs held at their lower and upper bounds
         self._kkt = None  # ((lower, upper), its KKT matrix)
+
+    def attempt(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """:meth:`ClosedForm.attempt` of :meth:`solve` (of the plain closed form alone
+        without ``hold``); most steps (nothing held, no limit crossed) end here."""
+        if self.skip:
+            self.skip -= 1
+            return None
+        x = None if self.lower or self.upper else self.plain.solve(H, Ac, b)
+        if x is not None and self.admits(x):
+            self.next = CLOSED_FORM_PAUSE
+            return x
+        return self.kept(self.solve(H, Ac, b, x) if self.hold else None)
 
     def remember(self, x: np.ndarray) -> None:
         """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
@@ -177,12 +220,13 @@ class HeldBounds:
         at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
         self.lower, self.upper = np.flatnonzero(at_lower).tolist(), np.flatnonzero(at_upper).tolist()
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """The QP's minimiser by closed forms with bounds held, checked (None: the solver decides)."""
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, plain: np.ndarray | None = None) -> np.ndarray | None:
+        """The QP's minimiser by closed forms with bounds held, checked (None: the solver decides);
+        ``plain``: the plain closed form's answer, where the caller has it."""
         lower, upper = self.lower, self.upper
-        if not (lower or upper):  # the plain closed form, kept when it meets the limits (most steps)
-            x = self.plain.solve(H, Ac, b)
-            if x is None or self.inequalities.admits(x):
+        if not (lower or upper):  # the plain closed form, kept when it meets the limits
+            x = self.plain.solve(H, Ac, b) if plain is None else plain
+            if x is None or self.admits(x):
                 return x
             r = np.zeros(0)
         else:
@@ -192,7 +236,7 @@ class HeldBounds:
                 return None
             wrong = {i for i, ri in zip(lower, r[: len(lower)].tolist()) if ri < 0.0} | \
                 {i for i, ri in zip(upper, r[len(lower):].tolist()) if ri > 0.0}
-            if not wrong and self.inequalities.admits(x):
+            if not wrong and self.admits(x):
                 self.lower, self.upper = lower, upper  # the working set, held again next step
                 return x
             lb, ub = self.inequalities.box()
@@ -219,8 +263,7 @@ class HeldBounds:
 
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
         """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
-        nv, meq, held = self.nv, self.meq, len(lower)
-        rows = meq + held + len(upper)  # (more rows than dofs: a singular system, refused below)
+        nv, meq, held = self.nv, self.meq, len(lower)  # (more rows than dofs: a singular system, refused below)
         kkt = self._bordered(lower, upper)
         kkt[:nv, :nv] = H
         kkt[nv:nv + meq, :nv] = Ac[:meq]
@@ -233,41 +276,9 @@ class HeldBounds:
             return None, None
         x = solution[:nv]
         x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
-        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
+        if not rows_met(Ac[:meq], x, b):  # the hard rows, once x is on them
             return None, None
         return x, -solution[nv + meq:]
-
-
-class ClosedForm:
-    """The closed form tried before the solver: its answer is kept when it meets every
-    limit (then it is the QP's solution). ``admits``: the limits' check, None where the
-    solve checks them itself (:class:`HeldBounds`).
-
-    A limit that binds usually still binds next step, where the closed form would be
-    wasted work: after a failed attempt the next few steps go to the solver directly (the
-    same answer), and twice as many after each attempt that fails again (a humanoid whose
-    limits bound at every step tried 167 times, 37 µs each, for nothing); a success
-    brings the pause back to its start.
-    """
-
-    def __init__(self, admits: Callable[[np.ndarray], bool] | None):
-        self.admits = admits
-        self.skip = 0  # steps left before the next attempt
-        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
-
-    def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
-        """``solve(*arguments)`` when it is tried this step and meets the limits, else None
-        (one step of the pause used up, or a miss that starts the next pause)."""
-        if self.skip:
-            self.skip -= 1
-            return None
-        x = solve(*arguments)
-        if x is not None and (self.admits is None or self.admits(x)):
-            self.next = CLOSED_FORM_PAUSE
-            return x
-        self.skip = self.next
-        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
-        return None
 
 
 def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
@@ -282,8 +293,8 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     """
     m = R.shape[0]
     scaled = R * dinv
-    K = np.dot(scaled, R.T)
-    right = rhs if c is None else rhs + np.dot(scaled, c)
+    K = scaled.dot(R.T)
+    right = rhs if c is None else rhs + scaled.dot(c)
     if m <= SMALL_SYSTEM:
         z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
         if z is None:
@@ -301,7 +312,7 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     if c is not None:
         x -= c
     x *= dinv
-    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
+    if soft_rows < m and not rows_met(R[soft_rows:], x, rhs[soft_rows:]):
         return None
     return x
 

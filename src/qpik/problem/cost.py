@@ -74,13 +74,13 @@ class Cost:
             task, column = self._single
             jacobian = task.jacobian
             weighted = jacobian if column is None else column * jacobian
-            np.dot(jacobian.T, weighted, out=H)  # np.dot: less overhead than @ on small arrays
-            c -= np.dot(task.target_velocity, weighted)
+            jacobian.T.dot(weighted, H)  # array methods: less overhead than np.dot or @ on small arrays
+            c -= task.target_velocity.dot(weighted)
         else:
             rows = self._rows
             rows.stack()
-            np.dot(rows.J.T, rows.J, out=H)
-            c -= np.dot(rows.v, rows.J)  # (√W v)ᵀ(√W J) = vᵀWJ
+            rows.J.T.dot(rows.J, H)
+            c -= rows.v.dot(rows.J)  # (√W v)ᵀ(√W J) = vᵀWJ
         self._diag += self._diag0
         lm = self.levenberg_marquardt()
         if lm:
@@ -100,7 +100,7 @@ class Cost:
         for task in self.general:
             if task.lm_damping:
                 error = task.error
-                total += task.lm_damping * float(np.dot(error, task.weight * error))
+                total += task.lm_damping * float(error.dot(task.weight * error))
         if total > LM_RESCALE and not np.isfinite(total):
             raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
                                "check its target")

@@ -18,8 +18,7 @@ from .rows import row_slices
 
 # A box of up to this many dofs (with no general rows) is written and checked in floats
 # when every limit that changes it takes lists (``Limit.takes_lists``): NumPy's per-call
-# cost exceeds the arithmetic on arrays this small (the arm's box and check: 1.4 µs in
-# floats, 5 in arrays; the hexapod's 24 dofs: 4.5 against 8).
+# cost exceeds the arithmetic on arrays this small.
 FLOAT_BOX_MAX_DOFS = 32
 
 
@@ -52,7 +51,7 @@ class Inequalities:
         self._lower0, self._upper0 = self.lower0.tolist(), self.upper0.tolist()
         self.lower, self.upper = list(self._lower0), list(self._upper0)  # the box in floats (small boxes)
         self._stale = False  # whether lb and ub lag behind the box in floats
-        self._scratch = np.zeros(nv)
+        self._scratch, self._check_in_floats = np.zeros(nv), nv <= FLOAT_BOX_MAX_DOFS
 
     def write(self) -> None:
         """The step's box and rows."""
@@ -93,11 +92,12 @@ class Inequalities:
     def admits(self, x: np.ndarray) -> bool:
         """Whether x is finite, in the step's box and under its rows (exact comparisons:
         a point on a bound is inside)."""
-        if len(self.lower) <= FLOAT_BOX_MAX_DOFS:  # in floats (the box's own, or its arrays')
+        if self._check_in_floats:  # in floats (the box's own, or its arrays')
             values = x.tolist()
             if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
                 return False
-            for value, low, high in zip(values, *self.box()):
+            lower, upper = (self.lower, self.upper) if self._in_floats else self.box()
+            for value, low, high in zip(values, lower, upper):
                 if not low <= value <= high:
                     return False
         else:
@@ -106,4 +106,4 @@ class Inequalities:
             np.minimum(gap, self._ub - x, gap)  # NaN (a NaN x, or ±inf on an absent bound) fails
             if not np.minimum.reduce(gap) >= 0.0:
                 return False
-        return not self.rows or bool((np.dot(self.G, x) <= self.h).all())
+        return not self.rows or bool((self.G.dot(x) <= self.h).all())

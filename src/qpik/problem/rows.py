@@ -114,8 +114,8 @@ class Stack:
                 J[...] = task.jacobian
                 v[...] = task.target_velocity
             else:
-                np.take(task.jacobian, keep, axis=0, out=J)
-                np.take(task.target_velocity, keep, out=v)
+                task.jacobian.take(keep, 0, J)
+                task.target_velocity.take(keep, None, v)
             if root is not None:
                 J *= root[:, None]
                 v *= root

@@ -86,10 +86,10 @@ class ComTask(Task):
 
     def update(self) -> None:
         mujoco.mj_jacSubtreeCom(self.robot.model, self.robot.data, self._jacp, self.body)
-        np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
+        self._jacp.take(self.rows, 0, self.jacobian)
         self.update_target_velocity()
 
     def update_target_velocity(self) -> None:
         """Error and v only (what a law without the Jacobian needs)."""
-        np.subtract(self.target, np.take(self.com, self.rows, out=self._masked), out=self.error)
+        np.subtract(self.target, self.com.take(self.rows, None, self._masked), self.error)
         self._track(self.target_rate)

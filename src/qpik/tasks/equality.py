@@ -25,24 +25,29 @@ _ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
 _SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)  # a sleeping tree's equalities would be skipped
 
 
-def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool) -> None:
+def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool, opt=None) -> None:
     """MuJoCo's rows of the active equality constraints, alone, at ``data``'s kinematics.
 
     Runs ``mj_makeConstraint`` (after ``mj_tendon`` when ``tendons``) with contacts,
     joint limits and friction loss disabled in ``model.opt`` for the call, so that
     ``data.efc_*`` hold the equality rows only (``data.ne`` of them); the model's flags
     are restored after. ``data`` must have had ``mj_kinematics`` and ``mj_comPos``.
+    ``opt``: ``model.opt``, when the caller keeps it (MuJoCo's getter makes a new one).
     """
-    opt = model.opt
+    opt = model.opt if opt is None else opt
     disable, enable = opt.disableflags, opt.enableflags
     opt.disableflags = (disable | _DISABLE) & ~_ENABLE
-    opt.enableflags = enable & ~_SLEEP
+    sleep = enable & _SLEEP  # the enable flags touched only when sleep is on (each access is a call)
+    if sleep:
+        opt.enableflags = enable & ~_SLEEP
     try:
         if tendons:
             mujoco.mj_tendon(model, data)
         mujoco.mj_makeConstraint(model, data)
     finally:
-        opt.disableflags, opt.enableflags = disable, enable
+        opt.disableflags = disable
+        if sleep:
+            opt.enableflags = enable
 
 
 class EqualityTask(Task):
@@ -137,6 +142,9 @@ class EqualityTask(Task):
             where = np.flatnonzero(efc_id[rows] == i)
             self._slices.append(slice(int(where[0]), int(where[-1]) + 1))
         self._scratch = None
+        self._opt, self._data = model.opt, data  # read once: MuJoCo's getters make new objects
+        self._rows_size = self._ne * robot.nv  # efc_J's buffer may be longer than its ne x nv dense rows
+        self._flat_jacobian = self.jacobian.reshape(-1)
 
     def _acting(self, robot: Robot, ids: list[int], efc_id: np.ndarray, named: bool) -> list[int]:
         """The equalities MuJoCo makes rows for: one that acts on no dof (a weld of a
@@ -153,6 +161,16 @@ class EqualityTask(Task):
                              "on a dof")
         return acting
 
+    @property
+    def gain(self) -> float:
+        """K (1/s); NaN until a controller gives its period when dead-beat."""
+        return self._gain
+
+    @gain.setter
+    def gain(self, value: float) -> None:
+        self._gain = value
+        self._neg_k = np.array(-value)  # a 0-d array: NumPy multiplies by it faster than by a float
+
     def feedback_gains(self) -> np.ndarray:
         return np.full(self.dim, self.gain)
 
@@ -167,10 +185,10 @@ class EqualityTask(Task):
         return self.gain != self.gain  # NaN
 
     def update(self) -> None:
-        model, data = self.robot.model, self.robot.data
-        make_equality_rows(model, data, self._tendons)
+        data = self._data
+        make_equality_rows(self.robot.model, data, self._tendons, self._opt)
         self._read_rows(data)
-        np.multiply(-self.gain, self.error, out=self.target_velocity)
+        np.multiply(self._neg_k, self.error, self.target_velocity)
 
     def _read_rows(self, data: mujoco.MjData) -> None:
         ne = self._ne
@@ -180,17 +198,16 @@ class EqualityTask(Task):
         if self._all_rows:
             self.error[:] = data.efc_pos
         else:
-            np.take(data.efc_pos, self._rows, out=self.error)
+            data.efc_pos.take(self._rows, None, self.error)
         if self._sparse:
             dense = self.jacobian if self._all_rows else self._dense
             mujoco.mju_sparse2dense(dense, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
+        elif self._all_rows:
+            self._flat_jacobian[:] = data.efc_J[: self._rows_size]
         else:
-            # efc_J's buffer may be longer than its nefc x nv dense rows.
-            dense = data.efc_J[: ne * self.robot.nv].reshape(ne, self.robot.nv)
-            if self._all_rows:
-                self.jacobian[:] = dense
+            dense = data.efc_J[: self._rows_size].reshape(ne, self.robot.nv)
         if not self._all_rows:
-            np.take(dense, self._rows, axis=0, out=self.jacobian)
+            dense.take(self._rows, 0, self.jacobian)
 
     def residuals(self, robot: Robot | None = None) -> np.ndarray:
         """The norm of each equality's residual (its units: m, rad, ...), in row order, at

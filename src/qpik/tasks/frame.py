@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 from ..robot import Robot
 from .task import (
     PoseRows,
-    RotationError,
     Task,
     axis_rows,
     check_axes_frame,
@@ -97,9 +97,10 @@ class FrameTask(Task):
         self._whole = self.dim == 6 and not local
         if self._whole:
             self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
-            self._rotation_error = RotationError()
-            # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them.
+            # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them,
+            # their quaternions and the error in the frame's axes (RotationError's steps, inline).
             self._target_flat, self._current_flat = self.target_rotation.reshape(9), self.frame.rotation.reshape(9)
+            self._quaternions, self._local_error = (np.empty(4), np.empty(4)), np.empty(3)
         else:
             self._rows = PoseRows(self.frame, robot.nv, self.position_rows, self.orientation_rows, local)
             self._feedforward = np.zeros(self.dim)
@@ -159,7 +160,10 @@ class FrameTask(Task):
                               self.target_angular_velocity, self.error, self._feedforward)
             self._track(self._feedforward)
             return
-        np.subtract(self.target_position, self.frame.position, out=self.position_error)
-        self._rotation_error.world_flat(self._target_flat, self._current_flat, self.frame.rotation,
-                                        out=self.orientation_error)
+        frame, (desired, current), local = self.frame, self._quaternions, self._local_error
+        np.subtract(self.target_position, frame.position, self.position_error)
+        mujoco.mju_mat2Quat(desired, self._target_flat)
+        mujoco.mju_mat2Quat(current, self._current_flat)
+        mujoco.mju_subQuat(local, desired, current)  # q_current * exp(local) = q_desired
+        frame.rotation.dot(local, self.orientation_error)  # in world axes
         self._track(self._twist)

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import DivergenceError, InvalidInput
 from ..robot import Robot
-from .task import JointSpaceTask, positive_scalar
+from .task import JointSpaceTask, ScalarGain
 
 _ROTATING = (int(mujoco.mjtJoint.mjJNT_BALL), int(mujoco.mjtJoint.mjJNT_FREE))
 
@@ -287,12 +287,13 @@ class ManipulabilityTask(JointSpaceTask):
     """
 
     name = "manipulability task"
+    gain = ScalarGain("manipulability gain")
 
     def __init__(self, robot: Robot, measure: ManipulabilityMeasure, gain: float = 5.0, weight=1.0,
                  joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
         self.measure = measure
-        self.gain = positive_scalar(gain, "manipulability gain", allow_zero=True)
+        self.gain = gain
         self._grad = np.zeros(robot.nv)
         self._every_dof = bool(np.array_equal(self.dofs, np.arange(robot.nv)))
 
@@ -302,4 +303,4 @@ class ManipulabilityTask(JointSpaceTask):
             raise DivergenceError(f"{self.name}: the manipulability gradient overflowed (the configuration "
                                   "diverged, e.g. an unlimited joint extending): add joint limits")
         gradient = self._grad if self._every_dof else self._grad[self.dofs]
-        np.multiply(gradient, self.gain, self.target_velocity)
+        np.multiply(gradient, self._k, self.target_velocity)

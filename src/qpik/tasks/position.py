@@ -125,11 +125,14 @@ class PositionTask(Task):
     def update(self) -> None:
         if self.local:
             self._pose_rows.jacobian(self.jacobian)
-        else:
-            self.frame.jacobian(self._jacp)
-            if not self._views:
-                np.take(self._jacp, self.rows, axis=0, out=self.jacobian)
-        self.update_target_velocity()
+            self.update_target_velocity()
+            return
+        self.frame.jacobian(self._jacp)
+        if not self._views:
+            self._jacp.take(self.rows, 0, self.jacobian)
+            self.frame.position.take(self.rows, None, self.position)
+        np.subtract(self.target, self.position, self.error)  # update_target_velocity's, inline
+        self._track(self.target_rate)
 
     def update_target_velocity(self) -> None:
         """Error and v only (what a law without the Jacobian needs)."""
@@ -138,6 +141,6 @@ class PositionTask(Task):
             self._track(self._feedforward)
             return
         if not self._views:
-            np.take(self.frame.position, self.rows, out=self.position)
+            self.frame.position.take(self.rows, None, self.position)
         np.subtract(self.target, self.position, self.error)
         self._track(self.target_rate)

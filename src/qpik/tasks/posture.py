@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from ..robot import Robot
-from .task import JointSpaceTask, contiguous_rows, positive_scalar, target_vector
+from .task import JointSpaceTask, ScalarGain, contiguous_rows, target_vector
 
 
 class PostureTask(JointSpaceTask):
@@ -27,10 +27,11 @@ class PostureTask(JointSpaceTask):
     """
 
     name = "posture task"
+    gain = ScalarGain("posture gain")
 
     def __init__(self, robot: Robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
-        self.gain = positive_scalar(gain, "posture gain", allow_zero=True)
+        self.gain = gain
         self.target = robot.q.copy() if target is None else target_vector(target, robot.nq, "posture target")
         self._difference = np.zeros(robot.nv)
         # Consecutive dofs (every hinge, with or without a floating base before them): the
@@ -50,5 +51,5 @@ class PostureTask(JointSpaceTask):
     def update(self) -> None:
         mujoco.mj_differentiatePos(self._model, self._difference, 1.0, self._qpos, self.target)
         if self._copy_error:
-            np.take(self._difference, self.dofs, out=self.error)
-        np.multiply(self.gain, self.error, out=self.target_velocity)
+            self._difference.take(self.dofs, None, self.error)
+        np.multiply(self._k, self.error, self.target_velocity)

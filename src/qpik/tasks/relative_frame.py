@@ -74,8 +74,8 @@ class RelativeFrameTask(Task):
 
     def _relative_pose(self) -> None:
         np.subtract(self.frame.position, self.root.position, out=self._offset)
-        np.dot(self._offset, self.root.rotation, out=self.position)  # dᵀR_r = (R_rᵀd)ᵀ
-        np.dot(self.root.rotation.T, self.frame.rotation, out=self.rotation)
+        self._offset.dot(self.root.rotation, self.position)  # dᵀR_r = (R_rᵀd)ᵀ
+        self.root.rotation.T.dot(self.frame.rotation, self.rotation)
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
         """Desired pose of ``frame`` in ``root`` coordinates (``rotation`` a 3x3 matrix or
@@ -112,9 +112,9 @@ class RelativeFrameTask(Task):
             moved[i] += np.multiply(d[j], wr[k], out=row)
             moved[i] -= np.multiply(d[k], wr[j], out=row)
         Rt = self.root.rotation.T
-        np.dot(Rt, moved, out=self.jacobian[:3])
+        Rt.dot(moved, self.jacobian[:3])
         np.subtract(jf[3:], wr, out=moved)
-        np.dot(Rt, moved, out=self.jacobian[3:])
+        Rt.dot(moved, self.jacobian[3:])
         self._errors()
 
     def update_target_velocity(self) -> None:

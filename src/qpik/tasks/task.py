@@ -82,16 +82,18 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
         rot = quaternion_matrix(rot, what)
     elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
-    # In floats (about 1 µs; RᵀR with NumPy reductions costs 4): columns of unit length,
-    # pairwise orthogonal, determinant +1.
+    # In floats (NumPy reductions cost several times more on a 3x3): columns of unit
+    # length, pairwise orthogonal (each entry of RᵀR − I within 1e-6), determinant +1.
     (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
-    deviation = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
-                    abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
-                    abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
-    if not math.isfinite(deviation):
-        raise InvalidInput(f"{what} contains NaN or inf")
-    if deviation > 1e-6:
-        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {deviation:.2g})")
+    gram = xx, yy, zz, xy, xz, yz = (a * a + d * d + g * g - 1.0, b * b + e * e + h * h - 1.0,
+                                     c * c + f * f + i * i - 1.0, a * b + d * e + g * h,
+                                     a * c + d * f + g * i, b * c + e * f + h * i)
+    tol = 1e-6  # comparisons only, no calls (NaN fails them)
+    if not (-tol <= xx <= tol and -tol <= yy <= tol and -tol <= zz <= tol and -tol <= xy <= tol
+            and -tol <= xz <= tol and -tol <= yz <= tol):
+        if not math.isfinite(sum(gram)):
+            raise InvalidInput(f"{what} contains NaN or inf")
+        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {max(abs(x) for x in gram):.2g})")
     if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
         raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
     return rot
@@ -174,15 +176,7 @@ class RotationError:
 
     def world(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The error in world axes, written into ``out``."""
-        return np.dot(current, self.compute(desired, current), out=out)
-
-    def world_flat(self, desired_flat: np.ndarray, current_flat: np.ndarray, current: np.ndarray,
-                   out: np.ndarray) -> np.ndarray:
-        """:meth:`world` given the rotations also as 9-vectors (views kept by the caller)."""
-        mujoco.mju_mat2Quat(self._desired, desired_flat)
-        mujoco.mju_mat2Quat(self._current, current_flat)
-        mujoco.mju_subQuat(self.local, self._desired, self._current)
-        return np.dot(current, self.local, out=out)
+        return current.dot(self.compute(desired, current), out)
 
 
 def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -223,8 +217,9 @@ def check_targets(*named: tuple[np.ndarray, str]) -> None:
     values = []
     for array, _ in named:
         values += array.tolist()
-    if not (math.isfinite(sum(values)) and -TARGET_MAGNITUDE_LIMIT <= min(values)
-            and max(values) <= TARGET_MAGNITUDE_LIMIT):
+    # One C call: the norm is at most the limit only if every entry is finite and within
+    # it (NaN fails the comparison); past it, each entry is checked and the culprit named.
+    if not math.hypot(*values) <= TARGET_MAGNITUDE_LIMIT:
         for array, what in named:
             target_vector(array, len(array), what)  # the culprit, named
 
@@ -263,6 +258,21 @@ def positive_scalar(value, what: str, allow_zero: bool = False) -> float:
     if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
         raise InvalidInput(f"{what} must be a number, got {value!r}")
     return float(positive(value, 1, what, allow_zero)[0])
+
+
+class ScalarGain:
+    """A task's scalar gain K >= 0 (1/s) as an attribute, checked when set and kept as a
+    0-d array too (``task._k``): NumPy multiplies by it with less overhead than by a float."""
+
+    def __init__(self, what: str):
+        self.what = what
+
+    def __get__(self, task, owner=None):
+        return self if task is None else task._gain
+
+    def __set__(self, task, value) -> None:
+        task._gain = positive_scalar(value, self.what, allow_zero=True)
+        task._k = np.array(task._gain)
 
 
 def _row_count(dim, name: str) -> int:
@@ -623,9 +633,9 @@ class PoseRows:
         if self.local:
             Rt = self.frame.rotation.T
             for block in self._blocks:
-                np.dot(Rt, jac[block], out=self._rotated[block])
+                Rt.dot(jac[block], self._rotated[block])
             jac = self._rotated
-        np.take(jac, self.rows, axis=0, out=out)
+        jac.take(self.rows, 0, out)
 
     def errors(self, target_position, target_rotation, linear_velocity, angular_velocity,
                error: np.ndarray, feedforward: np.ndarray) -> None:
@@ -636,17 +646,17 @@ class PoseRows:
             np.subtract(target_position, frame.position, out=e[self._position])
             f[self._position] = linear_velocity
             if self.local:  # vᵀR = (Rᵀv)ᵀ
-                np.dot(e[self._position], R, out=self._scratch)
+                e[self._position].dot(R, self._scratch)
                 e[self._position] = self._scratch
-                np.dot(f[self._position], R, out=self._scratch)
+                f[self._position].dot(R, self._scratch)
                 f[self._position] = self._scratch
         if self.has_orientation:
             part = self._orientation
             if self.local:
                 e[part] = self._rotation_error.compute(target_rotation, R)
-                np.dot(angular_velocity, R, out=f[part])
+                angular_velocity.dot(R, f[part])
             else:
                 self._rotation_error.world(target_rotation, R, out=e[part])
                 f[part] = angular_velocity
-        np.take(e, self.rows, out=error)
-        np.take(f, self.rows, out=feedforward)
+        e.take(self.rows, None, error)
+        f.take(self.rows, None, feedforward)
