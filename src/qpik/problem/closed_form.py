@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from .. import linalg
-from ..solvers.base import equalities_met_in_floats
+from ..solvers.base import equalities_met, equalities_met_in_floats
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -31,14 +31,6 @@ CLOSED_FORM_PAUSE = 8
 CLOSED_FORM_PAUSE_MAX = 32
 # Closed forms a step may try with held bounds (HeldBounds) before the solver takes it.
 HELD_TRIES = 3
-
-
-def rows_met(A: np.ndarray, x: np.ndarray, b: np.ndarray) -> bool:
-    """The solvers' check of the hard rows (``qpik.solvers.base.equalities_met``) at
-    ``EQUALITY_TOLERANCE``, written with array methods (NumPy's functions cost more here)."""
-    residual = A.dot(x)
-    residual -= b
-    return residual.dot(residual) <= EQUALITY_TOLERANCE * EQUALITY_TOLERANCE * (1.0 + b.dot(b))
 
 
 def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
@@ -81,7 +73,7 @@ class KKTStep:
             return None
         x = self._tail.dot(scaled)  # checked as the solvers' answers are (a few rows: in floats)
         if meq > 8:
-            return x if rows_met(Ac[:meq], x, b) else None
+            return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
         return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
 
     def _rows(self, b: np.ndarray) -> bool:
@@ -127,7 +119,8 @@ class SquareRows(KKTStep):
         A = Ac[: self.meq]
         lu, _, x, info = linalg.dgesv(A, b)
         pivots = np.abs(lu.diagonal()).tolist()
-        return x if info == 0 and max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots) and rows_met(A, x, b) else None
+        well_posed = info == 0 and max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots)
+        return x if well_posed and equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
 
 
 class DiagonalHessian(KKTStep):
@@ -276,7 +269,7 @@ class HeldBounds(ClosedForm):
             return None, None
         x = solution[:nv]
         x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
-        if not rows_met(Ac[:meq], x, b):  # the hard rows, once x is on them
+        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
             return None, None
         return x, -solution[nv + meq:]
 
@@ -312,7 +305,7 @@ def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, r
     if c is not None:
         x -= c
     x *= dinv
-    if soft_rows < m and not rows_met(R[soft_rows:], x, rhs[soft_rows:]):
+    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
         return None
     return x
 

@@ -78,9 +78,9 @@ EXACT_EQUALITY_TOLERANCE = 1e-9
 def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
     """Whether |Ax − b| <= tolerance (1 + |b|) (Euclidean norms): the check every
     answer that promises to meet hard rows goes through, solver or closed form."""
-    residual = np.dot(A, x)
+    residual = A.dot(x)  # array methods: NumPy's functions cost more on arrays this small
     residual -= b
-    return float(np.dot(residual, residual)) <= tolerance * tolerance * (1.0 + float(np.dot(b, b)))
+    return residual.dot(residual) <= tolerance * tolerance * (1.0 + b.dot(b))
 
 
 def equalities_met_in_floats(Ax: list, b: list, tolerance: float) -> bool:
