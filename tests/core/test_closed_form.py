@@ -172,3 +172,22 @@ def test_held_bounds_give_the_solvers_minimiser_or_nothing(hessian, meq):
             wrong_kept += 1
     assert held_right >= 30  # the box binds on most problems
     assert wrong_kept >= 1  # and a wrong guess is repaired by the active-set steps at times
+
+
+@pytest.mark.parametrize("solver", ["daqp", "quadprog"])
+def test_a_far_target_gets_the_solvers_capped_cost_on_the_fast_path_too(solver):
+    """A posture target 1e12 rad away makes c ~1e14: the solver's step sees c capped
+    (GuardedSolve tames it), so the closed form must not answer with the uncapped
+    minimiser, or the two paths would move the robot 1e5 times apart."""
+    from qpik import DampingTask, PostureTask, QPController, Robot
+
+    answers = []
+    for fast_path in (True, False):
+        robot = Robot.load("arm")
+        posture = PostureTask(robot, gain=100.0, weight=1.0)
+        posture.set_target(robot.q + 1e12)
+        qp = QPController(robot, [posture, DampingTask(robot, weight=1e-3)], [], solver=solver, dt=0.002,
+                          fast_path=fast_path)
+        answers.append(qp.compute_velocity().copy())
+    assert np.abs(answers[1]).max() < 1e10  # capped: the uncapped minimiser is ~1e14 rad/s
+    np.testing.assert_allclose(answers[0], answers[1], rtol=1e-9)

@@ -12,7 +12,8 @@ import numpy as np
 
 from ..errors import QpikError
 from ..solvers import make_backend
-from .fallbacks import has_feasible_point, tame
+from ..problem.cost import tame
+from .fallbacks import has_feasible_point
 from .labels import task_label
 
 ELASTIC_WEIGHT = 1e6

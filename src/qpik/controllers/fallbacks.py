@@ -30,10 +30,9 @@ from ..solvers import available_solvers, make_backend
 from ..solvers.base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT
 from ..solvers.nullspace import NullSpaceBackend
 from ..problem.backoff import Backoff
+from ..problem.cost import COST_SCALE_CAP, tame
 from .labels import task_label
 
-# On solver steps, c is scaled down to at most this times H's diagonal (see tame).
-COST_SCALE_CAP = 1e9
 # Exact solvers a failing step falls back to, in this order (the last: DAQP on the problem
 # reduced to the hard rows' null space, for steps with hard rows).
 NULL_SPACE = "daqp in the null space"
@@ -41,16 +40,6 @@ FALLBACK_SOLVERS = ("daqp", "quadprog", NULL_SPACE)
 # has_feasible_point: how far (relative to 1 + |b|) a point may miss an equality and
 # still count as meeting it; the LP that decided before had the same tolerance (HiGHS's).
 FEASIBILITY_TOLERANCE = 1e-7
-
-
-def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
-    """c scaled down to at most ``cap`` times ``max(1, hessian_scale)`` (c itself when
-    it already is)."""
-    scale = float(np.abs(c).max()) if c.size else 0.0
-    bound = cap * max(1.0, hessian_scale)
-    if scale <= bound:
-        return c
-    return c * (bound / scale)
 
 
 def check_finite_velocities(tasks, c: np.ndarray, b: np.ndarray) -> None:

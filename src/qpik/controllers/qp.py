@@ -91,7 +91,7 @@ class QPController:
         self.problem.fill()
         self.cost.write()
         self.hard_rows.stack()
-        if self._closed_form is not None:
+        if self._closed_form is not None and self.cost.within_cap():  # else the solver's c is tamed
             x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)
             if x is not None:
                 self.qdot = x

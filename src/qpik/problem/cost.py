@@ -18,6 +18,20 @@ from ..tasks import Task
 from .rows import Stack
 
 LM_RESCALE = 1e6
+# A far target's c is scaled down to at most this times H's scale before a solver sees it
+# (see tame): the solvers' answers keep their digits. The closed form is tried only where
+# the cap leaves c as it is, so both give the same minimiser.
+COST_SCALE_CAP = 1e9
+
+
+def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
+    """c scaled down to at most ``cap`` times ``max(1, hessian_scale)`` (c itself when
+    it already is)."""
+    scale = float(np.abs(c).max()) if c.size else 0.0
+    bound = cap * max(1.0, hessian_scale)
+    if scale <= bound:
+        return c
+    return c * (bound / scale)
 
 
 class Cost:
@@ -89,6 +103,14 @@ class Cost:
             scale = 1.0 / (1.0 + lm)
             H *= scale
             c *= scale
+
+    def within_cap(self) -> bool:
+        """Whether :func:`tame` leaves c as it is (one dot product decides it unless c is
+        ~1e9 or more: the cap is at least COST_SCALE_CAP an entry)."""
+        c = self.c
+        if c.dot(c) <= COST_SCALE_CAP * COST_SCALE_CAP:
+            return True
+        return tame(c, float(self.H.diagonal().max())) is c
 
     def levenberg_marquardt(self) -> float:
         """Σ μ eᵀWe over the tasks with ``lm_damping``: the step's damping on every dof.
