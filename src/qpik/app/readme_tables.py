@@ -10,7 +10,7 @@ Two kinds:
   compared with their recording (:mod:`qpik.app.scenarios_table`).
 - *recorded* (``step-time``, ``peers-arm``, ``peers-hexapod``, ``monte-carlo-arm``,
   ``monte-carlo-hexapod``, ``third-party``, ``hierarchy-timing``, ``rollout-speed``,
-  ``fuzz``, ``placo-solve``, ``sweep-arm``): timings and hour-long sweeps; the table is rendered from the
+  ``fuzz``, ``placo-solve``, ``sweep-arm``, ``batch-throughput``): timings and hour-long sweeps; the table is rendered from the
   JSON a benchmark wrote into a results folder (re-run the benchmark to refresh it), and
   the check compares the README with that rendering.
 
@@ -315,6 +315,27 @@ def scenarios_table(results: Path) -> str:
     return to_markdown(compute_rows(progress=wanted()), load_chaotic(Path(results) / "scenarios_chaotic.json"))
 
 
+def _speedup(row: dict, against: str) -> str:
+    ratio = row.get(f"speedup vs {against}")
+    return "–" if ratio is None else f"{ratio['median']:.1f}× ({ratio['min']:.1f}–{ratio['max']:.1f})"
+
+
+def batch_throughput_table(results: Path) -> str:
+    """qpik.batch against qpik's serial loop and mink-warp (benchmarks/batch_throughput.py),
+    at the batch sizes the README's claims are about."""
+    data = _recorded(results, "batch_throughput.json")
+    lines = ["| robot | N | qpik.batch [robot-steps/s] | vs the serial loop | vs one robot's loop | "
+             "vs mink-warp constrained | max \\|q_batch − q_serial\\| after 1 s [rad] |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for robot, table in data["throughput"].items():
+        exact = data["accuracy"][robot]["max_q_difference"]
+        for row in (r for r in table["rows"] if r["n"] >= 1024):
+            lines.append(f"| {robot} | {row['n']} | {row['qpik.batch']['robot_steps_per_s']:.3g} | "
+                         f"{_speedup(row, 'qpik serial')} | {_speedup(row, 'qpik serial (1 robot)')} | "
+                         f"{_speedup(row, 'mink-warp constrained')} | {exact:.1e} |")
+    return "\n".join(lines) + "\n"
+
+
 def sweep_table(results: Path, robot: str) -> str:
     from .sweep.report import table
 
@@ -345,6 +366,7 @@ TABLES = {
     "fuzz": Table(fuzz_table, 1, False),
     "placo-solve": Table(placo_solve_table, 1, False),
     "sweep-arm": Table(lambda results: sweep_table(results, "arm"), 1, False),
+    "batch-throughput": Table(batch_throughput_table, 2, False),
 }
 
 

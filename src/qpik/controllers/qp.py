@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
 from ..problem import Cost, HeldBounds, Problem, Stack, check_dt, closed_form_step
+from ..problem.cost import UNCAPPED_NORM2
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
@@ -91,8 +92,9 @@ class QPController:
         self.problem.fill()
         self.cost.write()
         self.hard_rows.stack()
-        if self._closed_form is not None and self.cost.within_cap():  # else the solver's c is tamed
-            x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)
+        c = self.cost.c
+        if self._closed_form is not None and (c.dot(c) <= UNCAPPED_NORM2 or self.cost.within_cap()):
+            x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)  # else the solver's c is capped
             if x is not None:
                 self.qdot = x
                 return x

@@ -22,6 +22,8 @@ LM_RESCALE = 1e6
 # (see tame): the solvers' answers keep their digits. The closed form is tried only where
 # the cap leaves c as it is, so both give the same minimiser.
 COST_SCALE_CAP = 1e9
+# Below this squared norm no entry of c can reach the cap (at least COST_SCALE_CAP).
+UNCAPPED_NORM2 = COST_SCALE_CAP * COST_SCALE_CAP
 
 
 def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
@@ -105,12 +107,9 @@ class Cost:
             c *= scale
 
     def within_cap(self) -> bool:
-        """Whether :func:`tame` leaves c as it is (one dot product decides it unless c is
-        ~1e9 or more: the cap is at least COST_SCALE_CAP an entry)."""
-        c = self.c
-        if c.dot(c) <= COST_SCALE_CAP * COST_SCALE_CAP:
-            return True
-        return tame(c, float(self.H.diagonal().max())) is c
+        """Whether :func:`tame` leaves c as it is (callers first compare c·c with
+        ``UNCAPPED_NORM2``, which decides it unless c is ~1e9 or more)."""
+        return tame(self.c, float(self.H.diagonal().max())) is self.c
 
     def levenberg_marquardt(self) -> float:
         """Σ μ eᵀWe over the tasks with ``lm_damping``: the step's damping on every dof.
