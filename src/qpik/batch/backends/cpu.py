@@ -56,10 +56,10 @@ _EQ = mujoco.mjtEq
 MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
 
 
-# Worlds per MuJoCo thread by default: on a busy machine, waking a second thread and
-# waiting for it cost more than it saved below about this many small worlds
-# (measurements in docs/batch.md, Throughput).
-WORLDS_PER_THREAD = 2048
+# Worlds per MuJoCo thread by default: below about this many small worlds, waking a
+# second thread and waiting for it costs more than it saves (on a quiet machine; on a
+# busy one the crossover moves up: measurements in docs/batch.md, Throughput).
+WORLDS_PER_THREAD = 512
 
 
 def _constant_timer():
