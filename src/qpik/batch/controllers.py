@@ -20,6 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
+from ..problem.problem import check_dt
 from .errors import HostStepWarning, NotBatched, WorldsFailed
 from .limits import Limit
 from .qp import ActiveSetQP
@@ -29,18 +30,6 @@ from .tasks import Task
 # The serial controller's constants (qpik.controllers.qp, qpik.controllers.pinv).
 LM_RESCALE = 1e6
 DIVERGED_SPEED = 1e100
-
-
-def check_dt(dt) -> float:
-    if dt is None:
-        raise InvalidInput("dt is required: the control period in seconds (e.g. dt=0.002)")
-    try:
-        value = float(dt)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"dt must be a number of seconds, got {dt!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise InvalidInput(f"dt must be positive and finite, got {dt}")
-    return value
 
 
 def check_same_robots(robots: Robot, items, what: str) -> None:
