@@ -100,7 +100,20 @@ def default_threads(nworld: int) -> int:
     return max(1, min(cpus, nworld // WORLDS_PER_THREAD))
 
 
-class CpuBackend(KinematicsBackend):
+class HostIntegration:
+    """:meth:`KinematicsBackend.integrate` for a back-end whose ``qpos`` lives on the host
+    (``_integration``: an :class:`_Integration` of its model)."""
+
+    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
+        if ids is None:
+            self._integration.apply(self.qpos, qvel, dt)
+        else:
+            qpos = self.qpos[ids]
+            self._integration.apply(qpos, qvel, dt)
+            self.qpos[ids] = qpos
+
+
+class CpuBackend(HostIntegration, KinematicsBackend):
     """N worlds on ``mujoco.batch.Batch``.
 
     Args:
@@ -342,15 +355,6 @@ class CpuBackend(KinematicsBackend):
                                          + data[4] * q1 * q1 * q1 * q1)
         jacobian[:, 0, m.jnt_dofadr[joint1]] = -(data[1] + 2 * data[2] * q1 + 3 * data[3] * q1 * q1
                                                  + 4 * data[4] * q1 * q1 * q1)
-
-    # -- state -------------------------------------------------------------------------
-    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
-        if ids is None:
-            self._integration.apply(self.qpos, qvel, dt)
-        else:
-            qpos = self.qpos[ids]
-            self._integration.apply(qpos, qvel, dt)
-            self.qpos[ids] = qpos
 
     # -- physics -----------------------------------------------------------------------
     def physics_reset(self, qpos: np.ndarray, ctrl: np.ndarray) -> None:

@@ -28,7 +28,7 @@ from ...errors import InvalidInput, ModelError
 from ...extras import require
 from ..errors import NotBatched
 from .base import BatchQP, KinematicsBackend, QPResult, QPStatus
-from .cpu import _Integration
+from .cpu import HostIntegration, _Integration
 from .daqp_fallback import answers_hold, daqp_solve
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
@@ -102,7 +102,7 @@ def _equality_row_count(model: mujoco.MjModel) -> int:
     return int(data.nefc)
 
 
-class WarpBackend(KinematicsBackend):
+class WarpBackend(HostIntegration, KinematicsBackend):
     """N worlds on a Warp device through MuJoCo Warp.
 
     Args:
@@ -249,15 +249,6 @@ class WarpBackend(KinematicsBackend):
         self._efc_type = self._d.efc.type.numpy()
         self._efc_id = self._d.efc.id.numpy()
         self._rows_current = True
-
-    # -- state -------------------------------------------------------------------------
-    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
-        if ids is None:
-            self._integration.apply(self.qpos, qvel, dt)
-        else:
-            qpos = self.qpos[ids]
-            self._integration.apply(qpos, qvel, dt)
-            self.qpos[ids] = qpos
 
     # -- physics -----------------------------------------------------------------------
     def physics_reset(self, qpos: np.ndarray, ctrl: np.ndarray) -> None:
