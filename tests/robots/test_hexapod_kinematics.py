@@ -100,7 +100,10 @@ def test_ik_respects_the_branch_rules(pose):
     dp, rpy = pose
     position = hexapod.geometry.home_position + dp
     R = rotation_from_rpy(rpy)
-    q = hexapod.inverse_kinematics_matrix(position, R)
+    try:
+        q = hexapod.inverse_kinematics_matrix(position, R)
+    except UnreachablePose:  # a corner of the box (y −3 cm, z +3 cm, tilted) is out of reach
+        assume(False)
     L, S, P = hexapod.legs(q, position, R)
     g = hexapod.geometry
     assert np.all((q >= g.stroke_min) & (q <= g.stroke_max)), q
