@@ -9,6 +9,7 @@ side-by-side rollouts are :mod:`qpik.app.peers.equivalence`):
   reaching, posture, joint limits, 3 s (examples/humanoid_reach.py);
 - ``chain7``, ``chain30``, ``chain60``: generated chains of n hinges (MjSpec), a hard
   6-D pose task at the tip along a circle, posture, joint limits, 2 s (examples/pose_circles.py);
+- ``chain30-soft``: the same on 30 hinges with the pose task a cost beside the posture's;
 - ``pusher``: gymnasium's 7-DoF pusher arm (puck and goal removed), a hard 6-D pose task
   on its fingertip body along a circle, posture, joint limits, 3 s (examples/pose_circles.py);
 - ``collision``: the Jaco's hand pulled through a box (examples/collision_avoidance.py)
@@ -103,6 +104,8 @@ CASES: dict[str, Case] = {
                      _sized(humanoid_reach.build, humanoid_reach.DURATION), 0.35, PAIR),
     **{f"chain{n}": Case(f"chain{n}", f"chain of {n} hinges (MjSpec), hard 6-D pose circle + posture + limits, 2 s",
                          _sized(lambda d, n=n: chain_demo(n, d), CHAIN_MOTION), 0.20, PAIR) for n in (7, 30, 60)},
+    "chain30-soft": Case("chain30-soft", "chain of 30 hinges (MjSpec), soft 6-D pose circle + posture + limits, 2 s",
+                         _sized(lambda d: chain_demo(30, d, hard=False), CHAIN_MOTION), 0.25, PAIR),
     "pusher": Case("pusher", "7-DoF pusher (gymnasium), hard 6-D pose circle + posture + limits, 3 s",
                    _sized(pusher_demo, PUSHER_MOTION), 0.20, PAIR),
     "collision": Case("collision", "Jaco's hand pulled through a box, minimum distance 2 cm (native convex "

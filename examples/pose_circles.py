@@ -56,22 +56,23 @@ def chain_model(n: int) -> mujoco.MjModel:
     return spec.compile()
 
 
-def pose_demo(name: str, robot: Robot, frame: str, frame_type: str, motion: float, duration: float) -> Demo:
-    """A hard 6-D pose task on ``frame`` along the circle (``motion`` seconds), posture, position
-    and speed limits, run for ``duration`` seconds."""
+def pose_demo(name: str, robot: Robot, frame: str, frame_type: str, motion: float, duration: float,
+              hard: bool = True) -> Demo:
+    """A 6-D pose task (``hard``, or a cost beside the posture's) on ``frame`` along the circle
+    (``motion`` seconds), posture, position and speed limits, run for ``duration`` seconds."""
     robot.update_kinematics()
-    pose = FrameTask(robot, frame, frame_type, position_gain=POSE_GAIN, orientation_gain=POSE_GAIN, hard=True)
+    pose = FrameTask(robot, frame, frame_type, position_gain=POSE_GAIN, orientation_gain=POSE_GAIN, hard=hard)
     posture = PostureTask(robot, **POSTURE)
     limits = [JointPositionLimit(robot), JointVelocityLimit(robot, np.full(robot.nv, SPEED))]
     reference = PoseCircle(pose, motion, **CIRCLE)
     return Demo(name, robot, [pose, posture], limits, reference, DT, duration, follow=pose, moving=(pose,))
 
 
-def chain_demo(n: int, duration: float = CHAIN_MOTION) -> Demo:
+def chain_demo(n: int, duration: float = CHAIN_MOTION, hard: bool = True) -> Demo:
     robot = Robot(chain_model(n), name=f"chain{n}")
     bend = np.array(CHAIN_BEND) * 3.0 / n
     robot.set_q(np.array([bend[i % 3] for i in range(n)]))
-    return pose_demo(f"chain{n}", robot, "tip", "site", CHAIN_MOTION, duration)
+    return pose_demo(f"chain{n}" if hard else f"chain{n}-soft", robot, "tip", "site", CHAIN_MOTION, duration, hard)
 
 
 def pusher_demo(duration: float = PUSHER_MOTION) -> Demo:
