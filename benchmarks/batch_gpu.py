@@ -344,20 +344,7 @@ def main() -> None:
     if args.inside or args.no_mink_warp:
         main_inside(args)
         return
-    with tempfile.TemporaryDirectory(prefix="qpik-mink-warp-") as folder:
-        venv = Path(folder) / "venv"
-        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-        python = venv / "bin" / "python"
-        print("installing mink-warp into a throwaway environment ...", file=sys.stderr, flush=True)
-        subprocess.run([str(python), "-m", "pip", "install", "-q", "-c", str(HERE.parent / "constraints.txt"),
-                        "mink-warp==0.1.0"], check=True)
-        import site
-
-        ours = [p for p in site.getsitepackages() if p.endswith("site-packages")]
-        code = ("import site, runpy, sys; [site.addsitedir(p) for p in %r]; sys.argv = %r; "
-                "runpy.run_path(%r, run_name='__main__')") % (ours, [__file__, "--inside", *sys.argv[1:]], __file__)
-        subprocess.run([str(python), "-c", code], check=True)
-
+    bt.rerun_beside_mink_warp(__file__)
 
 if __name__ == "__main__":
     main()
