@@ -53,7 +53,6 @@ _FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat")}
 _SAME = mujoco.mjtSameFrame
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
-MINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a norm counts as zero
 
 
 # Worlds per MuJoCo thread by default: below about this many small worlds, waking a
@@ -431,7 +430,7 @@ class _Integration:
 def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
     """``mju_quatIntegrate`` across worlds: quat ⊗ exp(velocity·scale), normalised."""
     norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
-    small = norm < MINVAL
+    small = norm < rotations.MINVAL
     axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
     axis[small] = (1.0, 0.0, 0.0)
     angle = scale * np.where(small, 0.0, norm)
@@ -440,24 +439,4 @@ def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.n
     rotation[:, 0] = np.cos(half)
     rotation[:, 1:] = axis * np.sin(half)[:, None]
     rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
-    product = quat_multiply(quat, rotation)
-    return quat_normalize(product)
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``mju_mulQuat`` across worlds."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 0] * b[:, 0] - a[:, 1] * b[:, 1] - a[:, 2] * b[:, 2] - a[:, 3] * b[:, 3]
-    out[:, 1] = a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0] + a[:, 2] * b[:, 3] - a[:, 3] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 2] - a[:, 1] * b[:, 3] + a[:, 2] * b[:, 0] + a[:, 3] * b[:, 1]
-    out[:, 3] = a[:, 0] * b[:, 3] + a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
-    return out
-
-
-def quat_normalize(quat: np.ndarray) -> np.ndarray:
-    """``mju_normalize4`` across worlds (a zero quaternion becomes the identity)."""
-    norm = np.sqrt(np.einsum("ni,ni->n", quat, quat))
-    small = norm < MINVAL
-    out = quat / np.where(small, 1.0, norm)[:, None]
-    out[small] = (1.0, 0.0, 0.0, 0.0)
-    return out
+    return rotations.normalize4(rotations.mul(quat, rotation))
