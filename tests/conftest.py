@@ -15,7 +15,7 @@ import pytest
 from hypothesis import settings
 
 from qpik.errors import ModelError
-from qpik.models import third_party
+from qpik.models import pusher_arm, third_party
 
 # The property tests draw the same examples on every run and machine: a CI run fails only
 # where the code changed, never on a draw no earlier run made (the fuzz benchmarks explore).
@@ -45,6 +45,15 @@ def humanoid_path() -> Path:
 @pytest.fixture(scope="session")
 def pusher_path() -> Path:
     return third_party_path("pusher")
+
+
+@pytest.fixture(scope="module")
+def pusher_model() -> mujoco.MjModel:
+    """gymnasium's pusher arm without its puck and goal (``qpik.models.pusher_arm``), or a skip."""
+    try:
+        return pusher_arm()
+    except ModelError as exc:
+        pytest.skip(str(exc))
 
 
 @pytest.fixture(scope="session")

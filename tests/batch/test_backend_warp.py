@@ -23,7 +23,6 @@ from qpik import batch  # noqa: E402
 from qpik.batch.backends.base import QPStatus  # noqa: E402
 from qpik.batch.backends.warp import WarpBackend, WarpQP  # noqa: E402
 from qpik.errors import InvalidInput, ModelError  # noqa: E402
-from qpik.models import pusher_arm  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location("warp_rollouts", Path(__file__).with_name("warp_rollouts.py"))
 rollouts = importlib.util.module_from_spec(_spec)
@@ -197,14 +196,6 @@ def test_shared_hessian_equals_per_world_hessians():
     each = WarpQP(20, 5, 1, device="cpu").solve(np.broadcast_to(H[0], H.shape).copy(), c, A, b, lb, ub)
     np.testing.assert_array_equal(shared.status, each.status)
     np.testing.assert_array_equal(shared.x, each.x)
-
-
-@pytest.fixture(scope="module")
-def pusher_model():
-    try:
-        return pusher_arm()
-    except ModelError as exc:
-        pytest.skip(str(exc))
 
 
 @pytest.mark.parametrize("name", ["arm", "hexapod", "pusher"])

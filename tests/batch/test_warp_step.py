@@ -22,8 +22,6 @@ pytest.importorskip("mujoco_warp", reason="the warp back-end needs the gpu extra
 from qpik import batch  # noqa: E402
 from qpik.batch.backends.cpu import _Integration  # noqa: E402
 from qpik.batch.backends.warp_step import DeviceStep  # noqa: E402
-from qpik.errors import ModelError  # noqa: E402
-from qpik.models import pusher_arm  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location("warp_rollouts", Path(__file__).with_name("warp_rollouts.py"))
 rollouts = importlib.util.module_from_spec(_spec)
@@ -61,14 +59,6 @@ BALL_MODEL = """
   </worldbody>
 </mujoco>
 """
-
-
-@pytest.fixture(scope="module")
-def pusher_model():
-    try:
-        return pusher_arm()
-    except ModelError as exc:
-        pytest.skip(str(exc))
 
 
 def _robots(name: str, pusher_model, backend="warp"):
@@ -249,9 +239,9 @@ def test_free_and_ball_joints_integrate_as_the_host():
         np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=1e-15)
 
 
-def test_worlds_the_device_does_not_settle_are_solved_by_daqp():
+def test_worlds_the_device_does_not_settle_are_solved_by_daqp(pusher_model):
     # An active-set cap of one change: worlds where two bounds bind go to the host.
-    (robots, controller), (host_robots, host) = _pair("pusher", pusher_arm(), max_iterations=1)
+    (robots, controller), (host_robots, host) = _pair("pusher", pusher_model, max_iterations=1)
     handed = 0
     for _ in range(60):
         controller.step()
@@ -330,8 +320,8 @@ def test_tasks_without_a_device_kernel_step_on_the_host_and_say_so():
     assert cpu.step_path == "host" and "cpu back-end" in cpu.host_step_reason
 
 
-def test_the_state_and_the_targets_cross_when_the_host_changes_them():
-    (robots, controller), (host_robots, host) = _pair("pusher", pusher_arm())
+def test_the_state_and_the_targets_cross_when_the_host_changes_them(pusher_model):
+    (robots, controller), (host_robots, host) = _pair("pusher", pusher_model)
     task = controller.tasks[0]
     for k in range(6):
         if k == 2:  # the host moves the worlds: the device step starts from there
