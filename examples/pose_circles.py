@@ -2,8 +2,9 @@
 problems benchmarks/third_party.py and tests/app/test_third_party.py run beside the
 other examples' (as :class:`~demo_support.Demo` objects).
 
-Each: a hard 6-D pose task at the tip along jaco_circle's circle (5 cm, tilting 10°), a
-posture task, joint position limits and speed bounds.
+Each: a hard 6-D pose task (soft with ``chain_demo(n, hard=False)``) at the tip along
+jaco_circle's circle (5 cm, tilting 10°), a posture task, joint position limits and speed
+bounds.
 
     from pose_circles import chain_demo, pusher_demo
     demo = chain_demo(30)        # 30 hinges, 1 m long, 2 s
