@@ -20,11 +20,14 @@ few steps, the order rotated, ``--repeats`` fresh runs):
   ``qpik.batch (1 thread)`` where the default uses more and ``qpik.batch (2 threads)``
   where it uses one (the machine has more): whether a second thread pays depends on
   the load, and these columns are what the default is chosen from;
-- ``qpik serial``: qpik's own ``QPController`` stepping min(N, 32) robots one after the
-  other, per robot-step; ``qpik serial (1 robot)``: one robot stepped again and again,
-  its data always in the caches — the serial loop's best case, the conservative
-  baseline (a loop over many robots runs with colder caches, as the batched steps
-  between its blocks leave them);
+- ``qpik serial (N robots)``: the serial loop that qpik.batch replaces — N robots, each
+  with its own ``QPController``, stepped one after the other (N up to 1,024: each robot
+  holds 1-2.5 MB once stepped); per robot-step. At N = 1,024 its robots' data outgrow
+  the caches, as they would in a user's loop;
+- ``qpik serial (32 robots)``: the same loop over min(N, 32) robots, whose data stay in
+  the caches between their own steps (less so as the batched blocks between its blocks
+  grow); ``qpik serial (1 robot)``: one robot stepped again and again, its data always in
+  the caches — the serial loop's best case, the most conservative baseline;
 - ``mink-warp dls`` / ``mink-warp constrained`` (pusher only): mink-warp 0.1 on Warp's
   CPU device, pose + posture (mink's costs), its ``ConstrainedSolver`` with mink's
   ``ConfigurationLimit`` and ``VelocityLimit``. mink-warp runs in a throwaway virtual
@@ -70,6 +73,9 @@ sys.path.insert(0, str(HERE))
 DT = 0.002
 SIZES = (1, 16, 256, 1024, 4096, 16384)
 SERIAL_ROBOTS = 32
+# The loop over all N robots up to this N: each robot's MuJoCo data and controller take
+# 1-2.5 MB once stepped, and two repeats' robots are alive while the next one is built.
+SERIAL_ALL_MAX = 1024
 PUSHER_START = np.array([0.2, 0.3, -0.2, -1.0, 0.3, -0.5, 0.2])
 PUSHER_SPEED = 2.0
 RADIUS = {"arm": 0.05, "hexapod": 0.01, "pusher": 0.05}
@@ -341,15 +347,19 @@ def measure(robot: str, sizes, repeats: int, mink_warp: bool) -> dict:
         steps = run_steps(n)
         block = max(1, steps // 8)
         contestants = [Contestant("qpik.batch", lambda n=n, s=steps: BatchRun(robot, n, s)), *other_threads(n, steps, robot),
-                       Contestant("qpik serial", lambda n=n, s=steps: SerialRun(robot, n, s)),
+                       Contestant("qpik serial (32 robots)", lambda n=n, s=steps: SerialRun(robot, n, s)),
                        Contestant("qpik serial (1 robot)", lambda n=n, s=steps: SerialRun(robot, n, s, count=1, inner=SERIAL_ROBOTS))]
+        if SERIAL_ROBOTS < n <= SERIAL_ALL_MAX:
+            contestants.append(Contestant("qpik serial (N robots)", lambda n=n, s=steps: SerialRun(robot, n, s, count=n)))
         if mink_warp:
             contestants += [Contestant("mink-warp dls", lambda n=n, s=steps: MinkWarpRun("dls", n, s)),
                             Contestant("mink-warp constrained", lambda n=n, s=steps: MinkWarpRun("constrained", n, s))]
         timing = interleave(contestants, repeats=repeats, block=block)
         per_step = {c.label: c.repeat_medians_us for c in timing.contestants.values()}
+        del timing  # its last runs (up to N serial robots) before the next N's are built
         robots_per_step = {"qpik.batch": n, "qpik.batch (1 thread)": n, "qpik.batch (2 threads)": n,
-                           "qpik serial": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+                           "qpik serial (32 robots)": min(n, SERIAL_ROBOTS), "qpik serial (1 robot)": SERIAL_ROBOTS,
+                           "qpik serial (N robots)": n,
                            "mink-warp dls": n, "mink-warp constrained": n}
         row = {"n": n, "steps": steps}
         for label, medians in per_step.items():
@@ -432,11 +442,12 @@ def figure(results: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     robots = list(results["throughput"])
-    fig, axes = plt.subplots(1, len(robots), figsize=(5 * len(robots), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(robots), figsize=(5 * len(robots), 4.8), squeeze=False)
     for ax, robot in zip(axes[0], robots):
         rows = results["throughput"][robot]["rows"]
         for label, style in (("qpik.batch", "o-"), ("qpik.batch (1 thread)", "o:"), ("qpik.batch (2 threads)", "d:"),
-                             ("qpik serial", "s--"), ("qpik serial (1 robot)", "x--"),
+                             ("qpik serial (N robots)", "s-"), ("qpik serial (32 robots)", "s--"),
+                             ("qpik serial (1 robot)", "x--"),
                              ("mink-warp dls", "^:"),
                              ("mink-warp constrained", "v-.")):
             points = [(r["n"], r[label]["robot_steps_per_s"]) for r in rows if label in r]
@@ -448,10 +459,13 @@ def figure(results: dict, path: Path) -> None:
         ax.set_ylabel("robot-steps / s")
         ax.set_title(TITLES[robot])
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+    handles = {}
+    for ax in axes[0]:  # one legend for all panels, below them: none hides a curve
+        handles.update(zip(ax.get_legend_handles_labels()[1], ax.get_legend_handles_labels()[0]))
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=4, fontsize=9)
     fig.suptitle(f"qpik.batch throughput, robot-steps/s ({results['machine']['cpus']} CPUs; load average "
                  f"{results['machine']['load_before']} before, {results['machine']['load_after']} after)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.14, 1, 1))
     from qpik.io import save_figure
 
     save_figure(fig, path, dpi=110)
@@ -465,13 +479,13 @@ def markdown(results: dict) -> str:
     for robot, data in results["throughput"].items():
         rows = data["rows"]
         labels = list(dict.fromkeys(k for r in rows for k in r if k not in ("n", "steps") and not k.startswith("speedup")))
-        speedups = [k for k in rows[0] if k.startswith("speedup")]
+        speedups = list(dict.fromkeys(k for r in rows for k in r if k.startswith("speedup")))
         lines += [f"## {robot}", "", "| N | " + " | ".join(f"{k} (robot-steps/s)" for k in labels) + " | "
                   + " | ".join(f"{k} (median, range)" for k in speedups) + " |",
                   "|" + "---|" * (1 + len(labels) + len(speedups))]
         for r in rows:
             cells = [f"{r[k]['robot_steps_per_s']:.3g}" if k in r else "" for k in labels]
-            cells += [f"{r[k]['median']:.2f} ({r[k]['min']:.2f}–{r[k]['max']:.2f})" for k in speedups]
+            cells += [f"{r[k]['median']:.2f} ({r[k]['min']:.2f}–{r[k]['max']:.2f})" if k in r else "" for k in speedups]
             lines.append(f"| {r['n']} | " + " | ".join(cells) + " |")
         acc = results["accuracy"].get(robot)
         if acc:

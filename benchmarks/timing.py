@@ -199,6 +199,10 @@ def interleave(contestants: Sequence[Contestant], repeats: int = 3, block: int =
         raise ValueError("repeats and block must be at least 1")
     timings = {c.label: ContestantTiming(c.label) for c in contestants}
     for repeat in range(repeats):
+        runs = None  # the last repeat's runs freed before the next are built
+        for timing in timings.values():
+            timing.last_run = None
+        gc.collect()
         runs = {c.label: _Clocked(c.make(), cpu) for c in contestants}
         gc.collect()
         gc.disable()
