@@ -22,7 +22,7 @@ few steps, the order rotated, ``--repeats`` fresh runs):
   the load, and these columns are what the default is chosen from;
 - ``qpik serial (N robots)``: the serial loop that qpik.batch replaces — N robots, each
   with its own ``QPController``, stepped one after the other (N up to 1,024: each robot
-  holds 1-2.5 MB once stepped); per robot-step. At N = 1,024 its robots' data outgrow
+  holds about 1 MB once stepped); per robot-step. At N = 1,024 its robots' data outgrow
   the caches, as they would in a user's loop;
 - ``qpik serial (32 robots)``: the same loop over min(N, 32) robots, whose data stay in
   the caches between their own steps (less so as the batched blocks between its blocks
@@ -74,7 +74,7 @@ DT = 0.002
 SIZES = (1, 16, 256, 1024, 4096, 16384)
 SERIAL_ROBOTS = 32
 # The loop over all N robots up to this N: each robot's MuJoCo data and controller take
-# 1-2.5 MB once stepped, and two repeats' robots are alive while the next one is built.
+# about 1 MB once stepped, and two repeats' robots are alive while the next one is built.
 SERIAL_ALL_MAX = 1024
 PUSHER_START = np.array([0.2, 0.3, -0.2, -1.0, 0.3, -0.5, 0.2])
 PUSHER_SPEED = 2.0
