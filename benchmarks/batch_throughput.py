@@ -461,7 +461,8 @@ def figure(results: dict, path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
     handles = {}
     for ax in axes[0]:  # one legend for all panels, below them: none hides a curve
-        handles.update(zip(ax.get_legend_handles_labels()[1], ax.get_legend_handles_labels()[0]))
+        curves, labels = ax.get_legend_handles_labels()
+        handles.update(zip(labels, curves))
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=4, fontsize=9)
     fig.suptitle(f"qpik.batch throughput, robot-steps/s ({results['machine']['cpus']} CPUs; load average "
                  f"{results['machine']['load_before']} before, {results['machine']['load_after']} after)")
