@@ -51,6 +51,37 @@ def test_the_box_follows_the_rule_joint_by_joint(scene, influence):
 
 
 @pytest.mark.parametrize("scene", ["arm", "hexapod"])
+def test_a_box_kept_while_q_stays_clear_of_the_bounds_is_the_rule_s_box(scene):
+    """The float pass keeps the incoming box unchanged without a pass over the joints while
+    q stays within the distance where no bound can tighten it: along walks that reach the
+    bounds, after jumps of q, a changed incoming box or gain, the box is the rule's."""
+    robot = Robot.load(scene)
+    limit = JointPositionLimit(robot, gain=0.5)
+    limit._watched = True  # the arm has fewer joints than it takes to pay off
+    passes = []
+    remember = limit._remember
+    limit._remember = lambda *arguments: (passes.append(1), remember(*arguments))
+    rng = np.random.default_rng(3)
+    ranges = robot.joint_limits
+    speed = np.full(robot.nv, 2.0)
+    steps = 600
+    for k in range(steps):
+        if k % 150 == 0:  # a jump: inside, or near a bound
+            robot.q[ranges.qpos_index] = rng.uniform(ranges.lower + 0.004, ranges.upper - 0.004)
+        if k == 300:
+            speed = np.full(robot.nv, 1.5)  # another incoming box
+        if k == 450:
+            limit.gain = 0.9
+        lb, ub = (-speed).tolist(), speed.tolist()
+        expected = reference_box(limit, robot.q, 0.002, lb, ub)
+        limit.apply(0.002, lb, ub)
+        assert (lb, ub) == expected
+        velocity = rng.uniform(np.array(lb), np.array(ub))  # toward the bounds as often as not
+        robot.q[ranges.qpos_index] += 0.002 * velocity[ranges.dof_index]
+    assert 0 < len(passes) < steps  # some steps kept the box, some needed the pass
+
+
+@pytest.mark.parametrize("scene", ["arm", "hexapod"])
 @pytest.mark.parametrize("influence", [0.0, 0.8])
 def test_an_empty_incoming_box_stays_empty_in_floats_and_in_arrays(scene, influence):
     """A box an earlier limit left empty (lb > ub on some dofs) is not made feasible by

@@ -12,6 +12,10 @@ from ..robot import JointLimits, Robot
 from ..tasks.task import positive_scalar
 from .limit import Limit, as_slice
 
+# From this many limited joints a box is kept, while q stays clear of the bounds, without a
+# pass over the joints: below it the pass costs less than the check.
+WATCH_MIN_JOINTS = 8
+
 
 class JointPositionLimit(Limit):
     """Keep limited joints inside their range at the end of the step.
@@ -67,12 +71,23 @@ class JointPositionLimit(Limit):
         self._near = np.empty(self._bounds.shape, dtype=bool)
         self._joints = [(int(qi), int(di), float(lo), float(hi)) for qi, di, lo, hi in
                         zip(self.limits.qpos_index, self.limits.dof_index, *self._bounds)]
+        # Where every bound was looser than the incoming box: (step rate, that box, the
+        # limited joints' positions, the squared distance they may move and stay so).
+        self._loose = None
+        self._width = float(np.max(self._bounds[1] - self._bounds[0])) if len(self._joints) else 0.0
+        self._drift = np.empty(len(self._joints))
+        self._watched = len(self._joints) >= WATCH_MIN_JOINTS
 
     def apply(self, dt: float, lb, ub, G=None, h=None) -> None:
         """Tighten the velocity box [lb, ub] (nv,) in place (lists of floats: joint by joint)."""
         if type(lb) is not list:
             self._apply_to_arrays(dt, lb, ub)
             return
+        watched = self._watched
+        if watched:
+            if self._still_loose(dt, lb, ub):
+                return
+            incoming = (lb.copy(), ub.copy())
         q = self._q.tolist()
         step_rate = self.gain / dt
         influence = self.influence
@@ -95,6 +110,35 @@ class JointPositionLimit(Limit):
                 ub[di] = high if high >= v_lo else (v_lo if v_lo < v_hi else v_hi)
         if not math.isfinite(sum(q)):  # NaN or inf somewhere in q: name the limited joint
             self._non_finite()
+        if watched:
+            self._remember(q, step_rate, incoming, lb == incoming[0] and ub == incoming[1])
+
+    def _still_loose(self, dt: float, lb: list, ub: list) -> bool:
+        """Whether q is within the distance found at the last pass that left the incoming
+        box as it was (the same box and rate, no damper): each bound moves by at most
+        rate x |Δq|, so none is tighter than the box now either."""
+        loose = self._loose
+        if loose is None or self.gain / dt != loose[0] or lb != loose[1] or ub != loose[2] or self.influence:
+            return False
+        positions = self._positions if self._positions is not None else self._q[self._qpos]
+        drift = self._drift
+        np.subtract(positions, loose[3], drift)
+        return drift.dot(drift) <= loose[4]  # NaN in q fails: the pass names the joint
+
+    def _remember(self, q: list, step_rate: float, incoming: tuple, unchanged: bool) -> None:
+        """After a pass that left the box as it was: the least gap between a bound and the
+        box, in q (half of it: far above the rounding in (bound − q) x rate), is how far q
+        may move before the next pass."""
+        self._loose = None
+        if not unchanged or self.influence:
+            return
+        lower, upper = incoming
+        gap = min(min([lower[di] - (lo - q[qi]) * step_rate for qi, di, lo, _ in self._joints]),
+                  min([(hi - q[qi]) * step_rate - upper[di] for qi, di, _, hi in self._joints]))
+        if 1e-9 * (1.0 + step_rate * self._width) < gap < math.inf:
+            positions = self._positions if self._positions is not None else self._q[self._qpos]
+            reach = 0.5 * gap / step_rate
+            self._loose = (step_rate, lower, upper, positions.copy(), reach * reach)
 
     def _apply_to_arrays(self, dt: float, lb: np.ndarray, ub: np.ndarray) -> None:
         steps = self._steps  # distance to each bound: row 0 <= 0, row 1 >= 0 inside the range

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+import mujoco
 import numpy as np
 
 from .. import linalg
@@ -36,14 +37,15 @@ HELD_TRIES = 3
 def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
     """The closed-form solve for ``nv`` dofs and ``meq`` equality rows, chosen once: A⁻¹b
     when the rows are as many as the dofs; else through H⁻¹, kept when ``H0`` (the Hessian
-    when the same every step, else None) is a positive diagonal, else factorised every step."""
+    when the same every step, else None) is a positive diagonal, else factorised every step
+    (by MuJoCo's Cholesky when there are no rows: a cost alone)."""
     if meq and meq == nv:
         return SquareRows(meq)
     if H0 is not None:
         diagonal = np.diag(H0)
         if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
             return DiagonalHessian(meq, 1.0 / diagonal)
-    return FactorisedHessian(meq)
+    return FactorisedHessian(meq) if meq else CostOnly(nv)
 
 
 class KKTStep:
@@ -141,6 +143,24 @@ class FactorisedHessian(KKTStep):
     def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
         factor, scaled_t, info = linalg.dposv(H, Ac.T)
         return None if info != 0 else scaled_t.T
+
+
+class CostOnly(KKTStep):
+    """No hard rows, H changes every step: x = −H⁻¹c by MuJoCo's dense Cholesky (on the
+    small systems of a control step its call costs less than LAPACK's through SciPy)."""
+
+    def __init__(self, nv: int):
+        super().__init__(0)
+        self._factor = np.empty((nv, nv))
+
+    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        factor = self._factor
+        np.copyto(factor, H)  # H stays as it is for the solver
+        if mujoco.mju_cholFactor(factor, 0.0) < len(factor):  # not positive definite
+            return None
+        x = np.empty(len(factor))
+        mujoco.mju_cholSolve(x, factor, Ac[0])
+        return np.negative(x, x)
 
 
 class ClosedForm:

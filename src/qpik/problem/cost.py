@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import mujoco
 import numpy as np
 
 from ..errors import InvalidInput
@@ -56,12 +57,14 @@ class Cost:
         # A first joint-space task on every dof writes c itself (no zeroing, no scratch).
         self._first = plan.pop(0)[:2] if plan and isinstance(dofs[0], slice) and dofs[0] == slice(0, nv) else None
         self._plan = plan
-        # H0 is diagonal: H = Σ JᵀWJ, written into H, plus H0's diagonal. One general task:
-        # Jᵀ(WJ) (W None when it is all ones); several: RᵀR for their rows stacked, R = √W J
+        # H0 is diagonal: H = Σ JᵀWJ, written into H by MuJoCo's JᵀDJ (on these sizes its
+        # call costs less than BLAS's through NumPy), plus H0's diagonal. One general task:
+        # JᵀWJ (W None when it is all ones); several: RᵀR for their rows stacked, R = √W J
         # (one product instead of one per task, and no sum of nv x nv matrices).
         if len(self.general) == 1:
             task = self.general[0]
-            self._single = (task, None if np.all(task.weight == 1.0) else task.weight[:, None])
+            self._single = (task, None if np.all(task.weight == 1.0) else task.weight)
+            self._weighted = np.zeros(task.dim)
         else:
             self._single = None
             self._rows = Stack(nv, self.general, weighted=True)
@@ -86,17 +89,20 @@ class Cost:
         if not self.general:
             return
         H, c = self.H, self.c
+        scratch = self._scratch
         if self._single is not None:
-            task, column = self._single
-            jacobian = task.jacobian
-            weighted = jacobian if column is None else column * jacobian
-            jacobian.T.dot(weighted, H)  # array methods: less overhead than np.dot or @ on small arrays
-            c -= task.target_velocity.dot(weighted)
+            task, weight = self._single
+            jacobian, v = task.jacobian, task.target_velocity
+            mujoco.mju_sqrMatTD(H, jacobian, weight)
+            if weight is not None:
+                v = np.multiply(weight, v, self._weighted)
         else:
             rows = self._rows
             rows.stack()
-            rows.J.T.dot(rows.J, H)
-            c -= rows.v.dot(rows.J)  # (√W v)ᵀ(√W J) = vᵀWJ
+            jacobian, v = rows.J, rows.v  # (√W v)ᵀ(√W J) = vᵀWJ
+            mujoco.mju_sqrMatTD(H, jacobian, None)
+        v.dot(jacobian, scratch)  # array methods: less overhead than np.dot or @ on small arrays
+        np.subtract(c, scratch, c)
         self._diag += self._diag0
         lm = self.levenberg_marquardt()
         if lm:
