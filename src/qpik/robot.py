@@ -42,9 +42,11 @@ Models may also be URDF files (MuJoCo reads them) or an :class:`mujoco.MjSpec`.
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -171,6 +173,11 @@ class Frame:
     def jacobian(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
         """Fill the 3 x nv translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
         self._jac(self._model, self._data, jacp, jacr, self.id)
+
+    def jacobian_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> Callable[[], None]:
+        """A call with no arguments that does :meth:`jacobian` into these arrays (MuJoCo's
+        function with its arguments bound: no Python frame each step)."""
+        return functools.partial(self._jac, self._model, self._data, jacp, jacr, self.id)
 
     def __repr__(self) -> str:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"

@@ -18,7 +18,6 @@ import numpy as np
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
 from ..problem import Cost, HeldBounds, Problem, Stack, check_dt, closed_form_step
-from ..problem.cost import UNCAPPED_NORM2
 from ..robot import Robot
 from ..solvers import make_backend
 from ..tasks import Task
@@ -92,9 +91,8 @@ class QPController:
         self.problem.fill()
         self.cost.write()
         self.hard_rows.stack()
-        c = self.cost.c
-        if self._closed_form is not None and (c.dot(c) <= UNCAPPED_NORM2 or self.cost.within_cap()):
-            x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)  # else the solver's c is capped
+        if self._closed_form is not None:
+            x = self._closed_form.attempt(self.cost.H, self._Ac, self.hard_rows.v)  # None where c is capped, too
             if x is not None:
                 self.qdot = x
                 return x

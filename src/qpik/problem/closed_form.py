@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import linalg
 from ..solvers.base import equalities_met, equalities_met_in_floats
+from .cost import UNCAPPED_NORM2, uncapped
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -50,12 +51,17 @@ def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
 
 class KKTStep:
     """Solves min ½xᵀHx + cᵀx s.t. Ax = b (``Ac``: A, meq x nv, and cᵀ as its last row);
-    :meth:`solve` returns None where H is not positive definite, S is singular or x misses
-    the equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
-    cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars."""
+    :meth:`solve` returns None where the solvers would see c capped (:func:`uncapped`: they
+    answer a far target), H is not positive definite, S is singular or x misses the
+    equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
+    cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars.
+    ``norm_factor`` (where H is a constant diagonal): c·c is at most it times cᵀH⁻¹c (over d
+    when uniform), which the step computes anyway; None: c·c is computed."""
 
-    def __init__(self, meq: int, d: float = 1.0, uniform: bool = False):
+    def __init__(self, meq: int, d: float = 1.0, uniform: bool = False, norm_factor: float | None = None):
         self.meq, self.d, self.uniform = meq, d, uniform
+        self._norm_factor = norm_factor if meq else None
+        self._Ac = self._transposed = None
         self._tail = np.array([0.0] * meq + [-d])  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
         self._y = self._tail[:meq]  # solved in place where LAPACK allows
         self._M = np.empty((meq + 1, meq + 1))  # [A H⁻¹; cᵀH⁻¹] [A; cᵀ]ᵀ, written in place
@@ -63,15 +69,23 @@ class KKTStep:
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
-        meq, d = self.meq, self.d
+        meq, d, norm_factor = self.meq, self.d, self._norm_factor
+        if norm_factor is None and not uncapped(Ac[meq], H):
+            return None
         scaled = Ac if self.uniform else self.scaled(H, Ac)
         if scaled is None:
             return None
         if not meq:
             return -d * scaled[0]
-        M = scaled.dot(Ac.T, self._M)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        if Ac is not self._Ac:  # Aᵀ (a view), kept while Ac is the same array
+            self._Ac, self._transposed = Ac, Ac.T
+        M = scaled.dot(self._transposed, self._M)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
+        rows = M.tolist() if meq <= 2 else None
+        if norm_factor is not None and not (norm_factor * (rows[meq][meq] if rows else M[meq, meq]) <= UNCAPPED_NORM2
+                                            or uncapped(Ac[meq], H)):
+            return None
         rhs = b.tolist()
-        if not (self._small_rows(M.tolist(), rhs, d) if meq <= 2 else self._rows(b)):
+        if not (self._small_rows(rows, rhs, d) if rows else self._rows(b)):
             return None
         x = self._tail.dot(scaled)  # checked as the solvers' answers are (a few rows: in floats)
         if meq > 8:
@@ -130,7 +144,8 @@ class DiagonalHessian(KKTStep):
 
     def __init__(self, meq: int, inverse: np.ndarray):
         uniform = bool(np.all(inverse == inverse[0]))
-        super().__init__(meq, float(inverse[0]) if uniform else 1.0, uniform)
+        super().__init__(meq, float(inverse[0]) if uniform else 1.0, uniform,
+                         norm_factor=1.0 if uniform else float(1.0 / inverse.min()))
         self.inverse = inverse
 
     def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
@@ -152,14 +167,19 @@ class CostOnly(KKTStep):
     def __init__(self, nv: int):
         super().__init__(0)
         self._factor = np.empty((nv, nv))
+        self._c = None  # the last Ac's row c (a view, kept while Ac is the same array)
 
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        factor = self._factor
+        if Ac is not self._Ac:
+            self._Ac, self._c = Ac, Ac[0]
+        c, factor = self._c, self._factor
+        if not (c.dot(c) <= UNCAPPED_NORM2 or uncapped(c, H)):
+            return None
         np.copyto(factor, H)  # H stays as it is for the solver
         if mujoco.mju_cholFactor(factor, 0.0) < len(factor):  # not positive definite
             return None
         x = np.empty(len(factor))
-        mujoco.mju_cholSolve(x, factor, Ac[0])
+        mujoco.mju_cholSolve(x, factor, c)
         return np.negative(x, x)
 
 
@@ -277,6 +297,8 @@ class HeldBounds(ClosedForm):
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
         """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
         nv, meq, held = self.nv, self.meq, len(lower)  # (more rows than dofs: a singular system, refused below)
+        if not uncapped(Ac[meq], H):
+            return None, None
         kkt = self._bordered(lower, upper)
         kkt[:nv, :nv] = H
         kkt[nv:nv + meq, :nv] = Ac[:meq]

@@ -37,6 +37,12 @@ def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np
     return c * (bound / scale)
 
 
+def uncapped(c: np.ndarray, H: np.ndarray) -> bool:
+    """Whether :func:`tame` leaves c as it is for the Hessian H (c·c decides it unless c is
+    ~1e9 or more): only then may a closed form answer, or the solver's answer would differ."""
+    return c.dot(c) <= UNCAPPED_NORM2 or tame(c, float(H.diagonal().max())) is c
+
+
 class Cost:
     """H and c of the soft tasks ``soft`` (``diagonal``: the joint-space ones, ``general``:
     the others), ε = ``regularization``. ``H0`` is H's constant part; ``H`` and ``c`` the
@@ -111,11 +117,6 @@ class Cost:
             scale = 1.0 / (1.0 + lm)
             H *= scale
             c *= scale
-
-    def within_cap(self) -> bool:
-        """Whether :func:`tame` leaves c as it is (callers first compare c·c with
-        ``UNCAPPED_NORM2``, which decides it unless c is ~1e9 or more)."""
-        return tame(self.c, float(self.H.diagonal().max())) is self.c
 
     def levenberg_marquardt(self) -> float:
         """Σ μ eᵀWe over the tasks with ``lm_damping``: the step's damping on every dof.

@@ -52,6 +52,8 @@ class Inequalities:
         self.lower, self.upper = list(self._lower0), list(self._upper0)  # the box in floats (small boxes)
         self._stale = False  # whether lb and ub lag behind the box in floats
         self._scratch, self._check_in_floats = np.zeros(nv), nv <= FLOAT_BOX_MAX_DOFS
+        # A box finite on every dof (limits only tighten it) refuses NaN and ±inf by its comparisons.
+        self._finite_box = bool(np.isfinite(self.lower0).all() and np.isfinite(self.upper0).all())
 
     def write(self) -> None:
         """The step's box and rows."""
@@ -94,7 +96,7 @@ class Inequalities:
         a point on a bound is inside)."""
         if self._check_in_floats:  # in floats (the box's own, or its arrays')
             values = x.tolist()
-            if not math.isfinite(sum(values)):  # NaN or ±inf anywhere (an absent bound admits ±inf)
+            if not (self._finite_box or math.isfinite(sum(values))):  # an absent bound admits ±inf
                 return False
             lower, upper = (self.lower, self.upper) if self._in_floats else self.box()
             for value, low, high in zip(values, lower, upper):

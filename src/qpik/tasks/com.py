@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..robot import Robot
-from .task import Task, axis_rows, check_targets, feedback_gain, float_array
+from .task import PointTarget, Task, axis_rows, feedback_gain
 
 
 class ComTask(Task):
@@ -52,8 +52,8 @@ class ComTask(Task):
         self._use_gain(feedback_gain(gain, self.dim, "CoM gain"))
         self.com = robot.data.subtree_com[self.body]  # a view, refreshed by every kinematics update
         self._jacp = np.zeros((3, robot.nv))
-        self.target = self.com[self.rows].copy()
-        self.target_rate = np.zeros(self.dim)
+        self._goal = PointTarget(self.com[self.rows], "CoM")
+        self.target, self.target_rate = self._goal.target, self._goal.rate
         self._masked = np.zeros(self.dim)
 
     @property
@@ -68,11 +68,7 @@ class ComTask(Task):
             InvalidInput: a wrong length, NaN or inf, or a target so far away that the
                 feedback K·e would overflow.
         """
-        position = float_array(position, self.dim, "target CoM")
-        velocity = np.zeros(self.dim) if velocity is None else float_array(velocity, self.dim, "target CoM velocity")
-        check_targets((position, "target CoM"), (velocity, "target CoM velocity"))  # K·e stays finite
-        self.target[:] = position
-        self.target_rate[:] = velocity
+        self._goal.set(position, velocity)  # checked: K·e stays finite
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the robot's current configuration."""

@@ -97,6 +97,7 @@ class FrameTask(Task):
         self._whole = self.dim == 6 and not local
         if self._whole:
             self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
+            self._fill_jacobian = self.frame.jacobian_filler(self._jacp, self._jacr)
             # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them,
             # their quaternions and the error in the frame's axes (RotationError's steps, inline).
             self._target_flat, self._current_flat = self.target_rotation.reshape(9), self.frame.rotation.reshape(9)
@@ -148,7 +149,7 @@ class FrameTask(Task):
 
     def update(self) -> None:
         if self._whole:
-            self.frame.jacobian(self._jacp, self._jacr)
+            self._fill_jacobian()
         else:
             self._rows.jacobian(self.jacobian)
         self.update_target_velocity()

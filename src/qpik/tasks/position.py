@@ -6,14 +6,13 @@ import numpy as np
 
 from ..robot import Robot
 from .task import (
+    PointTarget,
     PoseRows,
     Task,
     axis_rows,
     check_axes_frame,
     contiguous_rows,
     feedback_gain,
-    check_targets,
-    float_array,
     mocap_pose,
 )
 
@@ -62,12 +61,13 @@ class PositionTask(Task):
         self.frame = robot.frame(frame, frame_type)
         self._use_gain(feedback_gain(gain, self.dim, "position gain"))
         self._jacp = np.zeros((3, robot.nv))
+        self._fill_jacobian = self.frame.jacobian_filler(self._jacp)
         self._views = False
         if self.local:
             self._pose_rows = PoseRows(self.frame, robot.nv, self.rows, None, local=True)
             self._feedforward = np.zeros(self.dim)
-            self.target = self.frame.position.copy()
-            self.target_rate = np.zeros(3)
+            self._goal = PointTarget(self.frame.position, "position")
+            self.target, self.target_rate = self._goal.target, self._goal.rate
             return
         # With contiguous axes ("xy", "xyz") the Jacobian and position are views that
         # MuJoCo's own arrays fill: no copies in the loop.
@@ -78,8 +78,8 @@ class PositionTask(Task):
             self.position = self.frame.position[rows]
         else:
             self.position = self.frame.position[self.rows]
-        self.target = self.frame.position[self.rows].copy()
-        self.target_rate = np.zeros(self.dim)
+        self._goal = PointTarget(self.frame.position[self.rows], "position")
+        self.target, self.target_rate = self._goal.target, self._goal.rate
 
     @property
     def target_dim(self) -> int:
@@ -93,12 +93,7 @@ class PositionTask(Task):
         Raises:
             InvalidInput: a wrong length, NaN or inf.
         """
-        n = len(self.target)
-        position = float_array(position, n, "target position")
-        velocity = np.zeros(n) if velocity is None else float_array(velocity, n, "target velocity")
-        check_targets((position, "target position"), (velocity, "target velocity"))
-        self.target[:] = position  # written once both are checked
-        self.target_rate[:] = velocity
+        self._goal.set(position, velocity)
 
     def set_target_from_configuration(self) -> None:
         """Desired position: the frame's position at the robot's current configuration."""
@@ -127,12 +122,14 @@ class PositionTask(Task):
             self._pose_rows.jacobian(self.jacobian)
             self.update_target_velocity()
             return
-        self.frame.jacobian(self._jacp)
+        self._fill_jacobian()
         if not self._views:
             self._jacp.take(self.rows, 0, self.jacobian)
             self.frame.position.take(self.rows, None, self.position)
-        np.subtract(self.target, self.position, self.error)  # update_target_velocity's, inline
-        self._track(self.target_rate)
+        # update_target_velocity's, inline: e = x_d − x, v = K e + ẋ_d
+        np.subtract(self.target, self.position, self.error)
+        np.multiply(self.gain, self.error, self.target_velocity)
+        np.add(self.target_velocity, self.target_rate, self.target_velocity)
 
     def update_target_velocity(self) -> None:
         """Error and v only (what a law without the Jacobian needs)."""
