@@ -159,3 +159,24 @@ def test_a_law_without_a_period_needs_a_gain(chain):
     with pytest.raises(InvalidInput, match="give the task a gain"):
         PseudoinverseController(chain, [PositionTask(chain, "tip")])
     PseudoinverseController(chain, [PositionTask(chain, "tip", gain=10.0)])
+
+
+@pytest.mark.parametrize("kind", ["position", "com"])
+def test_a_point_target_and_its_rate_are_written_together_or_not_at_all(chain, kind):
+    """set_target writes x_d and ẋ_d together (no ẋ_d: zero); a refused call leaves both as
+    they were, whichever argument is bad."""
+    from qpik import ComTask
+
+    task = PositionTask(chain, "tip") if kind == "position" else ComTask(chain)
+    task.set_target([0.1, 0.2, 0.3], [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(task.target, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(task.target_rate, [1.0, 2.0, 3.0])
+    for position, velocity in (([0.4, 0.5, np.nan], None), ([0.4, 0.5, 0.6], [0.0, 1e200, 0.0]),
+                               ([0.4, 0.5], None), ([0.4, 0.5, 0.6], [1.0])):
+        with pytest.raises(InvalidInput):
+            task.set_target(position, velocity)
+        np.testing.assert_array_equal(task.target, [0.1, 0.2, 0.3])
+        np.testing.assert_array_equal(task.target_rate, [1.0, 2.0, 3.0])
+    task.set_target([0.4, 0.5, 0.6])
+    np.testing.assert_array_equal(task.target, [0.4, 0.5, 0.6])
+    np.testing.assert_array_equal(task.target_rate, [0.0, 0.0, 0.0])

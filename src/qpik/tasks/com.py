@@ -52,7 +52,7 @@ class ComTask(Task):
         self._use_gain(feedback_gain(gain, self.dim, "CoM gain"))
         self.com = robot.data.subtree_com[self.body]  # a view, refreshed by every kinematics update
         self._jacp = np.zeros((3, robot.nv))
-        self._goal = PointTarget(self.com[self.rows], "CoM")
+        self._goal = PointTarget(self.com[self.rows], "target CoM", "target CoM velocity")
         self.target, self.target_rate = self._goal.target, self._goal.rate
         self._masked = np.zeros(self.dim)
 

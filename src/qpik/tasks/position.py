@@ -66,7 +66,7 @@ class PositionTask(Task):
         if self.local:
             self._pose_rows = PoseRows(self.frame, robot.nv, self.rows, None, local=True)
             self._feedforward = np.zeros(self.dim)
-            self._goal = PointTarget(self.frame.position, "position")
+            self._goal = PointTarget(self.frame.position, "target position", "target velocity")
             self.target, self.target_rate = self._goal.target, self._goal.rate
             return
         # With contiguous axes ("xy", "xyz") the Jacobian and position are views that
@@ -78,7 +78,7 @@ class PositionTask(Task):
             self.position = self.frame.position[rows]
         else:
             self.position = self.frame.position[self.rows]
-        self._goal = PointTarget(self.frame.position[self.rows], "position")
+        self._goal = PointTarget(self.frame.position[self.rows], "target position", "target velocity")
         self.target, self.target_rate = self._goal.target, self._goal.rate
 
     @property

@@ -228,21 +228,21 @@ class PointTarget:
     """A tracked point's target x_d and feed-forward ẋ_d (each (size,)), as one array:
     ``target`` and ``rate`` are its rows (views); :meth:`set` checks and writes both."""
 
-    def __init__(self, target: np.ndarray, what: str):
+    def __init__(self, target: np.ndarray, what: str, rate_what: str):
         self._both = np.zeros((2, len(target)))
         self._both[0] = target
         self.target, self.rate = self._both
-        self._flat, self._what = self._both.reshape(-1), what
+        self._flat, self._names = self._both.reshape(-1), (what, rate_what)
 
     def set(self, position, velocity=None) -> None:
         """x_d = ``position``, ẋ_d = ``velocity`` (zero when None), checked as
         :func:`check_targets` checks them and written once both are (one write: a step's cost)."""
-        size, what = len(self.target), self._what
-        position = float_array(position, size, f"target {what}")
-        rate = [0.0] * size if velocity is None else float_array(velocity, size, f"target {what} velocity").tolist()
+        size, (what, rate_what) = len(self.target), self._names
+        position = float_array(position, size, what)
+        rate = [0.0] * size if velocity is None else float_array(velocity, size, rate_what).tolist()
         values = position.tolist() + rate
         if not math.hypot(*values) <= TARGET_MAGNITUDE_LIMIT:  # the culprit named
-            check_targets((position, f"target {what}"), (np.array(rate), f"target {what} velocity"))
+            check_targets((position, what), (np.array(rate), rate_what))
         self._flat[:] = values
 
 
