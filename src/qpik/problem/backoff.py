@@ -5,16 +5,18 @@ failure that follows, and a success brings the pause back to its start."""
 
 from __future__ import annotations
 
-from .closed_form import CLOSED_FORM_PAUSE, CLOSED_FORM_PAUSE_MAX
+# Steps skipped after a failure, doubled while failures follow, up to the maximum.
+PAUSE = 8
+PAUSE_MAX = 32
 
 
 class Backoff:
-    """Skips ``CLOSED_FORM_PAUSE`` steps after a failure, doubled while failures follow
-    (at most ``CLOSED_FORM_PAUSE_MAX``)."""
+    """Skips ``PAUSE`` steps after a failure, doubled while failures follow (at most
+    ``PAUSE_MAX``); a hot loop may test ``skip`` itself, as :meth:`ready` does."""
 
     def __init__(self) -> None:
         self.skip = 0  # steps left before the next attempt
-        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
+        self.next = PAUSE  # the pause after the next failure
 
     def ready(self) -> bool:
         """Whether to try this step (if not, one step of the pause is used up)."""
@@ -24,8 +26,8 @@ class Backoff:
         return True
 
     def succeeded(self) -> None:
-        self.next = CLOSED_FORM_PAUSE
+        self.next = PAUSE
 
     def failed(self) -> None:
         self.skip = self.next
-        self.next = min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
+        self.next = min(2 * self.next, PAUSE_MAX)

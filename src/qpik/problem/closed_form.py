@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import linalg
 from ..solvers.base import equalities_met, equalities_met_in_floats
+from .backoff import PAUSE as CLOSED_FORM_PAUSE, PAUSE_MAX as CLOSED_FORM_PAUSE_MAX, Backoff  # noqa: F401
 from .cost import UNCAPPED_NORM2, uncapped
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
@@ -26,11 +27,6 @@ SINGULAR_RATIO = 1e6
 # Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
 # answer as the solvers' are: a nearly singular H or S loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
-
-# After a step where the closed form crossed a limit, the solver is called directly for
-# this many steps, twice as many after each attempt that fails again, up to the maximum.
-CLOSED_FORM_PAUSE = 8
-CLOSED_FORM_PAUSE_MAX = 32
 # Closed forms a step may try with held bounds (HeldBounds) before the solver takes it.
 HELD_TRIES = 3
 
@@ -183,7 +179,7 @@ class CostOnly(KKTStep):
         return np.negative(x, x)
 
 
-class ClosedForm:
+class ClosedForm(Backoff):
     """The closed form tried before the solver: its answer is kept when it meets every
     limit (then it is the QP's solution). ``admits``: the limits' check (None: none).
 
@@ -193,15 +189,13 @@ class ClosedForm:
     """
 
     def __init__(self, admits: Callable[[np.ndarray], bool] | None):
+        super().__init__()
         self.admits = admits
-        self.skip = 0  # steps left before the next attempt
-        self.next = CLOSED_FORM_PAUSE  # the pause after the next failure
 
     def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
         """``solve(*arguments)`` when it is tried this step and meets the limits, else None
         (one step of the pause used up, or a miss that starts the next pause)."""
-        if self.skip:
-            self.skip -= 1
+        if not self.ready():
             return None
         x = solve(*arguments)
         return self.kept(x if x is None or self.admits is None or self.admits(x) else None)
@@ -209,9 +203,9 @@ class ClosedForm:
     def kept(self, x: np.ndarray | None) -> np.ndarray | None:
         """x, the pause back at its start; or None (a miss), the next pause begun."""
         if x is None:
-            self.skip, self.next = self.next, min(2 * self.next, CLOSED_FORM_PAUSE_MAX)
+            self.failed()
         else:
-            self.next = CLOSED_FORM_PAUSE
+            self.succeeded()
         return x
 
 
@@ -237,7 +231,7 @@ class HeldBounds(ClosedForm):
     def attempt(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """:meth:`ClosedForm.attempt` of :meth:`solve` (of the plain closed form alone
         without ``hold``); most steps (nothing held, no limit crossed) end here."""
-        if self.skip:
+        if self.skip:  # Backoff.ready, inline (every step)
             self.skip -= 1
             return None
         x = None if self.lower or self.upper else self.plain.solve(H, Ac, b)
