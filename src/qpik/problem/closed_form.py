@@ -52,7 +52,10 @@ class KKTStep:
     equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
     cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars.
     ``norm_factor`` (where H is a constant diagonal): c·c is at most it times cᵀH⁻¹c (over d
-    when uniform), which the step computes anyway; None: c·c is computed."""
+    when uniform), which the step computes anyway; None: c·c is computed. ``capped`` says
+    whether the last None was the cap's (no failure of the closed form's)."""
+
+    capped = False
 
     def __init__(self, meq: int, d: float = 1.0, uniform: bool = False, norm_factor: float | None = None):
         self.meq, self.d, self.uniform = meq, d, uniform
@@ -66,7 +69,8 @@ class KKTStep:
     def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x, or None."""
         meq, d, norm_factor = self.meq, self.d, self._norm_factor
-        if norm_factor is None and not uncapped(Ac[meq], H):
+        self.capped = norm_factor is None and not uncapped(Ac[meq], H)
+        if self.capped:
             return None
         scaled = Ac if self.uniform else self.scaled(H, Ac)
         if scaled is None:
@@ -79,6 +83,7 @@ class KKTStep:
         rows = M.tolist() if meq <= 2 else None
         if norm_factor is not None and not (norm_factor * (rows[meq][meq] if rows else M[meq, meq]) <= UNCAPPED_NORM2
                                             or uncapped(Ac[meq], H)):
+            self.capped = True
             return None
         rhs = b.tolist()
         if not (self._small_rows(rows, rhs, d) if rows else self._rows(b)):
@@ -169,7 +174,8 @@ class CostOnly(KKTStep):
         if Ac is not self._Ac:
             self._Ac, self._c = Ac, Ac[0]
         c, factor = self._c, self._factor
-        if not (c.dot(c) <= UNCAPPED_NORM2 or uncapped(c, H)):
+        self.capped = not (c.dot(c) <= UNCAPPED_NORM2 or uncapped(c, H))
+        if self.capped:
             return None
         np.copyto(factor, H)  # H stays as it is for the solver
         if mujoco.mju_cholFactor(factor, 0.0) < len(factor):  # not positive definite
@@ -234,10 +240,17 @@ class HeldBounds(ClosedForm):
         if self.skip:  # Backoff.ready, inline (every step)
             self.skip -= 1
             return None
-        x = None if self.lower or self.upper else self.plain.solve(H, Ac, b)
-        if x is not None and self.admits(x):
-            self.next = CLOSED_FORM_PAUSE
-            return x
+        if self.lower or self.upper:
+            x = None
+            if not uncapped(Ac[self.meq], H):  # the solver's capped cost answers: no miss
+                return None
+        else:
+            x = self.plain.solve(H, Ac, b)
+            if x is not None and self.admits(x):
+                self.next = CLOSED_FORM_PAUSE
+                return x
+            if self.plain.capped:
+                return None
         return self.kept(self.solve(H, Ac, b, x) if self.hold else None)
 
     def remember(self, x: np.ndarray) -> None:
@@ -291,8 +304,6 @@ class HeldBounds(ClosedForm):
     def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
         """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
         nv, meq, held = self.nv, self.meq, len(lower)  # (more rows than dofs: a singular system, refused below)
-        if not uncapped(Ac[meq], H):
-            return None, None
         kkt = self._bordered(lower, upper)
         kkt[:nv, :nv] = H
         kkt[nv:nv + meq, :nv] = Ac[:meq]
