@@ -191,3 +191,20 @@ def test_a_far_target_gets_the_solvers_capped_cost_on_the_fast_path_too(solver):
         answers.append(qp.compute_velocity().copy())
     assert np.abs(answers[1]).max() < 1e10  # capped: the uncapped minimiser is ~1e14 rad/s
     np.testing.assert_allclose(answers[0], answers[1], rtol=1e-9)
+
+
+def test_a_capped_step_starts_no_pause_of_the_closed_form():
+    """A step whose cost the solver caps goes to the solver, but it is no miss of the closed
+    form: the next ordinary step is solved in closed form again (no solver call)."""
+    from qpik import DampingTask, PostureTask, QPController, Robot
+
+    robot = Robot.load("arm")
+    posture = PostureTask(robot, gain=100.0, weight=1.0)
+    qp = QPController(robot, [posture, DampingTask(robot, weight=1e-3)], [], solver="daqp", dt=0.002)
+    near = robot.q.copy()
+    posture.set_target(near + 1e12)
+    qp.compute_velocity()
+    assert qp.solver_calls == 1  # capped: the solver's step
+    posture.set_target(near + 0.1)
+    qp.compute_velocity()
+    assert qp.solver_calls == 1  # the closed form's again, at once
