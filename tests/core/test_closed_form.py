@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from qpik.limits import Limit
-from qpik.problem import Inequalities, closed_form
+from qpik.problem import Inequalities, backoff, closed_form
 from qpik.problem.closed_form import HeldBounds, closed_form_step, damped_least_squares_step
 from qpik.scenario import build_scenario
 from qpik.solvers import make_backend
@@ -119,12 +119,12 @@ def test_the_pause_doubles_after_each_failure_and_resets_after_a_success():
     for step in range(200):  # every attempt fails: tried at 0, then after 8, 16, 32, 32, ... steps
         fast.attempt(lambda step=step: tried.append(step))  # None: a miss
     assert tried[:5] == [0, 9, 26, 59, 92]
-    assert all(b - a == closed_form.CLOSED_FORM_PAUSE_MAX + 1 for a, b in zip(tried[3:], tried[4:]))
+    assert all(b - a == backoff.PAUSE_MAX + 1 for a, b in zip(tried[3:], tried[4:]))
     fast.skip = 0
     x = np.zeros(2)
     assert fast.attempt(lambda: x) is x  # tried now, and a success
     fast.attempt(lambda: None)
-    assert fast.skip == closed_form.CLOSED_FORM_PAUSE  # the pause after it back at its start
+    assert fast.skip == backoff.PAUSE  # the pause after it back at its start
 
 
 class _Box(Limit):

@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import linalg
 from ..solvers.base import equalities_met, equalities_met_in_floats
-from .backoff import PAUSE as CLOSED_FORM_PAUSE, PAUSE_MAX as CLOSED_FORM_PAUSE_MAX, Backoff  # noqa: F401
+from .backoff import PAUSE, Backoff
 from .cost import UNCAPPED_NORM2, uncapped
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
@@ -247,7 +247,7 @@ class HeldBounds(ClosedForm):
         else:
             x = self.plain.solve(H, Ac, b)
             if x is not None and self.admits(x):
-                self.next = CLOSED_FORM_PAUSE
+                self.next = PAUSE  # Backoff.succeeded, inline
                 return x
             if self.plain.capped:
                 return None
