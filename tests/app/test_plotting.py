@@ -5,7 +5,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import pytest  # noqa: E402
 
 import re  # noqa: E402
 
@@ -13,7 +12,6 @@ from qpik.app.plotting import _clip_outliers, _log_limits, make_figures, plot_lo
 from qpik.app.runs import run  # noqa: E402
 
 
-@pytest.mark.fp_sensitive
 def test_the_log_keeps_the_commanded_configuration_the_stops_cut():
     setup, log = run("hexapod", "hexapod-stroke-limits", "pinv")
     strokes = np.array(setup.plot_joints.qpos_index)

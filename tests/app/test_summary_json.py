@@ -41,7 +41,6 @@ def _same(key: str, want, have) -> bool:
     return type(have) is type(want) and have == want
 
 
-@pytest.mark.fp_sensitive
 @pytest.mark.parametrize("name", list(RUNS))
 def test_summary_json_keeps_its_keys_order_and_values(name, tmp_path):
     out = tmp_path / name

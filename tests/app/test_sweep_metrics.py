@@ -75,7 +75,6 @@ def serial_metrics(kind: str, start_q, target, gain) -> dict:
     return out
 
 
-@pytest.mark.fp_sensitive
 @pytest.mark.parametrize("kind", ["qp", "qp-soft", "pinv"])
 def test_arm_metrics_equal_a_serial_rerun_of_the_same_worlds(kind):
     arm = study("arm")

@@ -190,7 +190,9 @@ def test_a_far_target_gets_the_solvers_capped_cost_on_the_fast_path_too(solver):
                           fast_path=fast_path)
         answers.append(qp.compute_velocity().copy())
     assert np.abs(answers[1]).max() < 1e10  # capped: the uncapped minimiser is ~1e14 rad/s
-    np.testing.assert_allclose(answers[0], answers[1], rtol=1e-9)
+    # Norm-wise: the capped minimiser's scale is |c|/|H| ~1e9; the two paths agree to the
+    # capped cost's 1e-9 relative (docs/controllers.md), whatever a small entry rounds to.
+    assert np.linalg.norm(answers[0] - answers[1]) <= 1e-9 * np.linalg.norm(answers[1])
 
 
 def test_a_capped_step_starts_no_pause_of_the_closed_form():

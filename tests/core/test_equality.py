@@ -170,6 +170,8 @@ def test_connect_rows_are_the_difference_of_the_site_jacobians():
         np.testing.assert_allclose(task.error[3 * k:3 * k + 3], d.site_xpos[site1] - d.site_xpos[site2], atol=1e-16)
         np.testing.assert_allclose(task.jacobian[3 * k:3 * k + 3], jac1 - jac2, atol=1e-15)
     gaps = np.linalg.norm((d.site_xpos[m.eq_obj1id] - d.site_xpos[m.eq_obj2id]), axis=1)
+    # The same three differences squared and summed (no BLAS kernel on a 3-vector's norm
+    # here): a few roundings of a well-conditioned O(1e-3) value, 1e-14 on every machine.
     np.testing.assert_allclose(task.residuals(), gaps, rtol=1e-14)
     assert task.max_residual() > 1e-3
 
@@ -285,7 +287,8 @@ def test_a_weld_that_acts_on_no_dof_is_left_out_by_default_and_refused_by_name()
     task = EqualityTask(robot)
     assert task.equalities == (robot.equality_id("hinge"),) and task.dim == 1
     qdot = QPController(robot, [task], dt=0.01).compute_velocity()
-    np.testing.assert_allclose(qdot, [-0.4 / 0.01], rtol=1e-12)  # dead-beat on the hinge
+    # Dead-beat on the hinge: one row on one dof, x = b/a, a few roundings of O(1) values.
+    np.testing.assert_allclose(qdot, [-0.4 / 0.01], rtol=1e-12)
     with pytest.raises(ModelError, match=r"'glued'.*no dof"):
         EqualityTask(robot, ["glued", "hinge"])
     with pytest.raises(ModelError, match="no dof"):

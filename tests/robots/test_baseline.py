@@ -49,7 +49,6 @@ def rounding_tolerance(setup, log) -> float:
     return len(log.t) * np.finfo(float).eps * kappa * max(1.0, np.max(np.abs(log.q[-1])))
 
 
-@pytest.mark.fp_sensitive
 @pytest.mark.parametrize("key", sorted(BASELINE))
 def test_final_configuration_unchanged(key):
     scenario, controller, solver, mode = key.split("/")

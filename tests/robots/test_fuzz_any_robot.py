@@ -37,9 +37,12 @@ def test_the_lp_tells_feasible_from_infeasible_steps():
 
 
 def test_the_lp_asks_of_a_point_what_a_controller_promises():
-    """A row of entries 1e8 on dofs the box holds at 1e6 rad/s: floating point evaluates
-    it to about 1e-2, far from the hard rows' promise of 1e-9 (1 + |b|), so no solver can
-    return a point meeting it; with the entries 1 it can."""
+    """A row of entries 1e8 on dofs the box holds at 1e6 rad/s: a difference of two
+    doubles near 1e6 moves in steps of 1.2e-10, so 1e8 (x0 − x1) misses 1 by 1e-3 at
+    every floating-point point (summed exactly), far from the hard rows' promise of
+    1e-9 (1 + |b|), and no solver can return a point meeting it; with the entries 1 it
+    can. Asked of the point in exact arithmetic, the answer is the same under every
+    BLAS kernel (a kernel's FMA once made A @ x round onto 1)."""
     box = np.array([1e6, -np.inf]), np.array([2e6, np.inf])
     no_rows = np.zeros((0, 2)), np.zeros(0)
     assert not lp_feasible(np.array([[1e8, -1e8]]), np.array([1.0]), *box, *no_rows, margin=True)

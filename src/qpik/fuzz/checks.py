@@ -7,6 +7,8 @@ limits, and the hard rows from the tasks, as a user would write them down.
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import numpy as np
 from scipy.optimize import linprog
 
@@ -87,7 +89,9 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
     the promised 1e-9 (1 + |b|). So the LP asks for the point whose entries weigh least on
     the rows (min Σ (1 + max_i |A_ij|) |q̇_j|), moves it onto A q̇ = b by least squares,
     back into the box, and checks it as a controller's answer is checked: the rows to
-    :data:`LP_EQUALITY_TOLERANCE` and the inequality rows. HiGHS gets the hard rows as
+    :data:`LP_EQUALITY_TOLERANCE` (the residual of that floating-point point summed
+    exactly, :func:`exact_residual_norm`, so that the verdict holds on every BLAS kernel)
+    and the inequality rows. HiGHS gets the hard rows as
     bands whose widths add up to that tolerance (the promise bounds the residual vector's
     norm, relative to |b|): its own tolerance is absolute (1e-7), and dependent rows of
     |b| ~ 1e9 that disagree by 1e-9 of it (rounding) would otherwise have no common point."""
@@ -108,10 +112,20 @@ def lp_feasible(A, b, lb, ub, G, h, margin: bool) -> bool:
         return False
     if len(b):
         x = np.clip(x + np.linalg.lstsq(A, b - A @ x, rcond=None)[0], lb, ub)
-        if np.linalg.norm(A @ x - b) > LP_EQUALITY_TOLERANCE[margin] * (1.0 + np.linalg.norm(b)):
+        if exact_residual_norm(A, x, b) > LP_EQUALITY_TOLERANCE[margin] * (1.0 + np.linalg.norm(b)):
             return False
     slack = 0.0 if margin else LP_EQUALITY_TOLERANCE[False] * (1.0 + np.abs(h))
     return bool(not len(h) or np.all(G @ x <= h + slack))
+
+
+def exact_residual_norm(A: np.ndarray, x: np.ndarray, b: np.ndarray) -> float:
+    """|A x − b| of the floating-point point x, each row summed in exact (rational)
+    arithmetic: how a BLAS kernel rounds A @ x (with or without FMA, in which order) cannot
+    turn a point that misses a row into one that meets it, nor the other way round."""
+    point = [Fraction(v) for v in x.tolist()]
+    rows = [float(sum((Fraction(a) * v for a, v in zip(row, point)), Fraction(0)) - Fraction(target))
+            for row, target in zip(A.tolist(), b.tolist())]
+    return float(np.linalg.norm(rows))
 
 
 def _lightest_point(A, b, band: float, low, high, G, h) -> np.ndarray | None:
