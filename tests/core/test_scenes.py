@@ -16,6 +16,7 @@ from setuptools import find_packages
 
 from qpik.robot import Robot
 from qpik.robots import BUNDLED
+from qpik.scenes import SCENES
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE_FILES = ("arm.xml", "arm.urdf", "hexapod.xml")
@@ -26,7 +27,8 @@ def test_bundled_scenes_are_the_top_level_folder_through_the_package():
     for name in SCENE_FILES:
         assert scenes.joinpath(name).is_file(), name
         assert (ROOT / "scenes" / name).read_text() == scenes.joinpath(name).read_text()
-    for robot, (path, _) in BUNDLED.items():
+    assert {robot: path for robot, (path, _) in BUNDLED.items()} == SCENES  # the robots' registry, the core's names
+    for robot, path in SCENES.items():
         assert path == ROOT / "scenes" / f"{robot}.xml"
         model = mujoco.MjModel.from_xml_path(str(path))
         assert Robot.load(robot).model.nq == model.nq
@@ -44,10 +46,11 @@ def test_pyproject_lists_every_package_under_src():
 LOAD_FROM_WHEEL = """
 import sys, qpik
 from pathlib import Path
+from qpik.scenes import SCENES
 assert Path(qpik.__file__).is_relative_to(sys.argv[1]), qpik.__file__
 for name in ("arm", "hexapod"):
     robot = qpik.Robot.load(name)
-    print(name, robot.model.nq, Path(qpik.robots.BUNDLED[name][0]).relative_to(sys.argv[1]))
+    print(name, robot.model.nq, SCENES[name].relative_to(sys.argv[1]))
 """
 
 

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InvalidInput
-from ..rollout.plant import Actuation, substeps_per_control_step
+from ..actuation import Actuation, substeps_per_control_step
 from .errors import WorldsFailed
 
 MODES = ("kinematic", "physics")
