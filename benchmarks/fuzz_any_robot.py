@@ -30,11 +30,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))  # the fuzz harness is the package benchmarks.fuzz
+sys.path.insert(0, str(ROOT))  # the fuzz harness (benchmarks.fuzz) and the results page (tools)
 
 from benchmarks.fuzz.cases import DEFECTS, run_case  # noqa: E402
 from benchmarks.fuzz.sweep import summarise, sweep, to_markdown  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402
+from tools.results import refresh  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -70,7 +71,7 @@ def main(argv=None) -> int:
     print(md)
     write_json(args.out / "fuzz_any_robot.json", {"meta": meta, **summary})
     write_text(args.out / "fuzz_any_robot.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -27,10 +27,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))  # the fuzz harness is the package benchmarks.fuzz
+sys.path.insert(0, str(ROOT))  # the fuzz harness (benchmarks.fuzz) and the results page (tools)
 
 from benchmarks.fuzz.bundled import DEFECTS, KINDS, build_case, installed_solvers, run_case  # noqa: E402
 from benchmarks.fuzz.bundled_sweep import jsonable, summarise, sweep, to_markdown  # noqa: E402
+from tools.results import refresh  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -92,7 +93,7 @@ def main(argv=None) -> int:
     everything = {"results": sorted(results.values(), key=lambda r: r["case"])} if args.all_results else {}
     write_json(args.out / "fuzz.json", jsonable({"meta": meta, **summary, **everything}))
     write_text(args.out / "fuzz.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

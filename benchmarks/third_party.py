@@ -71,9 +71,10 @@ from timing import Contestant, call_cost_us, interleave  # noqa: E402
 from benchmarks.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_side, mink_controller,  # noqa: E402
                                           qpik_controller, without_damper)
 from benchmarks.peers.mink_mirror import MinkMirror, MinkRun  # noqa: E402
-from qpik.app.readme_tables import ratio_cell  # noqa: E402
 from qpik.errors import QpikError  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402
+from tools.results import refresh  # noqa: E402
+from tools.tables import ratio_cell  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -391,7 +392,7 @@ def main(argv=None) -> int:
     print(markdown)
     write_json(args.out / "third_party.json", {"meta": meta, "cases": results})
     write_text(args.out / "third_party.md", markdown)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":
