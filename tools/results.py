@@ -194,8 +194,8 @@ def refresh(out: Path) -> int:
     """After a benchmark wrote its recording into ``out``: the page generated again when
     ``out`` is the repository's results folder (else it is left as is, and this says so)."""
     if Path(out).resolve() != RESULTS.resolve():
-        print(f"{PAGE.relative_to(ROOT)} left as is: {out} is not {RESULTS.relative_to(ROOT)} "
-              f"(python tools/results.py --results {out} --out PAGE renders from it)")
+        print(f"{PAGE.relative_to(ROOT)} left as is: {out} is not {RESULTS.relative_to(ROOT)}, whose recordings it "
+              "shows")
         return 0
     return main([])
 
