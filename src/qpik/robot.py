@@ -150,37 +150,58 @@ def name_hint(name: str, names, label: str = "") -> str:
 
 
 class Frame:
-    """A site, body or geom of a robot: its id, and views of its world pose.
+    """A site, body or geom of a robot: its id and its world pose in every world.
 
-    ``position`` (3,) and ``rotation`` (3, 3) are views of MuJoCo's arrays, valid after
-    each :meth:`Robot.update_kinematics` without copying; :meth:`jacobian` fills the
-    translational and/or rotational Jacobians (3 x nv) of the frame's origin.
+    ``positions`` (N, 3) and ``rotations`` (N, 3, 3) are views of the robot's arrays
+    (MuJoCo's ``site_xpos``/``xpos``/``geom_xpos``, ``site_xmat``/...), current after each
+    kinematics update; ``position`` and ``rotation`` are world 0's. :meth:`jacobians`
+    fills the translational and/or rotational Jacobians (N, 3, nv) of the frame's origin.
     """
 
-    __slots__ = ("name", "type", "id", "position", "rotation", "_jac", "_model", "_data")
+    __slots__ = ("name", "type", "id", "body", "positions", "rotations", "position", "rotation", "_jac", "_model",
+                 "_data")
 
     def __init__(self, robot: Robot, name: str, frame_type: str = "site"):
         if frame_type not in _FRAMES:
             raise InvalidInput(f"frame_type must be one of {FRAME_TYPES}, got {frame_type!r}")
         kind, position, rotation, jac = _FRAMES[frame_type]
-        self.name = name
-        self.type = frame_type
+        self.name, self.type = name, frame_type
         self.id = name_to_id(robot.model, kind, name, robot.name)
-        self.position = getattr(robot.data, position)[self.id]
-        self.rotation = getattr(robot.data, rotation)[self.id].reshape(3, 3)
+        self.body = frame_body(robot.model, frame_type, self.id)
+        i = self.id
+        self.positions = getattr(robot.data, position)[i:i + 1]
+        self.rotations = getattr(robot.data, rotation)[i:i + 1].reshape(1, 3, 3)
+        self.position, self.rotation = self.positions[0], self.rotations[0]
         self._jac, self._model, self._data = jac, robot.model, robot.data
 
+    def jacobians(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
+        """Fill the (1, 3, nv) translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
+        self._jac(self._model, self._data, None if jacp is None else jacp[0], None if jacr is None else jacr[0],
+                  self.id)
+
     def jacobian(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
-        """Fill the 3 x nv translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
+        """Fill the 3 x nv Jacobians of this one world (mink's shapes)."""
         self._jac(self._model, self._data, jacp, jacr, self.id)
 
+    def jacobians_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> Callable[[], None]:
+        """A call with no arguments that does :meth:`jacobians` into these (1, 3, nv) arrays
+        (MuJoCo's function with its arguments bound: no Python frame each step)."""
+        return functools.partial(self._jac, self._model, self._data, None if jacp is None else jacp[0],
+                                 None if jacr is None else jacr[0], self.id)
+
     def jacobian_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> Callable[[], None]:
-        """A call with no arguments that does :meth:`jacobian` into these arrays (MuJoCo's
-        function with its arguments bound: no Python frame each step)."""
+        """:meth:`jacobians_filler` for 3 x nv arrays (this one world)."""
         return functools.partial(self._jac, self._model, self._data, jacp, jacr, self.id)
 
     def __repr__(self) -> str:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
+
+
+def frame_body(model: mujoco.MjModel, frame_type: str, frame_id: int) -> int:
+    """The body a site, body or geom is fixed to."""
+    if frame_type == "site":
+        return int(model.site_bodyid[frame_id])
+    return int(model.geom_bodyid[frame_id]) if frame_type == "geom" else frame_id
 
 
 MODEL_SUFFIXES = (".xml", ".urdf")
@@ -326,6 +347,9 @@ class Robot:
         InvalidInput: ``model`` is neither an MjModel nor an MjSpec.
     """
 
+    n = 1  # worlds: the engine's arrays have a leading axis of this length
+    batched = False  # what a user reads is world 0 of them (``present``)
+
     def __init__(self, model: mujoco.MjModel | mujoco.MjSpec, name: str | None = None,
                  keyframe: str | None = None, *, allow_outside_limits: bool = False):
         model = as_model(model)
@@ -337,6 +361,7 @@ class Robot:
         self.allow_outside_limits = bool(allow_outside_limits)
         self.nq = model.nq
         self.nv = model.nv
+        self.qpos = self._qpos[None]  # (1, nq): the engine's view of the one world
         self._kinematics_state = b""
         self._has_mocap = model.nmocap > 0  # read once: MuJoCo's getter costs ~0.1 µs, twice a step
         self._velocity_shape = (model.nv,)
@@ -494,6 +519,26 @@ class Robot:
         if not np.all(np.isfinite(qdot)):
             raise InvalidInput(f"joint velocity contains NaN or inf: {qdot}")
         return qdot
+
+    @staticmethod
+    def present(array: np.ndarray) -> np.ndarray:
+        """What a user reads of an engine array (N, ...): its world 0 (a view)."""
+        return array[0]
+
+    def world(self, index: int) -> Robot:
+        """World ``index`` as a one-world robot: this robot itself (index 0)."""
+        if index != 0:
+            raise InvalidInput(f"robot {self.name!r} has one world (0), not {index}")
+        return self
+
+    def subtree_com(self, body: int) -> np.ndarray:
+        """(1, 3) view of the centre of mass of ``body``'s subtree (``subtree_com``)."""
+        return self.data.subtree_com[body:body + 1]
+
+    def com_jacobian(self, body: int, out: np.ndarray) -> np.ndarray:
+        """(1, 3, nv) Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``) into ``out``."""
+        mujoco.mj_jacSubtreeCom(self.model, self.data, out[0], body)
+        return out
 
     # Names -------------------------------------------------------------------------
     @property

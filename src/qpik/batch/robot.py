@@ -8,6 +8,7 @@ back-end (:mod:`qpik.batch.backends`): ``"cpu"`` by default.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -19,6 +20,9 @@ from ..robot import BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot
 from .errors import InvalidWorlds
 
 BACKENDS = ("cpu", "warp")
+# What a batch robot answers as its template (one world of the same model) does.
+_TEMPLATE_NAMES = frozenset({"site_id", "body_id", "geom_id", "joint_id", "keyframe_id", "equality_id", "object_id",
+                             "joint_dofs", "dof_name", "joint_qpos_index", "joint_dof_index", "joint_names"})
 MAX_WORLDS_LISTED = 8
 
 
@@ -47,23 +51,34 @@ def listed(worlds) -> str:
 
 
 class Frame:
-    """A site, body or geom in every world: ``position`` (N, 3) and ``rotation`` (N, 3, 3)
-    are the back-end's arrays (current after each kinematics update, read-only)."""
+    """A site, body or geom in every world: ``positions`` (N, 3) and ``rotations``
+    (N, 3, 3) are the back-end's arrays (current after each kinematics update, read-only;
+    ``position``, ``rotation``: the same arrays); :meth:`jacobians` fills the (N, 3, nv)
+    Jacobians of the frame's origin."""
 
-    __slots__ = ("name", "type", "id", "body", "position", "rotation")
+    __slots__ = ("name", "type", "id", "body", "positions", "rotations", "position", "rotation", "_backend",
+                 "_scratch")
 
     def __init__(self, robots: Robot, name: str, frame_type: str = "site"):
         serial = robots.template.frame(name, frame_type)  # checks the type and the name
-        self.name, self.type, self.id = name, frame_type, serial.id
-        m = robots.model
-        self.body = {"site": lambda: int(m.site_bodyid[self.id]), "geom": lambda: int(m.geom_bodyid[self.id]),
-                     "body": lambda: self.id}[frame_type]()
-        self.position, self.rotation = robots.backend.frame_pose(frame_type, self.id)
+        self.name, self.type, self.id, self.body = name, frame_type, serial.id, serial.body
+        self.positions, self.rotations = robots.backend.frame_pose(frame_type, self.id)
+        self.position, self.rotation = self.positions, self.rotations
+        self._backend = robots.backend
+        self._scratch = None
         robots.kinematics_stale()
 
-    def jacobian(self, robots: Robot, out_p=None, out_r=None) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3, nv) translational and rotational Jacobians of the frame's origin."""
-        return robots.backend.jacobian(self.body, self.position, out_p, out_r)
+    def jacobians(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
+        """Fill the (N, 3, nv) translational and/or rotational Jacobians."""
+        if jacp is None or jacr is None:
+            if self._scratch is None:
+                self._scratch = np.empty((len(self.positions), 3, self._backend.model.nv))
+            jacp, jacr = (self._scratch if jacp is None else jacp), (self._scratch if jacr is None else jacr)
+        self._backend.jacobian(self.body, self.positions, jacp, jacr)
+
+    def jacobians_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None):
+        """A call with no arguments that does :meth:`jacobians` into these arrays."""
+        return functools.partial(self.jacobians, jacp, jacr)
 
     def __repr__(self) -> str:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
@@ -87,6 +102,8 @@ class Robot:
         ModelError, UnknownName, OutsideJointLimits: as :class:`qpik.Robot`.
     """
 
+    batched = True  # a user reads the engine's arrays (N, ...) as they are (``present``)
+
     def __init__(self, model, n: int, name: str | None = None, keyframe: str | None = None, *,
                  backend: str = "cpu", allow_outside_limits: bool = False, **options):
         if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
@@ -99,6 +116,7 @@ class Robot:
         self.backend = make_backend(backend, self.model, self.n, **options)
         self.backend.qpos[:] = self.template.q
         self._snapshot = None  # q at the last kinematics update (None: update needed)
+        self._world = None  # the one-world robot of world()
         self._start_unchecked = keyframe is None
 
     @classmethod
@@ -214,12 +232,39 @@ class Robot:
             self.update_kinematics()
 
     def world(self, index: int) -> SerialRobot:
-        """A serial :class:`qpik.Robot` of the same model at world ``index``'s configuration
-        (a new object: for comparisons and per-world fallbacks)."""
-        robot = SerialRobot(self.model, name=self.name, allow_outside_limits=True)
-        robot.data.qpos[:] = self.backend.qpos[index]
-        robot.update_kinematics()
-        return robot
+        """World ``index`` as a one-world :class:`qpik.Robot` at its configuration, its
+        kinematics updated: one robot of this batch's, shared by every call (a task
+        evaluated world by world reads each world through it in turn)."""
+        if self._world is None:
+            self._world = SerialRobot(self.model, name=self.name, allow_outside_limits=True)
+        self._world.data.qpos[:] = self.backend.qpos[index]
+        self._world.update_kinematics()
+        return self._world
+
+    # -- the engine's interface (shared with qpik.Robot) ----------------------------------
+    @property
+    def qpos(self) -> np.ndarray:
+        """(N, nq) the worlds' configurations (the back-end's array)."""
+        return self.backend.qpos
+
+    @staticmethod
+    def present(array: np.ndarray) -> np.ndarray:
+        """What a user reads of an engine array (N, ...): the array itself."""
+        return array
+
+    def subtree_com(self, body: int) -> np.ndarray:
+        """(N, 3) centre of mass of ``body``'s subtree (the back-end's array)."""
+        return self.backend.subtree_com(body)
+
+    def com_jacobian(self, body: int, out: np.ndarray) -> np.ndarray:
+        """(N, 3, nv) Jacobian of :meth:`subtree_com` into ``out``."""
+        return self.backend.subtree_com_jacobian(body, out)
+
+    def __getattr__(self, name: str):
+        # Names and ids (joint_id, joint_dofs, dof_name, body_id, ...): the template's.
+        if name in _TEMPLATE_NAMES:
+            return getattr(self.template, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def __repr__(self) -> str:
         return f"batch.Robot({self.name!r}, n={self.n}, nq={self.nq}, nv={self.nv}, backend={self.backend.name!r})"

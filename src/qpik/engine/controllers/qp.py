@@ -1,0 +1,136 @@
+r"""QPController: a stack of tasks and limits turned into one QP per control step, in every world.
+
+.. math::
+    \min_{\dot q}\ \tfrac12 \sum_{i\,\text{soft}} w_i \|J_i \dot q - v_i\|^2
+                  + \tfrac12 \epsilon \|\dot q\|^2
+    \quad\text{s.t.}\quad J_h \dot q = v_h \ (\text{hard tasks}),\quad
+    G \dot q \le h,\quad lb \le \dot q \le ub \ (\text{limits})
+
+Solved in three stages, each over the worlds that reach it: the closed form with the
+bounds held at the last answer (:mod:`qpik.problem.closed_form`: most steps end there),
+then the chosen solver world by world (:mod:`qpik.controllers.worlds`). With a hard task
+and a joint-space one it is the null-space law while no limit binds (docs/clik.md).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ...errors import InfeasibleProblem, InvalidInput
+from ..limits import Limit
+from ..numerics import everywhere
+from ..problem import Cost, HeldBounds, Problem, Stack, check_dt
+from ..tasks import Task
+from .diagnostics import explain_infeasibility
+from .worlds import WorldQP, WorldSolver, check_finite_velocities, solve_each
+
+
+class QPController:
+    """Differential IK by quadratic programming, for one robot or N worlds.
+
+    Args:
+        robot: the robot the tasks and limits read (:class:`qpik.Robot` or
+            :class:`qpik.batch.Robot`).
+        tasks: tasks; each one's ``hard`` flag chooses equality or weighted cost.
+        limits: boxes on q̇ (joint position and velocity) and general rows G q̇ ≤ h
+            (collision avoidance).
+        solver: a qpsolvers name (``daqp``, ``osqp``, ``quadprog``, ``proxqp``, ...): the
+            solver of the steps no closed form settles.
+        dt: control period in seconds (required: the limits bound the step q̇Δt).
+        regularization: ε added to the Hessian's diagonal so it is positive definite.
+        native: call DAQP/OSQP/ProxQP directly (True) or always go through qpsolvers.
+
+    :meth:`compute_velocity` fills the step's problem (:class:`qpik.problem.Problem`:
+    the kinematics if q changed, the tasks, the limits) and solves it. Task weights and
+    constant limits are read once, when the controller is built.
+    """
+
+    kind = "qp"
+
+    def __init__(self, robot, tasks: Sequence[Task], limits: Sequence[Limit] = (), solver: str = "daqp",
+                 dt: float | None = None, regularization: float = 1e-12, native: bool = True, **solver_settings):
+        if not tasks:
+            raise InvalidInput("a QPController needs at least one task")
+        check_dt(dt)
+        if robot.nv == 0:
+            raise InvalidInput("a QPController needs a robot with at least one degree of freedom; this model has none")
+        self.problem = Problem(robot, tasks, limits, dt, "QPController")
+        self.robot, self.dt, self.tasks, self.limits = robot, self.problem.dt, self.problem.tasks, self.problem.limits
+        self.solver = solver
+        self.hard_rows = Stack(robot, self.problem.hard)
+        self.cost = Cost(robot, self.problem.soft, float(regularization))
+        self._solver = WorldSolver(solver, robot.nv, self.hard_rows.dim, self.problem.rows, native, **solver_settings)
+        # An active-set solver's bounds are held by the closed form next step; a
+        # tolerance-based solver's answers stay its own.
+        self.held = HeldBounds(robot.n, robot.nv, self.hard_rows.dim, hold=self._solver.exact)
+        self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
+        self.qdots = np.zeros((robot.n, robot.nv))
+        self.qdot = robot.present(self.qdots)
+        self.solver_calls = 0  # world-steps that needed the solver
+
+    # The step's problem, as the solver sees it (world 0 for one robot).
+    A = property(lambda self: self.robot.present(self.hard_rows.J), doc="The hard rows' Jacobian of the last step.")
+    b = property(lambda self: self.robot.present(self.hard_rows.v), doc="The hard rows' target velocities.")
+    H = property(lambda self: self.robot.present(np.stack([self.cost.world_hessian(w) for w in range(self.robot.n)])),
+                 doc="The Hessian of the last step.")
+    c = property(lambda self: self.robot.present(self.cost.c), doc="The cost vector of the last step.")
+    lb = property(lambda self: self.robot.present(self.problem.lower), doc="The lower bound on q̇ of the last step.")
+    ub = property(lambda self: self.robot.present(self.problem.upper), doc="The upper bound on q̇ of the last step.")
+    G = property(lambda self: self.robot.present(self.problem.G), doc="The general rows of the last step.")
+    h = property(lambda self: self.robot.present(self.problem.h), doc="Their bounds of the last step.")
+
+    def compute_velocity(self) -> np.ndarray:
+        """Fill the step's problem (kinematics, tasks, limits) and solve the QP in every
+        world: (nv,) for one robot, (N, nv) for N worlds.
+
+        Raises:
+            InfeasibleProblem, SolverError, InvalidInput: one robot's step has no answer
+                (the message says why).
+            WorldsFailed: some of N worlds have none; the others are solved.
+        """
+        problem = self.problem
+        problem.fill()
+        self.cost.write()
+        self.hard_rows.stack()
+        G, h = (problem.G, problem.h) if problem.rows else (None, None)
+        uncapped = self.cost.uncapped()
+        worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
+        x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, G, h, worlds)
+        if worlds is None and solved is everywhere(len(x)):
+            np.copyto(self.qdots, x)
+            return self.qdot
+        self._finish(x, solved, worlds)
+        return self.qdot
+
+    def _finish(self, x: np.ndarray, solved: np.ndarray, worlds: np.ndarray | None) -> None:
+        """The closed forms' answers kept, the other worlds solved by the solver."""
+        settled = np.zeros(self.robot.n, dtype=bool)
+        ids = np.arange(self.robot.n) if worlds is None else worlds
+        settled[ids[solved]] = True
+        self.qdots[ids[solved]] = x[solved]
+        rest = np.flatnonzero(~settled)
+        self.solver_calls += len(rest)
+        solve_each(rest, self._solve_world, self.qdots, self.robot.batched, "QPController step")
+        self.held.remember(rest, self.qdots[rest], self.problem.lower[rest], self.problem.upper[rest])
+
+    def world_qp(self, w: int) -> WorldQP:
+        """World ``w``'s QP (views)."""
+        p = self.problem
+        return WorldQP(self.cost.world_hessian(w), self.cost.c[w], self.hard_rows.J[w], self.hard_rows.v[w],
+                       p.lower[w], p.upper[w], p.G[w], p.h[w])
+
+    def _solve_world(self, w: int) -> np.ndarray:
+        qp = self.world_qp(w)
+        check_finite_velocities(self.tasks, qp.c, qp.b, w)
+        try:
+            return self._solver.solve(w, qp, hessian_changed=self.cost.H is not None)
+        except InfeasibleProblem as exc:
+            raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, w, exc.variable)}",
+                                    exc.variable) from None
+
+    @property
+    def fallbacks(self) -> int:
+        """World-steps the solver failed on and a fallback solver solved."""
+        return self._solver.fallbacks

@@ -1,0 +1,111 @@
+"""Joint position limits with a velocity damper near the bounds."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import InvalidInput
+from ..numerics import all_finite
+from ...robot import JointLimits
+from ..tasks.inputs import as_index, positive_scalar
+from .limit import Limit
+
+
+class JointPositionLimit(Limit):
+    r"""Keep limited joints inside their range at the end of the step, in every world.
+
+    The step may cover a fraction ``gain`` of the distance to each bound:
+    :math:`(l - q)\,g/\Delta t \le \dot q \le (u - q)\,g/\Delta t`. Within ``influence`` of a
+    bound the speed toward it is at most ``damper_rate`` times the distance over the
+    influence (a velocity damper: the joint slows down exponentially as it arrives), never
+    more than the step bound. Clipped into the speed box: a joint found outside its range
+    returns at full speed and the box is never empty.
+
+    Args:
+        robot: the robot (one world or N).
+        limits: the ranges to enforce (default: the model's ``range`` attributes).
+        gain: fraction in (0, 1] of the remaining distance that one step may cover.
+        influence: distance to a bound below which the velocity damper acts
+            (0 disables the damper).
+        damper_rate: ξ (joint units/s): once the distance d to a bound is below
+            ``influence``, the speed toward it is at most ξ d / influence.
+        margin: the bounds are pulled in by this much (joint units), so that rounding in
+            q + q̇Δt never lands a hair outside the range.
+
+    Raises:
+        InvalidInput: a parameter that is not a single finite number in its range (at
+            most 1e12), or a range narrower than twice the margin.
+    """
+
+    def __init__(self, robot, limits: JointLimits | None = None, gain: float = 1.0,
+                 influence: float = 0.0, damper_rate: float = 20.0, margin: float = 1e-10):
+        self.limits = self.ranges = robot.joint_limits if limits is None else limits
+        gain = positive_scalar(gain, "position-limit gain")
+        if gain > 1.0:
+            raise InvalidInput(f"position-limit gain must lie in (0, 1], got {gain}")
+        margin = positive_scalar(margin, "position-limit margin", allow_zero=True)
+        influence = positive_scalar(influence, "position-limit influence (of the damper)", allow_zero=True)
+        damper_rate = positive_scalar(damper_rate, "position-limit damper rate")
+        narrow = ~(self.limits.upper - self.limits.lower > 2.0 * margin)
+        if narrow.any():
+            bad = [f"{n} [{lo:g}, {hi:g}]" for n, lo, hi, b in zip(self.limits.names, self.limits.lower,
+                                                                 self.limits.upper, narrow) if b]
+            raise InvalidInput(f"joint range narrower than twice the limit margin ({margin:g}) or empty: "
+                               f"{', '.join(bad)}")
+        self.robot, self.gain, self.influence, self.damper_rate, self.margin = robot, gain, influence, damper_rate, \
+            margin
+        n, k = robot.n, len(self.limits.names)
+        # Lower then upper bound, pulled in by the margin, at the operand's full shape.
+        self._bounds = np.tile(np.stack([self.limits.lower + margin, self.limits.upper - margin]), (n, 1, 1))
+        qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
+        # The limited joints' positions: a view of the configurations where they are consecutive.
+        self._gather = None if isinstance(qpos, slice) else qpos
+        self._positions = robot.qpos[:, None, qpos] if isinstance(qpos, slice) else np.empty((n, 1, k))
+        self._steps, self._factor = np.empty((n, 2, k)), np.empty((n, 2, k))
+        self._low, self._high = self._steps[:, 0], self._steps[:, 1]
+        self._near = np.empty((n, 2, k), dtype=bool)
+        self._box = None  # (the box it was last given, its rows on the limited dofs)
+
+    def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
+        """Tighten the velocity box [lower, upper] (N, nv) in place."""
+        steps = self._steps  # the step to each bound, row 0 <= 0, row 1 >= 0 inside the range
+        if self._gather is not None:
+            np.take(self.robot.qpos, self._gather, 1, self._positions[:, 0])
+        np.subtract(self._bounds, self._positions, steps)
+        if not all_finite(steps):
+            self._non_finite()
+        rate = self.gain / dt
+        if self.influence > 0.0:
+            # Within the influence of a bound: rate x distance, never more than the step bound.
+            np.less(np.abs(steps, self._factor), self.influence, self._near)
+            self._factor.fill(rate)
+            np.copyto(self._factor, min(self.damper_rate / self.influence, rate), where=self._near)
+            np.multiply(steps, self._factor, steps)
+        else:
+            np.multiply(steps, rate, steps)
+        speed_lower, speed_upper = self._speed_box(lower, upper)
+        low, high = self._low, self._high
+        # Recovery from outside the range never asks for more than the speed box.
+        np.minimum(low, speed_upper, low)
+        np.maximum(high, speed_lower, high)
+        np.maximum(speed_lower, low, speed_lower)
+        np.minimum(speed_upper, high, speed_upper)
+        if not isinstance(self._dofs, slice):
+            lower[:, self._dofs], upper[:, self._dofs] = speed_lower, speed_upper
+
+    def _speed_box(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The box's columns of the limited dofs: views where they are consecutive (kept
+        while the controller gives the same arrays), else copies."""
+        if not isinstance(self._dofs, slice):
+            return lower[:, self._dofs], upper[:, self._dofs]
+        if self._box is None or self._box[0] is not lower:
+            self._box = (lower, lower[:, self._dofs], upper[:, self._dofs])
+        return self._box[1], self._box[2]
+
+    def _non_finite(self) -> None:
+        q = self.robot.qpos
+        for qpos, dof in zip(self.limits.qpos_index, self.limits.dof_index):
+            bad = np.flatnonzero(~np.isfinite(q[:, qpos]))
+            if len(bad):
+                where = f" in world {int(bad[0])}" if self.robot.batched else ""
+                raise InvalidInput(f"joint {self.robot.dof_name(dof)} has a non-finite position{where}")

@@ -1,0 +1,40 @@
+r"""The Limit interface: inequalities on the joint velocity :math:`\dot q` for the next step Δt,
+in every world.
+
+A limit has one entry point, :meth:`Limit.apply`: it tightens the box
+lower ≤ q̇ ≤ upper (each (N, nv)) in place and/or writes its ``inequality_rows`` general
+rows :math:`G\dot q \le h` (G (N, rows, nv), h (N, rows); a row that does not bind this
+step may be 0 ≤ +inf). ``constant`` limits (the same box every step, e.g. speed limits)
+are applied once, when a controller is built. A position bound is clipped into the speed
+box, so a joint found outside its range returns at full speed and the box is never empty
+for valid limits.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Limit:
+    """Base class of the limits: a box on q̇ and/or general rows G q̇ ≤ h for the step Δt.
+
+    Attributes:
+        constant: the same box every step (written once; such a limit writes no rows).
+        inequality_rows: how many rows :meth:`apply` writes into G and h (per world).
+        ranges: the joint ranges the limit keeps q inside (a
+            :class:`~qpik.robot.JointLimits`: position limits), else None.
+    """
+
+    constant = False
+    inequality_rows = 0
+    ranges = None
+
+    def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G: np.ndarray | None = None,
+              h: np.ndarray | None = None) -> None:
+        """Write this limit for a step of ``dt`` seconds in every world: tighten the box
+        [lower, upper] (N, nv) in place, and/or write its rows G (N, rows, nv), h (N, rows)."""
+
+
+def order_limits(limits) -> list:
+    """Constant limits (velocity) first, so position bounds are clipped into their box."""
+    return sorted(limits, key=lambda lim: 0 if lim.constant else 1)

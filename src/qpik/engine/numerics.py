@@ -1,0 +1,290 @@
+r"""The engine's small numerical primitives, each over a leading world axis N.
+
+Every task, cost and solve is written once over (N, ...) arrays. For one world (a
+:class:`qpik.Robot`) NumPy's per-call cost outweighs the arithmetic of a control step's
+tiny systems, so three primitives take MuJoCo's own routines when N = 1 — the same
+formulas, in C: the rotation error (``mju_mat2Quat``/``mju_subQuat``), :math:`J^TWJ`
+(``mju_sqrMatTD``), and LAPACK's Cholesky solve (``dposv``, through SciPy). Above
+one world the arithmetic runs across worlds with the world axis last, one vector
+operation per step of the algorithm (NumPy's stacked routines call LAPACK once per
+matrix, which on these sizes is mostly overhead).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import mujoco
+import numpy as np
+from scipy.linalg.lapack import dposv
+
+MINVAL = 1e-15  # mjMINVAL
+
+__all__ = ["cholesky_solve", "mat2quat", "quat2mat", "rotation_error", "weighted_gram", "worlds_last"]
+
+
+@functools.cache
+def everywhere(n: int) -> np.ndarray:
+    """(n,) True, read-only: what a check returns when one comparison settled every world."""
+    flags = np.ones(n, dtype=bool)
+    flags.setflags(write=False)
+    return flags
+
+
+@functools.cache
+def nowhere(n: int) -> np.ndarray:
+    """(n,) False, read-only."""
+    flags = np.zeros(n, dtype=bool)
+    flags.setflags(write=False)
+    return flags
+
+
+def both(*flags: np.ndarray) -> np.ndarray:
+    """The worlds where every check holds: :func:`everywhere` itself when each check is
+    (one comparison settled every world, and the caller may test ``is``)."""
+    result = None
+    for flag in flags:
+        if flag is not everywhere(len(flag)):
+            result = flag if result is None else result & flag
+    return everywhere(len(flags[0])) if result is None else result
+
+
+def worlds_last(a: np.ndarray) -> np.ndarray:
+    """(N, ...) -> (..., N), contiguous."""
+    return np.ascontiguousarray(np.moveaxis(a, 0, -1))
+
+
+# -- Cholesky solves ------------------------------------------------------------------
+def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Solve M_k X_k = B_k in every world, M_k symmetric positive definite, by Cholesky
+    (only M's lower triangle is read; M and B are not written).
+
+    Args:
+        M: (N, k, k).
+        B: (N, k) or (N, k, m).
+        ratio: the most L's diagonal may span (max / min) for a world to count as solved.
+
+    Returns:
+        ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
+        (every pivot > 0) and its pivots span at most ``ratio``; X means nothing elsewhere.
+    """
+    if len(M) == 1:
+        return _cholesky_solve_one(M[0], B[0], ratio)
+    columns = B[..., None] if B.ndim == 2 else B
+    X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
+    X = np.moveaxis(X, -1, 0)
+    ok = (pivots.min(axis=0) > 0.0) & (pivots.max(axis=0) <= ratio * pivots.min(axis=0))
+    return (X[..., 0] if B.ndim == 2 else X), ok
+
+
+def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
+    factor, X, info = dposv(M, B)
+    pivots = factor.diagonal().tolist()
+    return X[None], everywhere(1) if info == 0 and max(pivots) <= ratio * min(pivots) else nowhere(1)
+
+
+def _cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cholesky_solve` with the worlds along the last axis: Mt (k, k, N),
+    Bt (k, m, N); returns X (k, m, N) and the pivots (k, N)."""
+    n = Mt.shape[0]
+    L = np.zeros_like(Mt)
+    pivots = np.empty((n, Mt.shape[2]))
+    for j in range(n):
+        d = Mt[j, j] - (L[j, :j] * L[j, :j]).sum(axis=0) if j else Mt[j, j]
+        positive = d > 0.0
+        root = np.sqrt(np.where(positive, d, 1.0))
+        pivots[j] = np.where(positive, root, 0.0)
+        L[j, j] = root
+        if j + 1 < n:
+            column = Mt[j + 1:, j] - (L[j + 1:, :j] * L[j, :j]).sum(axis=1) if j else Mt[j + 1:, j]
+            L[j + 1:, j] = column / root
+    Y = np.empty_like(Bt)
+    for j in range(n):  # L Y = B
+        rest = Bt[j] - (L[j, :j, None] * Y[:j]).sum(axis=0) if j else Bt[j]
+        Y[j] = rest / L[j, j]
+    X = Y  # Lᵀ X = Y, in place from the last row up
+    for j in range(n - 1, -1, -1):
+        if j < n - 1:
+            X[j] = (Y[j] - (L[j + 1:, j, None] * X[j + 1:]).sum(axis=0)) / L[j, j]
+        else:
+            X[j] = Y[j] / L[j, j]
+    return X, pivots
+
+
+# -- JᵀWJ -----------------------------------------------------------------------------
+def weighted_gram(J: np.ndarray, weight: np.ndarray | None, out: np.ndarray) -> np.ndarray:
+    """``out`` (N, nv, nv) = Jᵀ diag(weight) J of every world's J (N, m, nv); ``weight``
+    (m,) or None for ones."""
+    if len(J) == 1:
+        mujoco.mju_sqrMatTD(out[0], J[0], weight)
+        return out
+    weighted = J if weight is None else J * weight[:, None]
+    return np.matmul(weighted.transpose(0, 2, 1), J, out=out)
+
+
+# -- Rotations (MuJoCo's quaternion routines across worlds) ----------------------------
+# mju_mat2Quat's four branches, by the largest component: (that component, the signs of
+# m0, m4, m8 under its square root), then for each other component (index, a, b, sign):
+# 0.25 (m[a] + sign m[b]) / the largest.
+_MAT2QUAT = (
+    ((0, 1.0, 1.0, 1.0), ((1, 7, 5, -1), (2, 2, 6, -1), (3, 3, 1, -1))),
+    ((1, 1.0, -1.0, -1.0), ((0, 7, 5, -1), (2, 1, 3, 1), (3, 2, 6, 1))),
+    ((2, -1.0, 1.0, -1.0), ((0, 2, 6, -1), (1, 1, 3, 1), (3, 5, 7, 1))),
+    ((3, -1.0, -1.0, 1.0), ((0, 3, 1, -1), (1, 2, 6, 1), (2, 5, 7, 1))),
+)
+
+
+def mat2quat(R: np.ndarray) -> np.ndarray:
+    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3)."""
+    m = R.reshape(-1, 9)
+    q = np.empty((len(m), 4))
+    trace = m[:, 0] + m[:, 4] + m[:, 8]
+    branch = np.select([trace > 0, (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]), m[:, 4] > m[:, 8]], [0, 1, 2], default=3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, ((index, s0, s4, s8), others) in enumerate(_MAT2QUAT):
+            rows = branch == k
+            if not rows.any():
+                continue
+            mk = m[rows]
+            out = np.empty((len(mk), 4))
+            main = 0.5 * np.sqrt(1.0 + s0 * mk[:, 0] + s4 * mk[:, 4] + s8 * mk[:, 8])
+            out[:, index] = main
+            for target, a, b, sign in others:
+                out[:, target] = 0.25 * (mk[:, a] + sign * mk[:, b]) / main
+            q[rows] = out
+    return normalize4(q)
+
+
+def normalize4(q: np.ndarray) -> np.ndarray:
+    """``mju_normalize4`` (a quaternion of norm < mjMINVAL becomes the identity)."""
+    norm = np.sqrt(np.einsum("ni,ni->n", q, q))
+    small = norm < MINVAL
+    out = q / np.where(small, 1.0, norm)[:, None]
+    out[small] = (1.0, 0.0, 0.0, 0.0)
+    return out
+
+
+def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``mju_mulQuat`` of (N, 4) quaternions (either may be (1, 4))."""
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    (a0, a1, a2, a3), (b0, b1, b2, b3) = np.broadcast_to(a, shape).T, np.broadcast_to(b, shape).T
+    out = np.empty((4, shape[0]))
+    out[0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    out[1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    out[2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    out[3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+    return out.T
+
+
+def quat2vel(q: np.ndarray) -> np.ndarray:
+    """``mju_quat2Vel`` (dt = 1): the rotation vectors of unit quaternions (N, 4)."""
+    w, axis = q[:, 0], np.array(q[:, 1:].T)
+    sin_half = np.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
+    small = sin_half < MINVAL
+    axis /= np.where(small, 1.0, sin_half)
+    if small.any():
+        axis[:, small] = ((1.0,), (0.0,), (0.0,))
+    speed = 2.0 * np.arctan2(sin_half, w)
+    speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
+    axis *= speed
+    return axis.T
+
+
+def quat2mat(q: np.ndarray) -> np.ndarray:
+    """``mju_quat2Mat`` (N, 4) -> (N, 3, 3)."""
+    w, x, y, z = q.T
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0] = ww + xx - yy - zz
+    R[:, 1, 1] = ww - xx + yy - zz
+    R[:, 2, 2] = ww - xx - yy + zz
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    return R
+
+
+_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
+
+
+class RotationError:
+    """e with R exp([e]) = R_d (the current frame's axes) or exp([e]) R = R_d (world axes)
+    in every world: ``mju_subQuat`` of the two rotations' quaternions. One instance per
+    task (its scratch arrays); at N = 1 MuJoCo's routines do it."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self._desired, self._current, self._local = np.empty(4), np.empty(4), np.empty(3)
+
+    def __call__(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray, local: bool = False) -> np.ndarray:
+        """Write the errors of rotations (N, 3, 3) into ``out`` (N, 3)."""
+        if self.n == 1:
+            mujoco.mju_mat2Quat(self._desired, desired.reshape(9))
+            mujoco.mju_mat2Quat(self._current, current.reshape(9))
+            if local:
+                mujoco.mju_subQuat(out[0], self._desired, self._current)
+            else:
+                mujoco.mju_subQuat(self._local, self._desired, self._current)
+                current[0].dot(self._local, out[0])
+            return out
+        error = quat2vel(mul(mat2quat(current) * _CONJUGATE, mat2quat(desired)))
+        if local:
+            out[...] = error
+        else:
+            np.einsum("nij,nj->ni", current, error, out=out)
+        return out
+
+
+def rotation_error(desired: np.ndarray, current: np.ndarray, local: bool = False) -> np.ndarray:
+    """:class:`RotationError` of (N, 3, 3) rotations, a new (N, 3) array."""
+    desired, current = np.ascontiguousarray(desired), np.ascontiguousarray(current)
+    return RotationError(len(current))(desired, current, np.empty((len(current), 3)), local)
+
+
+class ConfigurationDifference:
+    """``mj_differentiatePos`` (dt = 1) in every world: the velocity (N, nv) taking
+    q_from to q_to in unit time (scalar joints subtract, ball and free joints take the
+    quaternion difference). At N = 1, MuJoCo's own call."""
+
+    def __init__(self, model: mujoco.MjModel, n: int):
+        self.model, self.n = model, n
+        J = mujoco.mjtJoint
+        self.scalar_q, self.scalar_v, self.linear, self.quats = [], [], [], []
+        for j in range(model.njnt):
+            kind, qadr, vadr = int(model.jnt_type[j]), int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+            if kind in (int(J.mjJNT_HINGE), int(J.mjJNT_SLIDE)):
+                self.scalar_q.append(qadr)
+                self.scalar_v.append(vadr)
+            elif kind == int(J.mjJNT_FREE):
+                self.linear.append((qadr, vadr))
+                self.quats.append((qadr + 3, vadr + 3))
+            else:
+                self.quats.append((qadr, vadr))
+
+    def __call__(self, q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> np.ndarray:
+        if self.n == 1:
+            mujoco.mj_differentiatePos(self.model, out[0], 1.0, q_from[0], q_to[0])
+            return out
+        out[:, self.scalar_v] = q_to[:, self.scalar_q] - q_from[:, self.scalar_q]
+        for qadr, vadr in self.linear:
+            out[:, vadr:vadr + 3] = q_to[:, qadr:qadr + 3] - q_from[:, qadr:qadr + 3]
+        for qadr, vadr in self.quats:
+            difference = mul(q_from[:, qadr:qadr + 4] * _CONJUGATE, q_to[:, qadr:qadr + 4])
+            out[:, vadr:vadr + 3] = quat2vel(difference)
+        return out
+
+
+def all_finite(a: np.ndarray) -> bool:
+    """Whether every entry is finite: one MuJoCo sum on a small contiguous array (NaN or
+    inf makes it so), NumPy's pass otherwise."""
+    if a.size <= 64:
+        try:
+            return math.isfinite(mujoco.mju_sum(a.reshape(-1)))
+        except TypeError:  # not contiguous: MuJoCo takes no strided array
+            pass
+    return bool(np.isfinite(a).all())

@@ -1,0 +1,229 @@
+r"""The QP's minimiser in closed form, in every world: the fast path of a control step.
+
+When no limit binds, the QP's minimiser is that of :math:`\min \tfrac12 x^THx + c^Tx`
+s.t. :math:`Ax = b`: :math:`x = H^{-1}(A^Ty - c)`, :math:`Sy = b + AH^{-1}c`,
+:math:`S = AH^{-1}A^T`; the QP being strictly convex, an x that also meets every
+inequality *is* its solution. Where bounds bind, :class:`HeldBounds` holds them: the
+held dofs become :math:`x_i = v_i` (their bound's value) beside the hard rows, the rest
+is the same closed form, and the answer is the QP's minimiser when it is inside every
+limit, meets the hard rows and each held bound's multiplier has the sign of an active
+bound. A wrong-signed bound is released, a crossed one held, and the system solved again
+(``HELD_TRIES`` at most); the worlds left go to the solver, which also decides the worlds
+whose general rows bind. Every answer is checked against the hard rows
+(``EQUALITY_TOLERANCE``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..numerics import both, cholesky_solve, everywhere
+
+# S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
+# more than this ratio (the condition number of S is the square of it: 1e12).
+SINGULAR_RATIO = 1e6
+# Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
+# answer as the solvers' are: a nearly singular H or S loses digits no cheaper test foresees.
+EQUALITY_TOLERANCE = 1e-10
+# Closed forms a step may try with held bounds before the solver takes the world.
+HELD_TRIES = 3
+# A bound is active at a solver's answer within this (relative to 1 + |bound|).
+ACTIVE_TOLERANCE = 1e-9
+
+
+class EqualityQP:
+    """The minimiser of ½xᵀHx + cᵀx s.t. Ax = b in ``n`` worlds of ``nv`` dofs and ``meq``
+    rows, in closed form, and its checks, with their buffers (allocated once)."""
+
+    def __init__(self, n: int, nv: int, meq: int):
+        self.meq = meq
+        self.scaled, self.S = np.empty((n, meq, nv)), np.empty((n, meq, meq))  # A H⁻¹, A H⁻¹ Aᵀ
+        self.minimiser, self.x = np.empty((n, nv)), np.empty((n, nv))  # H⁻¹ c, x
+        self.r, self.residual = np.empty((n, meq, 1)), np.empty((n, meq, 1))
+        self._r, self._residual = self.r[:, :, 0], self.residual[:, :, 0]  # (N, meq) views
+        self._x_row, self._x_column = self.x[:, None, :], self.x[:, :, None]
+        self._minimiser_column = self.minimiser[:, :, None]
+        self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
+        self._inverse = (None, None)  # (an inverse diagonal, its (N, 1, nv) view)
+
+    def solve(self, inverse_diagonal, H, c, A, b):
+        """``(x (N, nv), y (N, meq), ok (N,))``: ``ok`` where H is positive definite, S is not
+        singular and x is finite and meets the rows to :data:`EQUALITY_TOLERANCE`; x and y
+        mean nothing elsewhere (x is a buffer, overwritten by the next solve).
+
+        Args:
+            inverse_diagonal: (N, nv) H⁻¹ where H is diagonal, else None.
+            H: (N, nv, nv) where it is not (read when ``inverse_diagonal`` is None).
+            c: (N, nv); A: (N, meq, nv); b: (N, meq).
+        """
+        meq, scaled, minimiser, x = self.meq, self.scaled, self.minimiser, self.x
+        if inverse_diagonal is not None:
+            np.multiply(A, self._rows_view(inverse_diagonal), scaled)
+            np.multiply(inverse_diagonal, c, minimiser)
+            ok = everywhere(len(c))
+        else:
+            solved, ok = cholesky_solve(H, np.concatenate([A.transpose(0, 2, 1), c[:, :, None]], axis=2))
+            scaled[...], minimiser[...] = solved[:, :, :meq].transpose(0, 2, 1), solved[:, :, meq]
+        if not meq:
+            np.negative(minimiser, x)
+            return x, self._r, ok & np.isfinite(x).all(axis=1)
+        np.matmul(scaled, A.transpose(0, 2, 1), self.S)
+        np.matmul(A, self._minimiser_column, self.r)
+        np.add(self._r, b, self._r)
+        y, solved_rows = cholesky_solve(self.S, self._r, SINGULAR_RATIO)
+        np.matmul(y[:, None, :], scaled, self._x_row)
+        np.subtract(x, minimiser, x)
+        np.matmul(A, self._x_column, self.residual)
+        return x, y, both(solved_rows, ok, rows_met(self._residual, b, EQUALITY_TOLERANCE))
+
+    def _rows_view(self, inverse_diagonal: np.ndarray) -> np.ndarray:
+        """``inverse_diagonal[:, None, :]``, kept while the same array comes (the cost's)."""
+        if self._inverse[0] is not inverse_diagonal:
+            self._inverse = (inverse_diagonal, inverse_diagonal[:, None, :])
+        return self._inverse[1]
+
+    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None) -> np.ndarray:
+        """(N,) whether the last x is in the box and under the rows (:func:`inside`)."""
+        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides)
+
+
+def equality_minimiser(inverse_diagonal, H, c, A, b):
+    """:meth:`EqualityQP.solve` with buffers of its own."""
+    return EqualityQP(len(c), c.shape[1], A.shape[1]).solve(inverse_diagonal, H, c, A, b)
+
+
+def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
+    """(N,) whether |Ax − b| <= tolerance (1 + |b|) in each world (Euclidean norms; NaN
+    fails), from A x (N, meq) (overwritten with the residual)."""
+    Ax -= b
+    if np.vdot(Ax, Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
+        return everywhere(len(b))
+    miss = np.einsum("ni,ni->n", Ax, Ax)
+    return miss <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))
+
+
+_SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >= 0
+
+
+def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.ndarray | None = None,
+           gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
+    """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
+    comparisons: a point on a bound is inside; NaN, and ±inf on an absent bound, are not).
+    One comparison decides the usual step where every world is inside."""
+    gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
+    np.multiply(gap, sides, gap)
+    ok = everywhere(len(x)) if gap.min() >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
+    if G is not None and G.shape[1]:
+        ok = ok & (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
+    return ok
+
+
+class HeldBounds:
+    """The bounds held at each world's last answer, and the closed form that holds them
+    (see the module's description). ``hold`` False: the plain closed form only (a
+    tolerance-based solver's answers stay its own)."""
+
+    def __init__(self, n: int, nv: int, meq: int, hold: bool = True):
+        self.hold, self.meq = hold, meq
+        self._qps: dict[int, EqualityQP] = {}
+        self.lower = np.zeros((n, nv), dtype=bool)  # dofs held at their lower bound
+        self.upper = np.zeros((n, nv), dtype=bool)
+        self.holding = False  # whether any world holds a bound
+
+    def remember(self, worlds: np.ndarray, x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        """The bounds active at answers x (len(worlds), nv) of some worlds, held next step."""
+        if not self.hold:
+            return
+        at_lower = np.isfinite(lower) & (np.abs(x - lower) <= ACTIVE_TOLERANCE * (1.0 + np.abs(lower)))
+        at_upper = np.isfinite(upper) & ~at_lower & (np.abs(x - upper) <= ACTIVE_TOLERANCE * (1.0 + np.abs(upper)))
+        self.lower[worlds], self.upper[worlds] = at_lower, at_upper
+        self.holding = bool(self.lower.any() or self.upper.any())
+
+    def solve(self, cost, A, b, box, G=None, h=None, worlds=None):
+        """The QP's minimiser by closed forms with bounds held, in ``worlds`` (an index
+        array, None: all).
+
+        Returns:
+            ``(x (len, nv), solved (len,))``: ``solved`` where x is the checked minimiser.
+        """
+        data = (cost.inverse_diagonal, cost.H, cost.c, A, b, box, G, h)
+        if worlds is not None:
+            data = tuple(None if a is None else a[worlds] for a in data)
+        if not self.holding:  # the plain closed form first: most steps end here
+            qp = self._qp(len(data[2]))
+            x, _, ok = qp.solve(*data[:5])
+            solved = both(ok, qp.admits(*data[5:]))
+            if solved is everywhere(len(x)) or not self.hold:
+                return x, solved
+            x, solved = x.copy(), np.array(solved)
+            if solved.all():
+                return x, solved
+            ids = np.arange(len(x)) if worlds is None else worlds
+            start = np.flatnonzero(ok & ~solved)  # held from the bounds it crossed
+            box = data[5][start]
+            self.lower[ids[start]], self.upper[ids[start]] = x[start] < box[:, 0], x[start] > box[:, 1]
+        else:
+            ids = np.arange(len(data[2])) if worlds is None else worlds
+            x, solved, start = np.zeros((len(ids), A.shape[2])), np.zeros(len(ids), dtype=bool), np.arange(len(ids))
+        self._held(data, ids, start, x, solved)
+        self.holding = bool(self.lower.any() or self.upper.any())
+        return x, solved
+
+    def _qp(self, count: int) -> EqualityQP:
+        """The closed form's buffers for ``count`` worlds."""
+        if count not in self._qps:
+            self._qps[count] = EqualityQP(count, self.lower.shape[1], self.meq)
+        return self._qps[count]
+
+    def _held(self, data, ids, todo, x, solved) -> None:
+        """Closed forms with bounds held in the worlds ``todo`` (positions in ``ids``),
+        until their answer is the minimiser, the held set stops changing or the tries run out."""
+        for _ in range(HELD_TRIES):
+            if not len(todo):
+                return
+            worlds = ids[todo]
+            part = tuple(None if a is None else a[todo] for a in data)
+            attempt, kept, (held_lower, held_upper, changed) = _attempt(self._qp(len(todo)), part, self.lower[worlds],
+                                                                        self.upper[worlds])
+            x[todo[kept]], solved[todo[kept]] = attempt[kept], True
+            self.lower[worlds], self.upper[worlds] = held_lower, held_upper
+            todo = todo[~kept & changed]  # the worlds whose held set changed: try again
+
+
+def _attempt(qp: EqualityQP, data, held_lower, held_upper):
+    """One closed form with the given bounds held: (x, kept (count,), (held lower, held
+    upper, changed (count,)))."""
+    inverse_diagonal, H, c, A, b, box, G, h = data
+    lower, upper = box[:, 0], box[:, 1]
+    fixed = held_lower | held_upper
+    values = np.where(held_lower, lower, np.where(held_upper, upper, 0.0))
+    x, y, ok = qp.solve(*_with_held(inverse_diagonal, H, c, A, b, fixed, values))
+    # Multipliers of the held bounds: the gradient of the Lagrangian on them.
+    gradient = _gradient(inverse_diagonal, H, c, A, x, y)
+    wrong = (held_lower & (gradient < 0.0)) | (held_upper & (gradient > 0.0))
+    below, above = ~fixed & (x < lower), ~fixed & (x > upper)
+    kept = ok & ~wrong.any(axis=1) & inside(x, box, G, h)
+    changed = ok & ~kept & (wrong | below | above).any(axis=1)
+    return x, kept, ((held_lower & ~wrong) | below, (held_upper & ~wrong) | above, changed)
+
+
+def _with_held(inverse_diagonal, H, c, A, b, fixed, values):
+    """The problem with ``fixed`` dofs held at ``values``: their rows and columns of H the
+    identity's, c = −value on them (so x = value there), their columns of A moved to b."""
+    free = ~fixed
+    b = b - np.einsum("nij,nj->ni", A, values)
+    A = A * free[:, None, :]
+    if inverse_diagonal is not None:
+        return np.where(fixed, 1.0, inverse_diagonal), None, np.where(fixed, -values, c), A, b
+    coupling = np.einsum("nij,nj->ni", H, values)  # H_fF v_F on the free rows
+    c = np.where(fixed, -values, c + coupling)
+    H = np.where(free[:, :, None] & free[:, None, :], H, 0.0)
+    diagonal = np.einsum("nii->ni", H)
+    diagonal += fixed
+    return None, H, c, A, b
+
+
+def _gradient(inverse_diagonal, H, c, A, x, y):
+    """Hx + c − Aᵀy in every world: the bound multipliers' side of the KKT conditions."""
+    Hx = x / inverse_diagonal if inverse_diagonal is not None else np.einsum("nij,nj->ni", H, x)
+    return Hx + c - np.einsum("nij,ni->nj", A, y)

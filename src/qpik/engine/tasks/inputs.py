@@ -1,0 +1,257 @@
+"""What tasks and limits accept from their users, checked once, with errors that name the
+culprit: masks, gains, weights, rotations, targets (one for every world, or one per world).
+
+A target is written every step, so its check is cheap: for one world the entries go
+through one ``math.hypot`` call (NaN, inf and anything beyond
+:data:`TARGET_MAGNITUDE_LIMIT` fail one comparison); for N worlds one vectorised pass
+finds the culprit worlds (:class:`~qpik.errors.InvalidWorlds`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import mujoco
+import numpy as np
+
+from ...errors import InvalidInput, InvalidWorlds, listed
+
+_AXES = "xyz"
+AXES_FRAMES = ("world", "local")
+# A target (or feed-forward velocity) entry beyond this is refused: no model is that large,
+# and it keeps K·e, its square and J q̇ − v finite for any gain with K·Δt <= 2 and Δt > 1e-150.
+TARGET_MAGNITUDE_LIMIT = 1e150
+# Weights, gains, distances and rates beyond this are refused: no cost or robot is that
+# large, and it keeps a cost's Hessian (w JᵀJ) and a limit's bounds finite.
+PARAMETER_LIMIT = 1e12
+
+
+def axis_rows(axes: str, what: str = "axes") -> np.ndarray:
+    """Row indices of a mask such as ``"xy"`` (a non-empty subset of ``"xyz"``)."""
+    if not isinstance(axes, str) or not axes or any(a not in _AXES for a in axes) or len(set(axes)) != len(axes):
+        raise InvalidInput(f"{what} must be a non-empty subset of 'xyz', got {axes!r}")
+    return np.array(sorted(_AXES.index(a) for a in axes), dtype=int)
+
+
+def optional_rows(axes: str, what: str) -> np.ndarray:
+    """:func:`axis_rows`, ``""`` allowed (no row)."""
+    return axis_rows(axes, what) if axes != "" else np.zeros(0, dtype=int)
+
+
+def check_axes_frame(axes_frame: str) -> bool:
+    """Whether masks, gains and weights refer to the frame's own axes (``"local"``) or the
+    world's (``"world"``); InvalidInput otherwise."""
+    if axes_frame not in AXES_FRAMES:
+        raise InvalidInput(f"axes_frame must be one of {AXES_FRAMES}, got {axes_frame!r}")
+    return axes_frame == "local"
+
+
+def float_array(value, shape: int | tuple, what: str) -> np.ndarray:
+    """``value`` as a float array of ``shape`` (its entries not checked), or InvalidInput."""
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+    if arr.shape != shape:
+        raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+def finite_vector(value, size: int, what: str) -> np.ndarray:
+    """``value`` as a float array of shape (size,) with finite entries, or InvalidInput."""
+    arr = float_array(value, size, what)
+    if not math.isfinite(sum(arr.tolist())):
+        raise InvalidInput(f"{what} contains NaN or inf (or overflows): {arr}")
+    return arr
+
+
+def target_vector(value, size: int, what: str) -> np.ndarray:
+    """:func:`finite_vector`, and InvalidInput for an entry beyond
+    :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
+    arr = float_array(value, size, what)
+    if not math.hypot(*arr.tolist()) <= TARGET_MAGNITUDE_LIMIT:
+        _name_bad_target(arr, what)
+    return arr
+
+
+def _name_bad_target(arr: np.ndarray, what: str) -> None:
+    if not np.isfinite(arr).all():
+        raise InvalidInput(f"{what} contains NaN or inf: {arr}")
+    raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
+                       "square) would overflow; give a target the robot could reach")
+
+
+def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
+    """``value`` as (N, *shape) floats: one value for every world, or (for N worlds) one per
+    world, each finite and within :data:`TARGET_MAGNITUDE_LIMIT`.
+
+    Raises:
+        InvalidInput: a wrong shape, or (one world) a bad entry.
+        InvalidWorlds: (N worlds) the worlds whose value is not finite or too large.
+    """
+    if not robot.batched:
+        arr = float_array(value, shape, what)
+        if not math.hypot(*arr.reshape(-1).tolist()) <= TARGET_MAGNITUDE_LIMIT:
+            _name_bad_target(arr, what)
+        return arr[None]
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+    if arr.shape == shape:
+        arr = np.broadcast_to(arr, (robot.n,) + shape)
+    if arr.shape != (robot.n,) + shape:
+        raise InvalidInput(f"{what} must have shape {shape} or {(robot.n,) + shape}, got {arr.shape}")
+    magnitude = np.abs(arr).reshape(robot.n, -1).max(axis=1, initial=0.0)
+    bad = np.flatnonzero(~(magnitude <= TARGET_MAGNITUDE_LIMIT))
+    if len(bad):
+        raise InvalidWorlds(f"{what} of worlds {listed(bad)}: NaN, inf or beyond {TARGET_MAGNITUDE_LIMIT:g}", bad)
+    return arr
+
+
+def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
+    """``rotation`` (a 3x3 matrix, or a w-x-y-z unit quaternion) as a checked (3, 3) float
+    rotation: orthonormal to 1e-6, no reflection, a quaternion of unit norm to 1e-6."""
+    return world_rotations(None, rotation, what)[0]
+
+
+def world_rotations(robot, value, what: str = "target rotation") -> np.ndarray:
+    """(N, 3, 3) rotations from matrices or w-x-y-z unit quaternions, one for every world
+    or one per world (``robot`` None: one rotation, (1, 3, 3)); each checked as
+    :func:`rotation_matrix` says.
+
+    Raises:
+        InvalidInput: a wrong shape, or (one rotation) a bad one.
+        InvalidWorlds: (N worlds) the worlds whose rotation is bad.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {value!r}") from None
+    batched = robot is not None and robot.batched
+    n = robot.n if batched else 1
+    if arr.shape in ((4,), (3, 3)) or not batched:
+        arr = arr[None]
+    if arr.shape[1:] == (4,) and arr.shape[0] in (1, n):
+        arr = _quaternion_matrices(arr, what, batched)
+    elif arr.shape[1:] != (3, 3) or arr.shape[0] not in (1, n):
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion" +
+                           (f", or ({n}, 3, 3) / ({n}, 4) for every world" if batched else "") + f", got {value!r}")
+    gram = np.einsum("nki,nkj->nij", arr, arr) - np.eye(3)
+    deviation = np.abs(gram).reshape(len(arr), 9).max(axis=1)
+    bad = ~(deviation <= 1e-6) | (np.linalg.det(arr) < 0)
+    if bad.any():
+        _bad_rotations(arr, bad, deviation, what, batched)
+    return np.broadcast_to(arr, (n, 3, 3))
+
+
+def _quaternion_matrices(quats: np.ndarray, what: str, batched: bool) -> np.ndarray:
+    norm = np.sqrt(np.einsum("ni,ni->n", quats, quats))
+    bad = ~(np.abs(norm - 1.0) <= 1e-6)
+    if bad.any():
+        if not batched:
+            raise InvalidInput(f"{what} must be a unit quaternion (w, x, y, z), got norm {norm[0]:.6g}")
+        raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))}: not a unit quaternion (w, x, y, z)",
+                            np.flatnonzero(bad))
+    matrices = np.empty((len(quats), 9))
+    for matrix, quat in zip(matrices, quats):
+        mujoco.mju_quat2Mat(matrix, quat)
+    return matrices.reshape(-1, 3, 3)
+
+
+def _bad_rotations(arr, bad, deviation, what: str, batched: bool) -> None:
+    if batched:
+        raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))} is not a rotation matrix "
+                            "(NaN, not orthonormal to 1e-6, or a reflection)", np.flatnonzero(bad))
+    if not np.isfinite(arr).all():
+        raise InvalidInput(f"{what} contains NaN or inf")
+    if deviation[0] > 1e-6:
+        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {deviation[0]:.2g})")
+    raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
+
+
+def homogeneous_transform(transform, what: str = "target transform") -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]]."""
+    matrix = float_array(transform, (4, 4), what)
+    if not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InvalidInput(f"{what}: the last row of a homogeneous transform must be (0, 0, 0, 1), got {matrix[3]}")
+    return finite_vector(matrix[:3, 3], 3, f"{what}'s translation"), rotation_matrix(matrix[:3, :3], f"{what}'s rotation")
+
+
+def mocap_pose(robot, body: str) -> tuple[np.ndarray, np.ndarray]:
+    """(position, rotation matrix) of a mocap body of a one-world robot, read now (copies).
+
+    Raises:
+        UnknownName: no body of that name.
+        InvalidInput: the body is not a mocap body, or the robot has N worlds.
+    """
+    if robot.batched:
+        raise InvalidInput("a mocap body is read from one world's MjData: set N worlds' targets with set_target")
+    body_id = robot.body_id(body)
+    mocap = int(robot.model.body_mocapid[body_id])
+    if mocap < 0:
+        names = [robot.model.body(i).name for i in range(robot.model.nbody) if robot.model.body_mocapid[i] >= 0]
+        raise InvalidInput(f"body {body!r} is not a mocap body (mocap=\"true\"); mocap bodies: {names}")
+    rotation = rotation_matrix(robot.data.mocap_quat[mocap], f"mocap body {body!r}'s quaternion")
+    return robot.data.mocap_pos[mocap].copy(), rotation
+
+
+def positive(value, size: int, what: str, allow_zero: bool = False) -> np.ndarray:
+    """A scalar (broadcast) or a (size,) vector of positive (or >= 0) finite values, at
+    most :data:`PARAMETER_LIMIT`."""
+    if np.ndim(value) == 0 and not isinstance(value, (str, bytes)):
+        try:
+            arr = np.full(size, float(value))
+        except (TypeError, ValueError):
+            raise InvalidInput(f"{what} must be a number, got {value!r}") from None
+    else:
+        arr = float_array(value, size, what)
+    low_ok = arr >= 0 if allow_zero else arr > 0
+    if not (np.all(low_ok) and np.all(arr <= PARAMETER_LIMIT)):  # NaN fails both
+        raise InvalidInput(f"{what} must be {'non-negative' if allow_zero else 'positive'}, finite and at most "
+                           f"{PARAMETER_LIMIT:g}, got {value}")
+    return arr
+
+
+def positive_scalar(value, what: str, allow_zero: bool = False) -> float:
+    """One number checked as :func:`positive` checks a vector's entries."""
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+        raise InvalidInput(f"{what} must be a number, got {value!r}")
+    return float(positive(value, 1, what, allow_zero)[0])
+
+
+def feedback_gain(value, size: int, what: str) -> np.ndarray:
+    """A task's gain K (1/s): a scalar or one per row, finite and >= 0; ``None`` for the
+    dead-beat default, NaN until a controller gives its period (:meth:`Task.attach`)."""
+    if value is None:
+        return np.full(size, np.nan)
+    return positive(value, size, what, allow_zero=True)
+
+
+def scalar_dofs(model: mujoco.MjModel) -> np.ndarray:
+    """The dofs of every hinge and slide joint (free and ball joints left out)."""
+    scalar = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    return np.array([model.jnt_dofadr[j] for j in range(model.njnt) if int(model.jnt_type[j]) in scalar], dtype=int)
+
+
+def joint_dofs(robot, joints: Sequence[str] | None) -> np.ndarray:
+    """The dofs of the named joints (every dof of a free or ball joint), in the model's order;
+    ``None``: every hinge and slide joint, so a floating base is left alone."""
+    if joints is None:
+        return scalar_dofs(robot.model)
+    if isinstance(joints, str):
+        raise InvalidInput(f"joints must be a list of joint names, got the string {joints!r}")
+    dofs = [int(dof) for name in joints for dof in robot.joint_dofs(name)]
+    if len(set(dofs)) != len(dofs):
+        raise InvalidInput(f"a joint is named twice in {list(joints)}")
+    return np.array(sorted(dofs), dtype=int)
+
+
+def as_index(index: np.ndarray) -> slice | np.ndarray:
+    """A slice for consecutive indices (views, no fancy-index copies), else the array."""
+    index = np.asarray(index, dtype=int)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index

@@ -1,0 +1,269 @@
+r"""The Task interface: linear relations :math:`J \dot q \approx v`, for one world or N.
+
+A task measures, every step and in every world, an error e (what it wants to remove: its
+units are metres, radians, ...) and its Jacobian J, and asks for the velocity
+:math:`v = \dot x_d + K e` (the feed-forward :math:`\dot x_d` and the gains K). Every
+controller reads the same three arrays: the QP enforces :math:`J\dot q = v` (``hard``) or
+weighs :math:`\tfrac12 \|J\dot q - v\|_W^2`; the hierarchy and SNS order tasks by
+``priority`` (0 the highest); the classical laws invert J.
+
+One implementation for one robot and for thousands: the engine's arrays carry a leading
+world axis, ``errors`` (N, dim), ``jacobians`` (N, dim, nv), ``target_velocities``
+(N, dim). What a user reads are ``error``, ``jacobian`` and ``target_velocity``: the same
+arrays for a :class:`qpik.batch.Robot`, their world 0 (views, as mink's shapes) for a
+:class:`qpik.Robot`.
+
+A task written as in mink needs its row count and two methods::
+
+    class TipHeight(qpik.Task):
+        dim = 1
+        def compute_error(self, robot):     # (dim,): e = x_d − x
+            return np.array([self.target[0] - robot.data.site_xpos[site, 2]])
+        def compute_jacobian(self, robot):  # (dim, nv): J = ∂x/∂q
+            ...
+
+On N worlds such a task is evaluated world by world, on a one-world view of each
+(:meth:`qpik.batch.Robot.world`); one that sets ``vectorized = True`` is given the batch
+robot and returns (N, dim) and (N, dim, nv) itself.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from ...errors import GainWarning, InvalidInput
+from .inputs import feedback_gain, joint_dofs, positive, positive_scalar, world_values
+
+
+def _row_count(dim, name: str) -> int:
+    """A task's row count: an integer >= 1 (InvalidInput otherwise)."""
+    if isinstance(dim, (bool, np.bool_)) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        raise InvalidInput(f"{name} needs its row count dim, an integer >= 1 (a class attribute or dim=...), "
+                           f"got {dim!r}")
+    return int(dim)
+
+
+def _checked_rows(value, shape: tuple, name: str, method: str) -> np.ndarray:
+    """What a user task's method returned, as finite floats of the promised shape."""
+    try:
+        rows = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name}.{method} must return numbers, got {value!r}") from None
+    if rows.shape != shape:
+        raise InvalidInput(f"{name}.{method} must return shape {shape}, got {rows.shape}")
+    if not math.isfinite(float(rows.sum())):
+        raise InvalidInput(f"{name}.{method} returned NaN or inf")
+    return rows
+
+
+class Task:
+    r"""Base class: ``dim`` rows of :math:`J\dot q \approx v` with a weight, in every world.
+
+    The base class owns the gains K (checked against the controller's period:
+    :meth:`attach`), the weights, ``hard``, ``priority`` and ``lm_damping`` (adaptive
+    Levenberg–Marquardt: :math:`\tfrac12 \mu\, e^TWe\, \|\dot q\|^2` added to a soft
+    task's cost), and :math:`v = \dot x_d + K e`. A subclass measures: :meth:`measure_rows`
+    writes ``errors`` and ``jacobians`` (a built-in task), or ``compute_error`` and
+    ``compute_jacobian`` return them (a user's task, as in mink).
+
+    Args:
+        robot: the robot (one world, or a batch of N) whose kinematics the task reads.
+        dim: number of task rows (default: the class attribute ``dim``).
+        weight: cost weight of a soft task (scalar or one per row); a zero weight
+            leaves a row out of the cost (a mask).
+        hard: enforce the task as an equality constraint in the QP.
+        gain: K (1/s), a scalar or one per row, >= 0; default ``None``: dead-beat,
+            1/Δt of the controller the task is given to (mink's ``gain=1``).
+        priority: level in a strict hierarchy (0 the highest).
+        lm_damping: μ above (soft tasks).
+
+    Raises:
+        InvalidInput: no row count, a bad weight, gain, priority or ``lm_damping``, or a
+            subclass that defines neither :meth:`measure_rows` nor both compute methods.
+    """
+
+    name = "task"
+    dim: int | None = None
+    vectorized = False  # a user's task that returns (N, ...) arrays for a batch robot
+    joint_space = False  # J is the fixed selection I[dofs] (a controller may use its diagonal)
+    target: np.ndarray | None = None  # x_d, for a task that tracks one (set_target)
+    _priority = 0
+
+    def __init__(self, robot, dim: int | None = None, weight=1.0, hard: bool = False, *, gain=None,
+                 priority: int = 0, lm_damping: float = 0.0):
+        if type(self).name == Task.name:  # a user's subclass: messages name its class
+            self.name = type(self).__name__
+        self.robot = robot
+        self.dim = _row_count(type(self).dim if dim is None else dim, self.name)
+        self.hard = bool(hard)
+        self.weight = positive(weight, self.dim, f"{self.name} weight", allow_zero=True)
+        self.priority = priority
+        self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
+        n = robot.n
+        self.errors = np.zeros((n, self.dim))
+        self.target_velocities = np.zeros((n, self.dim))
+        self.rates = np.zeros((n, self.dim))  # the feed-forward ẋ_d
+        self._allocate_jacobians()
+        self.error, self.target_velocity = robot.present(self.errors), robot.present(self.target_velocities)
+        self.target_rate = robot.present(self.rates)
+        self.jacobian = robot.present(self.jacobians)
+        self._user_rows = self._computes_rows()
+        self.gains = None  # (N, dim) K, at the operand's full shape; None: no feedback
+        if self._user_rows or gain is not None:
+            self.set_gain(feedback_gain(gain, self.dim, f"{self.name} gain"))
+
+    def _allocate_jacobians(self) -> None:
+        self.jacobians = np.zeros((self.robot.n, self.dim, self.robot.nv))
+
+    def _computes_rows(self) -> bool:
+        """Whether the rows come from compute_error/compute_jacobian (no own ``measure_rows``)."""
+        cls = type(self)
+        if cls.measure_rows is not Task.measure_rows:
+            return False
+        missing = [m for m in ("compute_error", "compute_jacobian") if getattr(cls, m, None) is None]
+        if missing:
+            raise InvalidInput(f"{self.name} must define {' and '.join(m + '(robot)' for m in missing)} "
+                               "(or a measure_rows() filling errors and jacobians)")
+        return True
+
+    compute_error = None
+    compute_jacobian = None
+
+    # -- gains and the controller's period ------------------------------------------------
+    def set_gain(self, gain: np.ndarray) -> None:
+        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`)."""
+        self.gain = gain
+        self.gains = np.tile(gain, (self.robot.n, 1))
+
+    def feedback_gains(self) -> np.ndarray | None:
+        """K (1/s) of each row, or None for a task without feedback (a damping)."""
+        return None if self.gains is None else self.gains[0]
+
+    @property
+    def needs_period(self) -> bool:
+        """Whether a default (dead-beat) gain still waits for a controller's period."""
+        return self.gains is not None and bool(np.isnan(self.gains).any())
+
+    def attach(self, dt: float | None) -> None:
+        """Called by a controller with its period Δt (None for a law without one).
+
+        A gain left at its default becomes K = 1/Δt, dead-beat as mink's ``gain=1``. A met
+        task's error follows e_{k+1} = (1 − KΔt) e_k: KΔt > 1 overshoots (a
+        :class:`~qpik.errors.GainWarning`), KΔt > 2 grows (refused).
+
+        Raises:
+            InvalidInput: a gain with KΔt > 2.
+        """
+        if dt is None or self.gains is None:
+            return
+        if self.needs_period:
+            self.gains[np.isnan(self.gains)] = 1.0 / dt
+            self.gain = self.gains[0].copy()
+        worst = float(np.max(self.gains)) * dt * (1.0 - 1e-12)  # 1/Δt·Δt may round to 1 + 1 ulp
+        largest = float(np.max(self.gains))
+        if worst > 2.0:
+            raise InvalidInput(f"{self.name}: gain {largest:g} 1/s with dt = {dt:g} s gives K·dt = {worst:.3g} > 2: "
+                               f"the discrete error e(k+1) = (1 - K·dt) e(k) grows every step; use K <= {1.0 / dt:g} 1/s")
+        if worst > 1.0:
+            warnings.warn(f"{self.name}: gain {largest:g} 1/s with dt = {dt:g} s gives K·dt = {worst:.3g} > 1: the error "
+                          f"overshoots, changing sign every step; K <= {1.0 / dt:g} 1/s converges without overshoot",
+                          GainWarning, stacklevel=3)
+
+    @property
+    def priority(self) -> int:
+        """Level in a strict hierarchy: 0 is the highest; equal priorities share a level."""
+        return self._priority
+
+    @priority.setter
+    def priority(self, value) -> None:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise InvalidInput(f"{self.name} priority must be an integer >= 0 (0 the highest), got {value!r}")
+        self._priority = int(value)
+
+    # -- targets ----------------------------------------------------------------------------
+    @property
+    def target_dim(self) -> int:
+        """Length of a target (``set_target``): ``dim`` unless a task says otherwise."""
+        return self.dim
+
+    def set_target(self, target, velocity=None) -> None:
+        """Desired x_d (``target``: target_dim, or (N, target_dim)) and feed-forward ẋ_d
+        (zero by default), for a task whose ``compute_error`` reads ``self.target``.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN or inf (InvalidWorlds: in some worlds).
+        """
+        value = world_values(self.robot, target, (self.target_dim,), f"{self.name} target")
+        rate = None if velocity is None else world_values(self.robot, velocity, (self.dim,),
+                                                          f"{self.name} target velocity")
+        if self.target is None:
+            self.target = self.robot.present(np.array(value))
+        else:
+            self.target[...] = self.robot.present(value)
+        self.rates[...] = 0.0 if rate is None else rate
+
+    # -- every step -------------------------------------------------------------------------
+    def update(self) -> None:
+        """Refresh every world's ``errors``, ``jacobians`` and ``target_velocities`` from the
+        robot's kinematics (current: a controller updates them first)."""
+        self.measure_rows()
+        self.track()
+
+    def measure_rows(self) -> None:
+        """Write ``errors`` and ``jacobians``: a built-in task's own; here, from the user's
+        ``compute_error`` and ``compute_jacobian`` (world by world unless ``vectorized``)."""
+        robot, n, nv = self.robot, self.robot.n, self.robot.nv
+        if not robot.batched or self.vectorized:
+            shape = (self.dim,) if not robot.batched else (n, self.dim)
+            self.errors[...] = _checked_rows(self.compute_error(robot), shape, self.name, "compute_error")
+            self.jacobians[...] = _checked_rows(self.compute_jacobian(robot), shape + (nv,), self.name,
+                                                "compute_jacobian")
+            return
+        for w in range(n):
+            world = robot.world(w)
+            self.errors[w] = _checked_rows(self.compute_error(world), (self.dim,), self.name, "compute_error")
+            self.jacobians[w] = _checked_rows(self.compute_jacobian(world), (self.dim, nv), self.name,
+                                              "compute_jacobian")
+
+    def track(self) -> None:
+        """v = ẋ_d + K e in every world (outputs by position: a keyword costs more per call)."""
+        if self.gains is None:
+            np.copyto(self.target_velocities, self.rates)
+            return
+        np.multiply(self.gains, self.errors, self.target_velocities)
+        np.add(self.target_velocities, self.rates, self.target_velocities)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dim={self.dim}, hard={self.hard})"
+
+
+class JointSpaceTask(Task):
+    """A task whose Jacobian is the selection ``I[dofs]`` (posture, damping, gradients):
+    a controller adds its weights to the Hessian's diagonal without reading J.
+
+    Args:
+        robot: the robot.
+        joints: joint names whose dofs the task covers (default: every hinge and slide
+            joint; name a free or ball joint to include its dofs).
+        weight: cost weight (scalar or one per covered dof).
+    """
+
+    joint_space = True
+
+    def __init__(self, robot, joints=None, weight=1.0, **options):
+        self.dofs = joint_dofs(robot, joints)
+        if len(self.dofs) == 0:
+            raise InvalidInput(f"{self.name}: the model has no joint to act on (give joints=...)")
+        super().__init__(robot, len(self.dofs), weight, **options)
+
+    def _allocate_jacobians(self) -> None:
+        selection = np.zeros((self.dim, self.robot.nv))
+        selection[np.arange(self.dim), self.dofs] = 1.0
+        # Read-only and shared by every world: the identity's rows cost no memory per world.
+        self.jacobians = np.broadcast_to(selection, (self.robot.n, self.dim, self.robot.nv))
+
+    def measure_rows(self) -> None:
+        """``errors`` only (J is constant)."""
