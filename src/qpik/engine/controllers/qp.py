@@ -98,7 +98,7 @@ class QPController:
         uncapped = self.cost.uncapped()
         worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
         x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, G, h, worlds)
-        if worlds is None and solved is everywhere(len(x)):
+        if worlds is None and (solved is everywhere(len(x)) or solved.all()):
             np.copyto(self.qdots, x)
             return self.qdot
         self._finish(x, solved, worlds)

@@ -33,20 +33,22 @@ ACTIVE_TOLERANCE = 1e-9
 
 class EqualityQP:
     """The minimiser of ½xᵀHx + cᵀx s.t. Ax = b in ``n`` worlds of ``nv`` dofs and ``meq``
-    rows, in closed form, and its checks, with their buffers (allocated once)."""
+    rows, in closed form, optionally with some dofs held at given values, and its checks,
+    with their buffers (allocated once)."""
 
     def __init__(self, n: int, nv: int, meq: int):
         self.meq = meq
-        self.scaled, self.S = np.empty((n, meq, nv)), np.empty((n, meq, meq))  # A H⁻¹, A H⁻¹ Aᵀ
-        self.minimiser, self.x = np.empty((n, nv)), np.empty((n, nv))  # H⁻¹ c, x
+        self.scaled, self.S = np.empty((n, meq, nv)), np.empty((n, meq, meq))  # Ã H̃⁻¹, Ã H̃⁻¹ Ãᵀ
+        self.shift, self.x = np.empty((n, nv)), np.empty((n, nv))  # H̃⁻¹ c̃ (−v on held dofs), x
         self.r, self.residual = np.empty((n, meq, 1)), np.empty((n, meq, 1))
         self._r, self._residual = self.r[:, :, 0], self.residual[:, :, 0]  # (N, meq) views
         self._x_row, self._x_column = self.x[:, None, :], self.x[:, :, None]
-        self._minimiser_column = self.minimiser[:, :, None]
+        self._shift_column = self.shift[:, :, None]
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
+        self._held_inverse, self._gradient = np.empty((n, nv)), np.empty((n, nv))
         self._inverse = (None, None)  # (an inverse diagonal, its (N, 1, nv) view)
 
-    def solve(self, inverse_diagonal, H, c, A, b):
+    def solve(self, inverse_diagonal, H, c, A, b, fixed=None, values=None):
         """``(x (N, nv), y (N, meq), ok (N,))``: ``ok`` where H is positive definite, S is not
         singular and x is finite and meets the rows to :data:`EQUALITY_TOLERANCE`; x and y
         mean nothing elsewhere (x is a buffer, overwritten by the next solve).
@@ -55,29 +57,65 @@ class EqualityQP:
             inverse_diagonal: (N, nv) H⁻¹ where H is diagonal, else None.
             H: (N, nv, nv) where it is not (read when ``inverse_diagonal`` is None).
             c: (N, nv); A: (N, meq, nv); b: (N, meq).
+            fixed, values: (N, nv) the dofs held and their values (zero elsewhere), or None.
+
+        With dofs held the free ones solve the same problem with the held ones' columns of
+        A moved to b: x = (Ã H̃⁻¹)ᵀ y − s, S = Ã H̃⁻¹ Ãᵀ, S y = b + A s, where Ã is A without
+        the held columns, H̃ is H with the identity's rows and columns on the held dofs and
+        s = H̃⁻¹ c̃ holds −v there (so x = v on them).
         """
-        meq, scaled, minimiser, x = self.meq, self.scaled, self.minimiser, self.x
+        meq, scaled, shift, x = self.meq, self.scaled, self.shift, self.x
         if inverse_diagonal is not None:
-            np.multiply(A, self._rows_view(inverse_diagonal), scaled)
-            np.multiply(inverse_diagonal, c, minimiser)
             ok = everywhere(len(c))
+            if fixed is not None:  # H̃⁻¹ zero on the held dofs, s = H̃⁻¹c − v
+                inverse_diagonal = np.copyto(self._held_inverse, inverse_diagonal) or self._held_inverse
+                np.copyto(inverse_diagonal, 0.0, where=fixed)
+            np.multiply(A, self._rows_view(inverse_diagonal), scaled)
+            np.multiply(inverse_diagonal, c, shift)
+            if fixed is not None:
+                np.subtract(shift, values, shift)
         else:
-            solved, ok = cholesky_solve(H, np.concatenate([A.transpose(0, 2, 1), c[:, :, None]], axis=2))
-            scaled[...], minimiser[...] = solved[:, :, :meq].transpose(0, 2, 1), solved[:, :, meq]
+            ok = self._factor_dense(H, c, A, fixed, values)
         if not meq:
-            np.negative(minimiser, x)
-            return x, self._r, ok & np.isfinite(x).all(axis=1)
+            np.negative(shift, x)
+            return x, self._r, both(ok, np.isfinite(x).all(axis=1))
         np.matmul(scaled, A.transpose(0, 2, 1), self.S)
-        np.matmul(A, self._minimiser_column, self.r)
+        np.matmul(A, self._shift_column, self.r)
         np.add(self._r, b, self._r)
         y, solved_rows = cholesky_solve(self.S, self._r, SINGULAR_RATIO)
         np.matmul(y[:, None, :], scaled, self._x_row)
-        np.subtract(x, minimiser, x)
+        np.subtract(x, shift, x)
         np.matmul(A, self._x_column, self.residual)
         return x, y, both(solved_rows, ok, rows_met(self._residual, b, EQUALITY_TOLERANCE))
 
+    def _factor_dense(self, H, c, A, fixed, values) -> np.ndarray:
+        """``scaled`` and ``shift`` of a dense H (held dofs: H̃, c̃ and Ã as in :meth:`solve`)."""
+        meq = self.meq
+        if fixed is not None:
+            free = ~fixed
+            c = np.where(fixed, -values, c + np.matmul(H, values[:, :, None])[:, :, 0])
+            H = np.where(free[:, :, None] & free[:, None, :], H, 0.0)
+            np.einsum("nii->ni", H)[...] += fixed
+            A = A * free[:, None, :]
+        solved, ok = cholesky_solve(H, np.concatenate([A.transpose(0, 2, 1), c[:, :, None]], axis=2))
+        self.scaled[...], self.shift[...] = solved[:, :, :meq].transpose(0, 2, 1), solved[:, :, meq]
+        return ok
+
+    def gradient(self, inverse_diagonal, H, c, A, y) -> np.ndarray:
+        """Hx + c − Aᵀy of the last x (the original H, c, A): on a held dof, the bound's
+        multiplier (>= 0 at a lower bound, <= 0 at an upper one at the minimiser)."""
+        g = self._gradient
+        if inverse_diagonal is not None:
+            np.divide(self.x, inverse_diagonal, g)
+        else:
+            np.matmul(H, self._x_column, g[:, :, None])
+        np.add(g, c, g)
+        if self.meq:
+            g -= np.matmul(y[:, None, :], A)[:, 0]
+        return g
+
     def _rows_view(self, inverse_diagonal: np.ndarray) -> np.ndarray:
-        """``inverse_diagonal[:, None, :]``, kept while the same array comes (the cost's)."""
+        """``inverse_diagonal[:, None, :]``, kept while the same array comes."""
         if self._inverse[0] is not inverse_diagonal:
             self._inverse = (inverse_diagonal, inverse_diagonal[:, None, :])
         return self._inverse[1]
@@ -112,7 +150,7 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
     One comparison decides the usual step where every world is inside."""
     gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
     np.multiply(gap, sides, gap)
-    ok = everywhere(len(x)) if gap.min() >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
+    ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
     if G is not None and G.shape[1]:
         ok = ok & (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
     return ok
@@ -196,34 +234,15 @@ def _attempt(qp: EqualityQP, data, held_lower, held_upper):
     inverse_diagonal, H, c, A, b, box, G, h = data
     lower, upper = box[:, 0], box[:, 1]
     fixed = held_lower | held_upper
-    values = np.where(held_lower, lower, np.where(held_upper, upper, 0.0))
-    x, y, ok = qp.solve(*_with_held(inverse_diagonal, H, c, A, b, fixed, values))
-    # Multipliers of the held bounds: the gradient of the Lagrangian on them.
-    gradient = _gradient(inverse_diagonal, H, c, A, x, y)
+    values = np.zeros_like(c)
+    np.copyto(values, lower, where=held_lower)
+    np.copyto(values, upper, where=held_upper)
+    x, y, ok = qp.solve(inverse_diagonal, H, c, A, b, fixed, values)
+    gradient = qp.gradient(inverse_diagonal, H, c, A, y)
     wrong = (held_lower & (gradient < 0.0)) | (held_upper & (gradient > 0.0))
+    kept = ok & ~wrong.any(axis=1) & qp.admits(box, G, h)
+    if kept.all():
+        return x, kept, (held_lower, held_upper, ~kept)
     below, above = ~fixed & (x < lower), ~fixed & (x > upper)
-    kept = ok & ~wrong.any(axis=1) & inside(x, box, G, h)
     changed = ok & ~kept & (wrong | below | above).any(axis=1)
     return x, kept, ((held_lower & ~wrong) | below, (held_upper & ~wrong) | above, changed)
-
-
-def _with_held(inverse_diagonal, H, c, A, b, fixed, values):
-    """The problem with ``fixed`` dofs held at ``values``: their rows and columns of H the
-    identity's, c = −value on them (so x = value there), their columns of A moved to b."""
-    free = ~fixed
-    b = b - np.einsum("nij,nj->ni", A, values)
-    A = A * free[:, None, :]
-    if inverse_diagonal is not None:
-        return np.where(fixed, 1.0, inverse_diagonal), None, np.where(fixed, -values, c), A, b
-    coupling = np.einsum("nij,nj->ni", H, values)  # H_fF v_F on the free rows
-    c = np.where(fixed, -values, c + coupling)
-    H = np.where(free[:, :, None] & free[:, None, :], H, 0.0)
-    diagonal = np.einsum("nii->ni", H)
-    diagonal += fixed
-    return None, H, c, A, b
-
-
-def _gradient(inverse_diagonal, H, c, A, x, y):
-    """Hx + c − Aᵀy in every world: the bound multipliers' side of the KKT conditions."""
-    Hx = x / inverse_diagonal if inverse_diagonal is not None else np.einsum("nij,nj->ni", H, x)
-    return Hx + c - np.einsum("nij,ni->nj", A, y)

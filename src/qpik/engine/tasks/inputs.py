@@ -112,64 +112,74 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
 
 
 def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
-    """``rotation`` (a 3x3 matrix, or a w-x-y-z unit quaternion) as a checked (3, 3) float
-    rotation: orthonormal to 1e-6, no reflection, a quaternion of unit norm to 1e-6."""
-    return world_rotations(None, rotation, what)[0]
+    """``rotation`` (a 3x3 matrix, or a w-x-y-z unit quaternion, converted by
+    ``mju_quat2Mat``) as a checked (3, 3) float rotation: orthonormal to 1e-6 (each entry of
+    RᵀR − I), no reflection, a quaternion of unit norm to 1e-6. Checked in floats: a step's
+    target costs a few NumPy calls less so.
+
+    Raises:
+        InvalidInput: not a finite 3x3 matrix or (4,) quaternion, or not a rotation.
+    """
+    try:
+        rot = np.asarray(rotation, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {rotation!r}") from None
+    if rot.shape == (4,):
+        rot = _quaternion_matrix(rot, what)
+    elif rot.shape != (3, 3):
+        raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    gram = (a * a + d * d + g * g - 1.0, b * b + e * e + h * h - 1.0, c * c + f * f + i * i - 1.0,
+            a * b + d * e + g * h, a * c + d * f + g * i, b * c + e * f + h * i)
+    if not all(-1e-6 <= x <= 1e-6 for x in gram):  # NaN fails too
+        if not math.isfinite(sum(gram)):
+            raise InvalidInput(f"{what} contains NaN or inf")
+        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {max(abs(x) for x in gram):.2g})")
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+        raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
+    return rot
+
+
+def _quaternion_matrix(quaternion: np.ndarray, what: str) -> np.ndarray:
+    values = quaternion.tolist()
+    norm = math.sqrt(sum(x * x for x in values))
+    if not abs(norm - 1.0) <= 1e-6:
+        raise InvalidInput(f"{what} must be a unit quaternion (w, x, y, z), got norm {norm:.6g}")
+    flat = np.empty(9)
+    mujoco.mju_quat2Mat(flat, quaternion)
+    return flat.reshape(3, 3)
 
 
 def world_rotations(robot, value, what: str = "target rotation") -> np.ndarray:
-    """(N, 3, 3) rotations from matrices or w-x-y-z unit quaternions, one for every world
-    or one per world (``robot`` None: one rotation, (1, 3, 3)); each checked as
-    :func:`rotation_matrix` says.
+    """Rotations (N, 3, 3) from matrices or w-x-y-z unit quaternions: one for every world
+    (checked by :func:`rotation_matrix`), or (N worlds) one per world, (N, 3, 3) or (N, 4),
+    checked across worlds.
 
     Raises:
-        InvalidInput: a wrong shape, or (one rotation) a bad one.
+        InvalidInput: a wrong shape, or one bad rotation.
         InvalidWorlds: (N worlds) the worlds whose rotation is bad.
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be a 3x3 matrix or a w-x-y-z quaternion of numbers, got {value!r}") from None
-    batched = robot is not None and robot.batched
-    n = robot.n if batched else 1
-    if arr.shape in ((4,), (3, 3)) or not batched:
-        arr = arr[None]
-    if arr.shape[1:] == (4,) and arr.shape[0] in (1, n):
-        arr = _quaternion_matrices(arr, what, batched)
-    elif arr.shape[1:] != (3, 3) or arr.shape[0] not in (1, n):
-        raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion" +
-                           (f", or ({n}, 3, 3) / ({n}, 4) for every world" if batched else "") + f", got {value!r}")
-    gram = np.einsum("nki,nkj->nij", arr, arr) - np.eye(3)
-    deviation = np.abs(gram).reshape(len(arr), 9).max(axis=1)
-    bad = ~(deviation <= 1e-6) | (np.linalg.det(arr) < 0)
+    shape = np.shape(value)
+    if shape in ((3, 3), (4,)) or not robot.batched:
+        return rotation_matrix(value, what)[None]
+    arr = float_array(value, (robot.n,) + shape[1:] if shape[1:] in ((3, 3), (4,)) else (robot.n, 3, 3), what)
+    if arr.shape[1:] == (4,):
+        norm = np.sqrt(np.einsum("ni,ni->n", arr, arr))
+        _refuse_worlds(~(np.abs(norm - 1.0) <= 1e-6), f"{what}: not a unit quaternion (w, x, y, z)")
+        matrices = np.empty((robot.n, 9))
+        for matrix, quat in zip(matrices, arr):
+            mujoco.mju_quat2Mat(matrix, quat)
+        arr = matrices.reshape(-1, 3, 3)
+    deviation = np.abs(np.einsum("nki,nkj->nij", arr, arr) - np.eye(3)).reshape(robot.n, 9).max(axis=1)
+    _refuse_worlds(~(deviation <= 1e-6) | (np.linalg.det(arr) < 0),
+                   f"{what}: not a rotation matrix (NaN, not orthonormal to 1e-6, or a reflection)")
+    return arr
+
+
+def _refuse_worlds(bad: np.ndarray, message: str) -> None:
     if bad.any():
-        _bad_rotations(arr, bad, deviation, what, batched)
-    return np.broadcast_to(arr, (n, 3, 3))
-
-
-def _quaternion_matrices(quats: np.ndarray, what: str, batched: bool) -> np.ndarray:
-    norm = np.sqrt(np.einsum("ni,ni->n", quats, quats))
-    bad = ~(np.abs(norm - 1.0) <= 1e-6)
-    if bad.any():
-        if not batched:
-            raise InvalidInput(f"{what} must be a unit quaternion (w, x, y, z), got norm {norm[0]:.6g}")
-        raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))}: not a unit quaternion (w, x, y, z)",
-                            np.flatnonzero(bad))
-    matrices = np.empty((len(quats), 9))
-    for matrix, quat in zip(matrices, quats):
-        mujoco.mju_quat2Mat(matrix, quat)
-    return matrices.reshape(-1, 3, 3)
-
-
-def _bad_rotations(arr, bad, deviation, what: str, batched: bool) -> None:
-    if batched:
-        raise InvalidWorlds(f"{what} of worlds {listed(np.flatnonzero(bad))} is not a rotation matrix "
-                            "(NaN, not orthonormal to 1e-6, or a reflection)", np.flatnonzero(bad))
-    if not np.isfinite(arr).all():
-        raise InvalidInput(f"{what} contains NaN or inf")
-    if deviation[0] > 1e-6:
-        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {deviation[0]:.2g})")
-    raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
+        worlds = np.flatnonzero(bad)
+        raise InvalidWorlds(f"{message} in worlds {listed(worlds)}", worlds)
 
 
 def homogeneous_transform(transform, what: str = "target transform") -> tuple[np.ndarray, np.ndarray]:
