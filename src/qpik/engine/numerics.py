@@ -56,33 +56,41 @@ def worlds_last(a: np.ndarray) -> np.ndarray:
 
 
 # -- Cholesky solves ------------------------------------------------------------------
-def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place: bool = False):
     """Solve M_k X_k = B_k in every world, M_k symmetric positive definite, by Cholesky
-    (only M's lower triangle is read; M and B are not written).
+    (only M's lower triangle is read; M is not written).
 
     Args:
         M: (N, k, k).
         B: (N, k) or (N, k, m).
         ratio: the most L's diagonal may span (max / min) for a world to count as solved.
+        in_place: write X into B instead of a new array.
 
     Returns:
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
         (every pivot > 0) and its pivots span at most ``ratio``; X means nothing elsewhere.
     """
     if len(M) == 1:
-        return _cholesky_solve_one(M[0], B[0], ratio)
+        return _cholesky_solve_one(M[0], B, ratio, in_place)
     columns = B[..., None] if B.ndim == 2 else B
     X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
     X = np.moveaxis(X, -1, 0)
     ok = (pivots.min(axis=0) > 0.0) & (pivots.max(axis=0) <= ratio * pivots.min(axis=0))
-    return (X[..., 0] if B.ndim == 2 else X), ok
+    X = X[..., 0] if B.ndim == 2 else X
+    if in_place:
+        B[...] = X
+        X = B
+    return X, ok
 
 
-def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
     """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
-    factor, X, info = dposv(M, B)
+    factor, X, info = dposv(M, B[0])
     pivots = factor.diagonal().tolist()
-    return X[None], everywhere(1) if info == 0 and max(pivots) <= ratio * min(pivots) else nowhere(1)
+    if in_place:
+        B[0] = X
+    return B if in_place else X[None], \
+        everywhere(1) if info == 0 and max(pivots) <= ratio * min(pivots) else nowhere(1)
 
 
 def _cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -215,22 +223,32 @@ _CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 class RotationError:
     """e with R exp([e]) = R_d (the current frame's axes) or exp([e]) R = R_d (world axes)
     in every world: ``mju_subQuat`` of the two rotations' quaternions. One instance per
-    task (its scratch arrays); at N = 1 MuJoCo's routines do it."""
+    task (its scratch arrays); at N = 1 MuJoCo's routines do it, on views of the arrays
+    made once (kept while the same arrays come)."""
 
     def __init__(self, n: int):
         self.n = n
         self._desired, self._current, self._local = np.empty(4), np.empty(4), np.empty(3)
+        self._arrays, self._views = (None, None, None), None
 
     def __call__(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray, local: bool = False) -> np.ndarray:
         """Write the errors of rotations (N, 3, 3) into ``out`` (N, 3)."""
         if self.n == 1:
-            mujoco.mju_mat2Quat(self._desired, desired.reshape(9))
-            mujoco.mju_mat2Quat(self._current, current.reshape(9))
+            arrays = self._arrays
+            if arrays[0] is not desired or arrays[1] is not current or arrays[2] is not out:
+                self._arrays = (desired, current, out)
+                self._views = (np.ascontiguousarray(desired[0]).reshape(9), np.ascontiguousarray(current[0]),
+                               out[0], desired.flags.c_contiguous and current.flags.c_contiguous)
+            flat_desired, current0, out0, stable = self._views
+            if not stable:  # copies, refreshed every call
+                flat_desired[:], current0[...] = desired[0].reshape(9), current[0]
+            mujoco.mju_mat2Quat(self._desired, flat_desired)
+            mujoco.mju_mat2Quat(self._current, current0.reshape(9))
             if local:
-                mujoco.mju_subQuat(out[0], self._desired, self._current)
+                mujoco.mju_subQuat(out0, self._desired, self._current)
             else:
                 mujoco.mju_subQuat(self._local, self._desired, self._current)
-                current[0].dot(self._local, out[0])
+                current0.dot(self._local, out0)
             return out
         error = quat2vel(mul(mat2quat(current) * _CONJUGATE, mat2quat(desired)))
         if local:

@@ -67,6 +67,8 @@ class QPController:
         self.held = HeldBounds(robot.n, robot.nv, self.hard_rows.dim, hold=self._solver.exact)
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.qdots = np.zeros((robot.n, robot.nv))
+        self._rows = (self.problem.G, self.problem.h) if self.problem.rows else (None, None)
+        self._everywhere = everywhere(robot.n)
         self.qdot = robot.present(self.qdots)
         self.solver_calls = 0  # world-steps that needed the solver
 
@@ -94,11 +96,10 @@ class QPController:
         problem.fill()
         self.cost.write()
         self.hard_rows.stack()
-        G, h = (problem.G, problem.h) if problem.rows else (None, None)
         uncapped = self.cost.uncapped()
-        worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
-        x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, G, h, worlds)
-        if worlds is None and (solved is everywhere(len(x)) or solved.all()):
+        worlds = None if uncapped is self._everywhere else np.flatnonzero(uncapped)
+        x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, *self._rows, worlds)
+        if worlds is None and (solved is self._everywhere or solved.all()):
             np.copyto(self.qdots, x)
             return self.qdot
         self._finish(x, solved, worlds)

@@ -42,7 +42,9 @@ class EqualityQP:
         self.shift, self.x = np.empty((n, nv)), np.empty((n, nv))  # H̃⁻¹ c̃ (−v on held dofs), x
         self.r, self.residual = np.empty((n, meq, 1)), np.empty((n, meq, 1))
         self._r, self._residual = self.r[:, :, 0], self.residual[:, :, 0]  # (N, meq) views
+        self._y_row = self.r.transpose(0, 2, 1)  # y is solved into r
         self._x_row, self._x_column = self.x[:, None, :], self.x[:, :, None]
+        self._everywhere = everywhere(n)
         self._shift_column = self.shift[:, :, None]
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
         self._held_inverse, self._gradient = np.empty((n, nv)), np.empty((n, nv))
@@ -66,7 +68,7 @@ class EqualityQP:
         """
         meq, scaled, shift, x = self.meq, self.scaled, self.shift, self.x
         if inverse_diagonal is not None:
-            ok = everywhere(len(c))
+            ok = self._everywhere
             if fixed is not None:  # H̃⁻¹ zero on the held dofs, s = H̃⁻¹c − v
                 inverse_diagonal = np.copyto(self._held_inverse, inverse_diagonal) or self._held_inverse
                 np.copyto(inverse_diagonal, 0.0, where=fixed)
@@ -81,12 +83,16 @@ class EqualityQP:
             return x, self._r, both(ok, np.isfinite(x).all(axis=1))
         np.matmul(scaled, A.transpose(0, 2, 1), self.S)
         np.matmul(A, self._shift_column, self.r)
-        np.add(self._r, b, self._r)
-        y, solved_rows = cholesky_solve(self.S, self._r, SINGULAR_RATIO)
-        np.matmul(y[:, None, :], scaled, self._x_row)
+        y = self._r
+        np.add(y, b, y)
+        _, solved_rows = cholesky_solve(self.S, y, SINGULAR_RATIO, in_place=True)
+        np.matmul(self._y_row, scaled, self._x_row)
         np.subtract(x, shift, x)
         np.matmul(A, self._x_column, self.residual)
-        return x, y, both(solved_rows, ok, rows_met(self._residual, b, EQUALITY_TOLERANCE))
+        met = rows_met(self._residual, b, EQUALITY_TOLERANCE, self._everywhere)
+        if solved_rows is ok is met:
+            return x, y, ok
+        return x, y, both(solved_rows, ok, met)
 
     def _factor_dense(self, H, c, A, fixed, values) -> np.ndarray:
         """``scaled`` and ``shift`` of a dense H (held dofs: H̃, c̃ and Ã as in :meth:`solve`)."""
@@ -130,12 +136,13 @@ def equality_minimiser(inverse_diagonal, H, c, A, b):
     return EqualityQP(len(c), c.shape[1], A.shape[1]).solve(inverse_diagonal, H, c, A, b)
 
 
-def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
+def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.ndarray | None = None) -> np.ndarray:
     """(N,) whether |Ax − b| <= tolerance (1 + |b|) in each world (Euclidean norms; NaN
-    fails), from A x (N, meq) (overwritten with the residual)."""
-    Ax -= b
+    fails), from A x (N, meq) (overwritten with the residual); ``all_worlds``: what to
+    return when every world meets them (default ``everywhere``)."""
+    np.subtract(Ax, b, Ax)
     if np.vdot(Ax, Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
-        return everywhere(len(b))
+        return everywhere(len(b)) if all_worlds is None else all_worlds
     miss = np.einsum("ni,ni->n", Ax, Ax)
     return miss <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))
 
@@ -151,9 +158,9 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
     gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
     np.multiply(gap, sides, gap)
     ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
-    if G is not None and G.shape[1]:
-        ok = ok & (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
-    return ok
+    if G is None:
+        return ok
+    return ok & (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1) if G.shape[1] else ok
 
 
 class HeldBounds:
@@ -190,8 +197,11 @@ class HeldBounds:
         if not self.holding:  # the plain closed form first: most steps end here
             qp = self._qp(len(data[2]))
             x, _, ok = qp.solve(*data[:5])
-            solved = both(ok, qp.admits(*data[5:]))
-            if solved is everywhere(len(x)) or not self.hold:
+            inside_box = qp.admits(*data[5:])
+            if ok is inside_box:  # both everywhere: every world settled
+                return x, ok
+            solved = both(ok, inside_box)
+            if not self.hold:
                 return x, solved
             x, solved = x.copy(), np.array(solved)
             if solved.all():
