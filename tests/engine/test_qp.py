@@ -33,14 +33,16 @@ def arm_problem(robot, tasks, limits, controller, ranges=None, start=ARM_START):
     return position, controller(robot, [position, sigma], bounds, solver="daqp", dt=DT)
 
 
-def rollout(robot, position, qp, steps: int, shift=np.zeros(2)):
-    """Follow a line from the start: (N or 1, steps, nq) configurations."""
+def rollout(robot, position, qp, steps: int):
+    """The source's path from each world's start: the segment (1, −1) m long in 5 s on a
+    cubic time law (docs/arm.md); (steps, [N,] nq) configurations."""
     robot.ensure_kinematics()
     start = np.array(position.target)
     trajectory = []
     for k in range(steps):
         t = k * DT
-        position.set_target(start + shift + np.array([0.3, -0.3]) * t, np.array([0.3, -0.3]))
+        s, ds = (-2 * t**3 + 15 * t**2) / 125, (-6 * t**2 + 30 * t) / 125
+        position.set_target(start + s * np.array([1.0, -1.0]), ds * np.array([1.0, -1.0]))
         robot.integrate(qp.compute_velocity(), DT)
         trajectory.append(np.array(robot.q))
     return np.array(trajectory)
@@ -48,20 +50,24 @@ def rollout(robot, position, qp, steps: int, shift=np.zeros(2)):
 
 @pytest.mark.parametrize("ranges", [None, RANGES], ids=["seed-redundant", "joint-limits"])
 def test_one_world_follows_the_serial_controller(ranges):
-    """1,000 steps; with the ranges the held bounds and the solver take over on many steps.
-    Both solve the same strictly convex QP: the trajectories agree to rounding carried over
-    the run (1e-11 rad; the configurations are O(1))."""
+    """The whole path (2,500 steps); with the ranges θ2 and θ3 reach their bounds after
+    about 2 s, and the held bounds and the solver take over. Both solve the same strictly
+    convex QP: the trajectories agree to rounding carried over the run (1e-11 rad; the
+    configurations are O(1))."""
     runs, calls = [], []
     for tasks, limits, controller in ((engine_tasks, engine_limits, QPController),
                                       (serial_tasks, serial_limits, serial_controllers.QPController)):
         robot = Robot.load("arm")
         position, qp = arm_problem(robot, tasks, limits, controller, ranges)
-        runs.append(rollout(robot, position, qp, 1000))
+        runs.append(rollout(robot, position, qp, 2500))
         calls.append(qp.solver_calls)
     assert np.abs(runs[0] - runs[1]).max() <= 1e-11
     # No limit binds on the seed path: every step is the closed form's (the solver is the
     # exception, not the rule); with the ranges, the held bounds settle most binding steps.
-    assert calls[0] == 0 if ranges is None else 0 < calls[0] <= calls[1]
+    if ranges is None:
+        assert calls[0] == 0
+    else:  # the bounds bind on most of the last 3 s: held bounds settle nearly all of those steps
+        assert np.abs(runs[0][-1, 1:3]).max() > 0.999 and calls[0] <= calls[1], calls
 
 
 def test_each_of_n_worlds_is_its_own_one_world_run():
