@@ -271,6 +271,7 @@ class ConfigurationDifference:
 
     def __init__(self, model: mujoco.MjModel, n: int):
         self.model, self.n = model, n
+        self._arrays, self._views = (None, None, None), None  # world 0's views, kept while the same arrays come
         J = mujoco.mjtJoint
         self.scalar_q, self.scalar_v, self.linear, self.quats = [], [], [], []
         for j in range(model.njnt):
@@ -286,7 +287,9 @@ class ConfigurationDifference:
 
     def __call__(self, q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> np.ndarray:
         if self.n == 1:
-            mujoco.mj_differentiatePos(self.model, out[0], 1.0, q_from[0], q_to[0])
+            if self._arrays[0] is not q_from or self._arrays[1] is not q_to or self._arrays[2] is not out:
+                self._arrays, self._views = (q_from, q_to, out), (q_from[0], q_to[0], out[0])
+            mujoco.mj_differentiatePos(self.model, self._views[2], 1.0, self._views[0], self._views[1])
             return out
         out[:, self.scalar_v] = q_to[:, self.scalar_q] - q_from[:, self.scalar_q]
         for qadr, vadr in self.linear:

@@ -86,10 +86,14 @@ class FrameTask(Task):
         twist = robot.present(self._twist)
         self.target_linear_velocity, self.target_angular_velocity = twist[..., :3], twist[..., 3:]
         self.position_error, self.orientation_error = self.error[..., :n_position], self.error[..., n_position:]
-        # Every world axis: MuJoCo fills the task's own Jacobian rows, no copies.
+        # Every world axis: MuJoCo fills the task's own Jacobian rows, the feed-forward is
+        # the twist itself, the errors are views: no copies.
         self._whole = self._pose.whole_rows()
         if self._whole:
             self._fill = self.frame.jacobians_filler(self.jacobians[:, :3], self.jacobians[:, 3:])
+            self.rates = self._twist
+            self.target_rate = robot.present(self.rates)
+            self._position_errors, self._orientation_errors = self.errors[:, :3], self.errors[:, 3:]
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
         """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``:
@@ -136,6 +140,5 @@ class FrameTask(Task):
             pose.write(self, self.target_positions, self.target_rotations, self._twist[:, :3], self._twist[:, 3:])
             return
         self._fill()
-        np.subtract(self.target_positions, self.frame.positions, self.errors[:, :3])
-        pose._rotation_error(self.target_rotations, self.frame.rotations, self.errors[:, 3:])
-        np.copyto(self.rates, self._twist)
+        np.subtract(self.target_positions, self.frame.positions, self._position_errors)
+        pose._rotation_error(self.target_rotations, self.frame.rotations, self._orientation_errors)

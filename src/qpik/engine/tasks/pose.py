@@ -24,7 +24,8 @@ class PoseRows:
     """A frame's masked pose rows (see the module's description).
 
     Args:
-        frame: the robot's :class:`~qpik.robot.Frame`.
+        robot: the robot (one world or N).
+        frame: the robot's frame.
         position_rows: the kept rows of the position block (world or local axes), or None.
         orientation_rows: those of the orientation block, or None.
         local: the frame's own axes.
@@ -35,21 +36,25 @@ class PoseRows:
         n, nv = robot.n, robot.nv
         self.frame, self.local = frame, local
         offset = 0 if position_rows is None else 3
-        blocks = ([] if position_rows is None else [position_rows]) + \
+        kept = ([] if position_rows is None else [position_rows]) + \
             ([] if orientation_rows is None else [offset + orientation_rows])
-        self.rows = as_index(np.concatenate(blocks).astype(int))
-        self.dim = sum(len(b) for b in blocks)
+        self.rows = as_index(np.concatenate(kept).astype(int))
+        self.dim = sum(len(b) for b in kept)
         width = offset + (0 if orientation_rows is None else 3)
-        self._jac = np.zeros((n, width, nv))  # the blocks' whole Jacobian, then rotated if local
-        self._error = np.zeros((n, width))
-        self._jacp = self._jac[:, :3] if position_rows is not None else None
-        self._jacr = self._jac[:, offset:] if orientation_rows is not None else None
-        self._position = slice(0, 3) if position_rows is not None else None
-        self._orientation = slice(offset, width) if orientation_rows is not None else None
+        self._jac, self._error, self._feedforward = np.zeros((n, width, nv)), np.zeros((n, width)), np.zeros((n, width))
+        blocks = ([slice(0, 3)] if position_rows is not None else []) + \
+            ([slice(offset, width)] if orientation_rows is not None else [])
+        # Per block: (its rows of the Jacobian, of the error, of the feed-forward): views made once.
+        self._blocks = [(self._jac[:, b], self._error[:, b], self._feedforward[:, b]) for b in blocks]
+        self._position = self._blocks[0] if position_rows is not None else None
+        self.position_jacobian = self._position[0] if self._position else None  # (N, 3, nv), MuJoCo's
+        self._orientation = self._blocks[-1] if orientation_rows is not None else None
         self._rotation_error = RotationError(n)
         self._rotated = np.zeros((n, width, nv)) if local else None
+        self._rotated_blocks = [self._rotated[:, b] for b in blocks] if local else None
         self._transposed = frame.rotations.transpose(0, 2, 1)  # Rᵀ of every world (a view)
-        self._feedforward = np.zeros((n, width))
+        self._fill = frame.jacobians_filler(self._position[0] if self._position else None,
+                                            self._orientation[0] if self._orientation else None)
 
     def whole_rows(self) -> bool:
         """Whether every row of the blocks is kept in world axes (then J is MuJoCo's own)."""
@@ -58,37 +63,36 @@ class PoseRows:
     def jacobian(self) -> np.ndarray:
         """The blocks' Jacobian (N, width, nv), rotated into the frame's axes if local: a
         scratch array, valid until the next call."""
-        self.frame.jacobians(self._jacp, self._jacr)
+        self._fill()
         if not self.local:
             return self._jac
-        for block in (self._position, self._orientation):
-            if block is not None:
-                np.matmul(self._transposed, self._jac[:, block], out=self._rotated[:, block])
+        for (jac, _, _), rotated in zip(self._blocks, self._rotated_blocks):
+            np.matmul(self._transposed, jac, rotated)
         return self._rotated
 
     def errors(self, target_position: np.ndarray | None, target_rotation: np.ndarray | None) -> np.ndarray:
         """The blocks' pose error (N, width), in the task's axes (a scratch array)."""
-        e, frame = self._error, self.frame
+        frame = self.frame
         if self._position is not None:
-            np.subtract(target_position, frame.positions, out=e[:, self._position])
+            error = self._position[1]
+            np.subtract(target_position, frame.positions, error)
             if self.local:
-                e[:, self._position] = np.einsum("nji,nj->ni", frame.rotations, e[:, self._position])
+                error[...] = np.einsum("nji,nj->ni", frame.rotations, error)
         if self._orientation is not None:
-            self._rotation_error(target_rotation, frame.rotations, e[:, self._orientation], self.local)
-        return e
+            self._rotation_error(target_rotation, frame.rotations, self._orientation[1], self.local)
+        return self._error
 
     def feedforward(self, linear: np.ndarray | None, angular: np.ndarray | None) -> np.ndarray:
         """The blocks' feed-forward velocity (N, width) in the task's axes, from world-axes
         velocities (a scratch array)."""
-        f = self._feedforward
         for block, velocity in ((self._position, linear), (self._orientation, angular)):
             if block is None:
                 continue
             if self.local:
-                np.einsum("nji,nj->ni", self.frame.rotations, velocity, out=f[:, block])
+                np.einsum("nji,nj->ni", self.frame.rotations, velocity, out=block[2])
             else:
-                f[:, block] = velocity
-        return f
+                block[2][...] = velocity
+        return self._feedforward
 
     def write(self, task, target_position, target_rotation, linear=None, angular=None) -> None:
         """Write the task's ``jacobians``, ``errors`` and (with velocities) ``rates``."""

@@ -57,12 +57,15 @@ class PositionTask(Task):
         self.targets = np.array(start)  # (N, target_dim)
         self.target = robot.present(self.targets)
         self._velocities = np.zeros((robot.n, 3)) if self.local else self.rates  # ẋ_d, world axes
-        self._fill = self.frame.jacobians_filler(self._pose._jacp)
+        self._fill = self._pose._fill
+        # World axes: the kept rows of the frame's position (a view when consecutive).
+        rows = self._pose.rows
+        self._kept = self.frame.positions[:, rows] if isinstance(rows, slice) else np.zeros((robot.n, self.dim))
 
     def _allocate_jacobians(self) -> None:
         # World axes: the rows of MuJoCo's own Jacobian (a view, no copy per step).
         rows = self._pose.rows
-        self.jacobians = self._pose._jacp[:, rows] if not self.local and isinstance(rows, slice) else \
+        self.jacobians = self._pose.position_jacobian[:, rows] if not self.local and isinstance(rows, slice) else \
             np.zeros((self.robot.n, self._pose.dim, self.robot.nv))
 
     @property
@@ -113,5 +116,6 @@ class PositionTask(Task):
             return
         self._fill()
         if not isinstance(self._pose.rows, slice):
-            self.jacobians[...] = self._pose._jacp[:, self.rows]
-        np.subtract(self.targets, self.frame.positions[:, self._pose.rows], self.errors)
+            np.take(self._pose.position_jacobian, self.rows, 1, self.jacobians)
+            np.take(self.frame.positions, self.rows, 1, self._kept)
+        np.subtract(self.targets, self._kept, self.errors)

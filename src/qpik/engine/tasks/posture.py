@@ -38,6 +38,9 @@ class PostureTask(JointSpaceTask):
         self._difference = ConfigurationDifference(robot.model, robot.n)
         self._velocity = np.zeros((robot.n, robot.nv))
         self._dofs = as_index(self.dofs)
+        if isinstance(self._dofs, slice):  # the error is a view of the difference: no copy per step
+            self.errors = self._velocity[:, self._dofs]
+            self.error = robot.present(self.errors)
 
     @property
     def gain(self) -> float:
@@ -57,7 +60,5 @@ class PostureTask(JointSpaceTask):
 
     def measure_rows(self) -> None:
         self._difference(self.robot.qpos, self.targets, self._velocity)
-        if isinstance(self._dofs, slice):
-            np.copyto(self.errors, self._velocity[:, self._dofs])
-        else:
-            np.take(self._velocity, self._dofs, axis=1, out=self.errors)
+        if not isinstance(self._dofs, slice):
+            np.take(self._velocity, self._dofs, 1, self.errors)

@@ -212,6 +212,11 @@ class Task:
         self.measure_rows()
         self.track()
 
+    def update_target_velocity(self) -> None:
+        """``errors`` and ``target_velocities`` for a law that reads no Jacobian (the peers'
+        problems): the same update (a task measures its Jacobian with its error)."""
+        self.update()
+
     def measure_rows(self) -> None:
         """Write ``errors`` and ``jacobians``: a built-in task's own; here, from the user's
         ``compute_error`` and ``compute_jacobian`` (world by world unless ``vectorized``)."""
