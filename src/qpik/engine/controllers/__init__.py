@@ -1,5 +1,6 @@
 """Controllers over N worlds: the QP, the strict hierarchy, SNS and the classical laws."""
 
+from .pinv import JacobianTransposeController, PseudoinverseController
 from .qp import QPController
 
-__all__ = ["QPController"]
+__all__ = ["JacobianTransposeController", "PseudoinverseController", "QPController"]
