@@ -3,5 +3,7 @@
 from .hierarchy import HierarchicalController
 from .pinv import JacobianTransposeController, PseudoinverseController
 from .qp import QPController
+from .sns import SNSController
 
-__all__ = ["HierarchicalController", "JacobianTransposeController", "PseudoinverseController", "QPController"]
+__all__ = ["HierarchicalController", "JacobianTransposeController", "PseudoinverseController", "QPController",
+           "SNSController"]
