@@ -87,11 +87,11 @@ class _Level:
         epsilon = _level_regularization(nv, soft, regularization)
         self.cost = Cost(robot, soft, epsilon)
         self.general = bool(self.cost.general)
-        self.A = controller.J[:, : self.rows]  # a view of the stack
+        self.A = controller._J[:, : self.rows]  # a view of the stack
         self.b = np.zeros((n, self.rows))
         self.frozen = self.b[:, : self.above, None]  # (N, above, 1) view: J_above q̇*_{k-1}
-        self.solver = WorldSolver(solver, nv, self.rows, controller.problem.rows, controller.native,
-                                  **controller.solver_settings)
+        self.solver = WorldSolver(solver, nv, self.rows, controller.problem.rows, controller._native,
+                                  **controller._solver_settings)
         self.reduced: dict[int, WorldSolver] = {}  # for rows replaced by a basis, by its rank
         if self.general:
             # R = [√W J_soft; A], rhs = [√W v_soft; b], D = ε + the joint-space weights + LM.
@@ -161,9 +161,9 @@ class HierarchicalController:
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         self.problem = problem = Problem(robot, self.tasks, limits, dt, "HierarchicalController")
         self.robot, self.solver, self.dt, self.limits = robot, solver, problem.dt, problem.limits
-        self.native, self.solver_settings = native, solver_settings
+        self._native, self._solver_settings = native, solver_settings
         self._stack = Stack(robot, self.tasks)
-        self.J, self.v = self._stack.J, self._stack.v  # (N, rows, nv), (N, rows): every level's rows
+        self._J, self._v = self._stack.J, self._stack.v  # (N, rows, nv), (N, rows): every level's rows
         rows = {id(task): task_rows for task, task_rows in self._stack.task_rows}
         self.levels, start = [], 0
         for k, level in enumerate(grouped):  # a level's rows end where its last task's do
@@ -215,12 +215,12 @@ class HierarchicalController:
         """Level ``level`` in every world into ``level_velocities_all``: the closed form, then
         the solver in the worlds it leaves (those failed above excluded)."""
         if level.above:
-            np.matmul(self.J[:, : level.above], previous[:, :, None], level.frozen)
+            np.matmul(self._J[:, : level.above], previous[:, :, None], level.frozen)
         if level.hard_dim:
-            level.b[:, level.above:] = self.v[:, level.hard_rows]
+            level.b[:, level.above:] = self._v[:, level.hard_rows]
         x, solved, worlds = self._closed_form(level)
         out = self.level_velocities_all[:, level.index]
-        if worlds is None and solved is everywhere(len(out)) and not failures:
+        if worlds is None and not failures and (solved is everywhere(len(out)) or solved.all()):
             np.copyto(out, x)
             return
         settled = np.zeros(len(out), dtype=bool)
@@ -275,7 +275,7 @@ class HierarchicalController:
     def _solve_world(self, level: _Level, w: int, previous: np.ndarray | None) -> np.ndarray:
         """World ``w``'s level by the solver (see the module's description)."""
         qp = self._world_qp(level, w, level.A[w], level.b[w])
-        check_finite_velocities(self.tasks, qp.c, self.v[w], w)
+        check_finite_velocities(self.tasks, qp.c, self._v[w], w)
         try:
             return self._polish(level, w, level.solver.solve(w, qp, hessian_changed=level.general))
         except (InfeasibleProblem, SolverError) as first:
@@ -283,13 +283,13 @@ class HierarchicalController:
                 raise self._named(level, first) from None
         # The rows above are consistent (q̇*_{k-1} meets them) but may depend on each
         # other: constrain the same set through an orthonormal basis of their row space.
-        basis = _row_basis(self.J[w, : level.above])
+        basis = _row_basis(self._J[w, : level.above])
         rank = len(basis)
         if rank not in level.reduced:
             level.reduced[rank] = WorldSolver(self.solver, self.robot.nv, rank + level.hard_dim, self.problem.rows,
-                                              self.native, **self.solver_settings)
-        A = np.concatenate([basis, self.J[w, level.hard_rows]])
-        b = np.concatenate([basis @ previous[w], self.v[w, level.hard_rows]])
+                                              self._native, **self._solver_settings)
+        A = np.concatenate([basis, self._J[w, level.hard_rows]])
+        b = np.concatenate([basis @ previous[w], self._v[w, level.hard_rows]])
         try:
             return self._polish(level, w, level.reduced[rank].solve(w, self._world_qp(level, w, A, b),
                                                                     hessian_changed=level.general))
@@ -341,7 +341,7 @@ class HierarchicalController:
         out = np.zeros((self.robot.n, len(self.levels)))
         for k, level in enumerate(self.levels):
             rows = level.level_rows
-            residual = np.einsum("nij,nj->ni", self.J[:, rows], self.qdots) - self.v[:, rows]
+            residual = np.einsum("nij,nj->ni", self._J[:, rows], self.qdots) - self._v[:, rows]
             out[:, k] = np.sqrt(np.einsum("ni,ni->n", residual, residual))
         return {"level_residual": self.robot.present(out)}
 
