@@ -43,7 +43,7 @@ def _configurations(count: int, seed: int = 0) -> np.ndarray:
 
 
 def _sns(which: str, robot, *, speeds=None, ranges=None, max_acceleration=None, split: bool = False,
-         weight: float = 1.0, target=None, rate=(0.1, -0.05)):
+         weight=1.0, target=None, rate=(0.1, -0.05)):
     """SNS on the arm: the path (x, y; or x over y, ``split``) over σ, with joint position
     limits (``ranges`` tightened) and speed limits (``speeds`` lowered)."""
     controllers, tasks, limits = MODULES[which]
@@ -76,7 +76,8 @@ def _close(a: np.ndarray, b: np.ndarray, tolerance: float = TOLERANCE) -> bool:
 
 SETUPS = {
     "free": {},
-    "weighted path": {"weight": 3.0},
+    "uniform weight": {"weight": 3.0},  # one task of one weight: its own rows
+    "weighted path": {"weight": [1.0, 3.0]},  # rows scaled by √w
     "slow joints": {"speeds": TOO_FAST_SPEEDS},
     "very slow joints": {"speeds": {"theta1": 0.05, "theta2": 0.05, "theta3": 0.05, "d4": 0.02}},
     "three levels": {"split": True, "speeds": TOO_FAST_SPEEDS},
