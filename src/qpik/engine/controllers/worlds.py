@@ -73,10 +73,13 @@ def check_finite_velocities(tasks, c: np.ndarray, b: np.ndarray, world: int) -> 
                        "check the target and the gain")
 
 
-def solve_each(worlds, solve_world, qdots: np.ndarray, batched: bool, what: str) -> None:
+def solve_each(worlds, solve_world, qdots: np.ndarray, batched: bool, what: str,
+               failures: dict[int, str] | None = None) -> None:
     """``qdots[w] = solve_world(w)`` for each world; failures as the module says (their
-    velocity zero)."""
-    failures = {}
+    velocity zero). ``failures``: a dict the failing worlds are gathered into (world →
+    why) instead of raising, for a caller with more to solve first (the hierarchy's
+    levels below)."""
+    gathered = {} if failures is None else failures
     for w in worlds:
         w = int(w)
         try:
@@ -85,6 +88,6 @@ def solve_each(worlds, solve_world, qdots: np.ndarray, batched: bool, what: str)
             if not batched:
                 raise
             qdots[w] = 0.0
-            failures[w] = f"{type(exc).__name__}: {exc}"
-    if failures:
-        raise WorldsFailed(failures, qdots, what)
+            gathered[w] = f"{type(exc).__name__}: {exc}"
+    if failures is None and gathered:
+        raise WorldsFailed(gathered, qdots, what)

@@ -1,0 +1,197 @@
+"""The engine's PseudoinverseController and JacobianTransposeController: one robot equals
+the serial laws (one step and a rollout), each of N = 4 worlds equals its own one-world
+run, and bad input and failing worlds are typed errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import qpik
+import qpik.controllers as serial
+import qpik.engine.tasks as engine_tasks
+import qpik.tasks as serial_tasks
+from qpik.engine.controllers import JacobianTransposeController, PseudoinverseController
+from qpik.errors import DivergenceError, InvalidInput, WorldsFailed
+from qpik.robots.arm.scenarios import ARM_START, JT_ALPHA, SEED_DURATION, SEED_PATH
+from qpik.trajectories import Segment
+
+DT = 0.002  # s
+# Two one-world answers agree to this relative to 1 + ‖q̇‖ (rad/s): the same formula in
+# another order of operations (a Cholesky solve of J Jᵀ here, LU in the serial law), on
+# Jacobians of norm ~3 and conditions below 1e3.
+TOLERANCE = 1e-10
+# A world of N equals its own one-world run to this, relative.
+WORLD_TOLERANCE = 1e-10
+
+
+def _configurations(count: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-2.0, 2.0, (count, 3)), rng.uniform(0.2, 0.8, count)])
+
+
+def _arm(q=ARM_START) -> qpik.Robot:
+    robot = qpik.Robot.load("arm")
+    robot.set_q(np.asarray(q, dtype=float))
+    robot.update_kinematics()
+    return robot
+
+
+def _tasks(tasks, robot, target=None, rate=(0.1, -0.05)):
+    """The arm's position task (x, y) and its σ task, built from ``tasks`` (the engine's or
+    the serial module); the target 1e-4 m off the tip by default."""
+    position = tasks.PositionTask(robot, "end_effector", axes="xy", gain=500.0)
+    if target is None:
+        robot.ensure_kinematics()
+        target = np.array(position.measured()) + [1e-4, -2e-4]
+    position.set_target(target, rate)
+    sigma = tasks.ManipulabilityTask(robot, tasks.SigmaProxy(robot, ("theta2", "theta3")), gain=5.0)
+    return position, sigma
+
+
+def _pinv(controllers, tasks, robot, kind: str, damping: float = 0.0, target=None):
+    position, sigma = _tasks(tasks, robot, target)
+    if kind == "jt":
+        return controllers.JacobianTransposeController(robot, [position], alpha=JT_ALPHA), position
+    secondary = sigma if kind == "pinv+sigma" else None
+    return controllers.PseudoinverseController(robot, [position], secondary, damping=damping), position
+
+
+def _close(a: np.ndarray, b: np.ndarray, tolerance: float = TOLERANCE) -> bool:
+    return float(np.linalg.norm(a - b)) <= tolerance * (1.0 + float(np.linalg.norm(b)))
+
+
+KINDS = [("pinv", 0.0), ("pinv", 0.1), ("pinv+sigma", 0.0), ("pinv+sigma", 0.05), ("jt", 0.0)]
+
+
+@pytest.mark.parametrize(("kind", "damping"), KINDS)
+def test_one_robot_equals_the_serial_law(kind, damping):
+    import qpik.engine.controllers as engine
+
+    for q in _configurations(6):
+        robot = _arm(q)
+        ours, _ = _pinv(engine, engine_tasks, robot, kind, damping)
+        theirs, _ = _pinv(serial, serial_tasks, robot, kind, damping)
+        qdot = ours.compute_velocity()
+        assert qdot.shape == (4,)
+        assert _close(qdot, theirs.compute_velocity())
+        np.testing.assert_array_equal(ours.J, theirs.J)
+        np.testing.assert_array_equal(ours.v, theirs.v)
+
+
+@pytest.mark.parametrize("kind", ["pinv+sigma", "jt"])
+def test_a_rollout_along_the_seed_path_equals_the_serial_rollout(kind):
+    """200 steps of the seed path (the source's segment, cubic law) from the arm's start."""
+    import qpik.engine.controllers as engine
+
+    segment = Segment(SEED_PATH[0], SEED_PATH[1], SEED_DURATION, time_law="cubic")
+    runs = []
+    for controllers, tasks in ((engine, engine_tasks), (serial, serial_tasks)):
+        robot = _arm()
+        controller, position = _pinv(controllers, tasks, robot, kind, target=SEED_PATH[0])
+        path = []
+        for k in range(200):
+            position.set_target(*segment.sample(k * DT))
+            robot.integrate(controller.compute_velocity(), DT)
+            path.append(robot.q.copy())
+        runs.append(np.array(path))
+    ours, theirs = runs
+    assert np.abs(ours[-1] - ours[0]).max() > 1e-3  # the arm moved
+    assert np.abs(ours - theirs).max() <= TOLERANCE * (1.0 + np.abs(theirs).max())
+
+
+def _worlds(count: int = 4, seed: int = 1):
+    """``count`` different configurations and targets (each 1e-3 m or so off its tip)."""
+    q = _configurations(count, seed)
+    rng = np.random.default_rng(seed + 10)
+    targets = []
+    for qi in q:
+        position, _ = _tasks(engine_tasks, _arm(qi))
+        targets.append(position.measured() + rng.uniform(-1e-3, 1e-3, 2))
+    return q, np.array(targets)
+
+
+def _batch(q: np.ndarray) -> qpik.batch.Robot:
+    robots = qpik.batch.Robot.load("arm", n=len(q))
+    robots.set_q(q)
+    return robots
+
+
+@pytest.mark.parametrize(("kind", "damping"), KINDS)
+def test_each_of_four_worlds_equals_its_own_one_world_run(kind, damping):
+    """N = 4 worlds of different states and targets, 20 steps: every world's q̇ equals the
+    one-world controller's at that world's state, and the worlds' paths their own runs."""
+    import qpik.engine.controllers as engine
+
+    q, targets = _worlds()
+    robots = _batch(q)
+    batch, _ = _pinv(engine, engine_tasks, robots, kind, damping, targets)
+    singles = []
+    for qi, target in zip(q, targets):
+        robot = _arm(qi)
+        singles.append((robot, _pinv(engine, engine_tasks, robot, kind, damping, target)[0]))
+    for _ in range(20):
+        qdots = batch.compute_velocity()
+        assert qdots.shape == (4, 4)
+        for w, (robot, single) in enumerate(singles):
+            qdot = single.compute_velocity()
+            assert _close(qdots[w], qdot, WORLD_TOLERANCE)
+            robot.integrate(qdot, DT)
+        robots.integrate(qdots, DT)
+    for w, (robot, _) in enumerate(singles):
+        assert _close(robots.q[w], robot.q, WORLD_TOLERANCE)
+
+
+def test_bad_input_is_typed():
+    robot = _arm()
+    position, sigma = _tasks(engine_tasks, robot)
+    with pytest.raises(InvalidInput, match="at least one primary task"):
+        PseudoinverseController(robot, [])
+    with pytest.raises(InvalidInput, match="at least one primary task"):
+        JacobianTransposeController(robot, [])
+    dead_beat = engine_tasks.PositionTask(robot, "end_effector", axes="xy")  # gain 1/dt: this law has no dt
+    with pytest.raises(InvalidInput, match="give the task a gain"):
+        PseudoinverseController(robot, [dead_beat])
+    with pytest.raises(InvalidInput, match="joint-space task"):
+        PseudoinverseController(robot, [position], position)
+    for damping in (-1.0, np.nan, np.inf, 1e13, "0.1", [0.1]):
+        with pytest.raises(InvalidInput, match="damping"):
+            PseudoinverseController(robot, [position], sigma, damping=damping)
+    for alpha in (0.0, -1.0, np.nan, np.inf, 1e13):
+        with pytest.raises(InvalidInput, match="alpha"):
+            JacobianTransposeController(robot, [position], alpha=alpha)
+    with pytest.raises(InvalidInput, match="another"):
+        PseudoinverseController(robot, [_tasks(engine_tasks, _arm())[0]])
+
+
+def test_a_singular_gram_matrix_is_a_divergence_as_in_the_serial_law():
+    """x, y and z of the planar arm's tip: the z row is zero, J Jᵀ singular, undamped."""
+    robot = _arm()
+    for controllers, tasks in ((qpik.engine.controllers, engine_tasks), (serial, serial_tasks)):
+        tip = tasks.PositionTask(robot, "end_effector", axes="xyz", gain=10.0)
+        tip.set_target([0.6, 1.9, 0.0])
+        with pytest.raises(DivergenceError, match="singular"):
+            controllers.PseudoinverseController(robot, [tip]).compute_velocity()
+        damped = controllers.PseudoinverseController(robot, [tip], damping=0.1).compute_velocity()
+        assert np.isfinite(damped).all()
+
+
+def test_a_diverging_world_is_named_and_the_others_are_solved():
+    """World 2's target is 1e120 m away: its law asks for more than 1e100 m/s (one robot: a
+    DivergenceError, as the serial law); the other worlds are each their own run."""
+    import qpik.engine.controllers as engine
+
+    q, targets = _worlds()
+    targets[2] = [1e120, 0.0]
+    robot = _arm(q[2])
+    for controllers, tasks in ((engine, engine_tasks), (serial, serial_tasks)):
+        with pytest.raises(DivergenceError, match="beyond"):
+            _pinv(controllers, tasks, robot, "pinv+sigma", target=targets[2])[0].compute_velocity()
+    batch, _ = _pinv(engine, engine_tasks, _batch(q), "pinv+sigma", target=targets)
+    with pytest.raises(WorldsFailed) as failed:
+        batch.compute_velocity()
+    assert failed.value.worlds.tolist() == [2] and "DivergenceError" in failed.value.reasons[2]
+    np.testing.assert_array_equal(failed.value.qdot[2], 0.0)
+    for w in (0, 1, 3):
+        single, _ = _pinv(engine, engine_tasks, _arm(q[w]), "pinv+sigma", target=targets[w])
+        assert _close(failed.value.qdot[w], single.compute_velocity(), WORLD_TOLERANCE)
