@@ -356,3 +356,27 @@ def test_the_hexapod_hierarchy_equals_the_serial_one():
             path.append(robot.q.copy())
         paths.append(np.array(path))
     assert np.abs(paths[0] - paths[1]).max() <= TOLERANCE * (1.0 + np.abs(paths[1]).max())
+
+
+def test_a_level_whose_rows_are_all_masked_is_solved():
+    """Level 0 a position task of zero weights (every row masked), level 1 a posture: the
+    serial hierarchy's hand-solved small system raised an untyped ValueError on its zero
+    rows; the engine solves the empty level and leaves the posture to level 1."""
+    from qpik import HierarchicalController as SerialHierarchy, JointVelocityLimit as SerialVelocity
+    from qpik import PositionTask as SerialPosition, PostureTask as SerialPosture
+
+    serial_robot = qpik.Robot.load("arm")
+    serial = SerialHierarchy(serial_robot, levels=[[SerialPosition(serial_robot, "end_effector", axes="xy", gain=10.0,
+                                                                   weight=[0.0, 0.0])],
+                                                   [SerialPosture(serial_robot, gain=1.0)]],
+                             limits=[SerialVelocity(serial_robot)], dt=DT)
+    with pytest.raises(ValueError, match="not enough values"):
+        serial.compute_velocity()
+    robot = qpik.Robot.load("arm")
+    posture = engine_tasks.PostureTask(robot, gain=1.0)
+    posture.set_target(robot.q + 0.1)
+    masked = engine_tasks.PositionTask(robot, "end_effector", axes="xy", gain=10.0, weight=[0.0, 0.0])
+    qdot = HierarchicalController(robot, levels=[[masked], [posture]],
+                                                     limits=[engine_limits.JointVelocityLimit(robot)],
+                                                     dt=DT).compute_velocity()
+    assert np.abs(qdot - 0.1).max() <= 1e-9  # the posture's K e, unhindered (ε-regularised level: 1e-9)

@@ -107,3 +107,11 @@ def test_all_finite_and_the_shared_flags():
     assert numerics.both(everywhere, np.array([True, False, True])).tolist() == [True, False, True]
     with pytest.raises(ValueError):
         everywhere[0] = False  # shared: read-only
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_cholesky_solve_of_no_rows_is_empty_and_solved(n):
+    """A system of zero rows (a hierarchy level whose rows are all masked) is solved, not
+    an untyped error of LAPACK's (as the hand-solved small systems once raised ValueError)."""
+    X, ok = numerics.cholesky_solve(np.zeros((n, 0, 0)), np.zeros((n, 0)), ratio=1e6)
+    assert X.shape == (n, 0) and ok.all()

@@ -70,6 +70,8 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
         (every pivot > 0) and its pivots span at most ``ratio``; X means nothing elsewhere.
     """
+    if not M.shape[1]:  # no rows (a level whose rows are all masked): nothing to solve
+        return (B if in_place else B.copy()), everywhere(len(M))
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
     columns = B[..., None] if B.ndim == 2 else B
