@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..numerics import both, cholesky_solve, everywhere
+from ..numerics import both, cholesky_solve, everywhere, nowhere
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -140,6 +140,13 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.nda
     """(N,) whether |Ax − b| <= tolerance (1 + |b|) in each world (Euclidean norms; NaN
     fails), from A x (N, meq) (overwritten with the residual); ``all_worlds``: what to
     return when every world meets them (default ``everywhere``)."""
+    if len(b) == 1:  # one world: in floats (cheaper than any NumPy call on a few rows)
+        miss = scale = 0.0
+        for value, target in zip(Ax[0].tolist(), b[0].tolist()):
+            miss += (value - target) * (value - target)
+            scale += target * target
+        met = miss <= tolerance * tolerance * (1.0 + scale)
+        return (everywhere(1) if all_worlds is None else all_worlds) if met else nowhere(1)
     np.subtract(Ax, b, Ax)
     if np.vdot(Ax, Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
         return everywhere(len(b)) if all_worlds is None else all_worlds
@@ -154,7 +161,13 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
            gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
     """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
     comparisons: a point on a bound is inside; NaN, and ±inf on an absent bound, are not).
-    One comparison decides the usual step where every world is inside."""
+    One comparison decides the usual step where every world is inside; one world's, in floats."""
+    if len(x) == 1 and G is None:
+        lower, upper = box[0].tolist()
+        for value, low, high in zip(x[0].tolist(), lower, upper):
+            if not low <= value <= high:
+                return nowhere(1)
+        return everywhere(1)
     gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
     np.multiply(gap, sides, gap)
     ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
