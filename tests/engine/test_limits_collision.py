@@ -463,12 +463,35 @@ def test_qp_worlds_on_the_jaco_each_answer_as_their_own_run(jaco_model):
     follow = descend(pose, start, rotation, drops)
     alone = [jaco_controller(jaco_model, 1) for _ in drops]
     followers = [descend(one_pose, start[w], rotation[w], drops[w]) for w, (_, _, one_pose) in enumerate(alone)]
+    held = np.zeros(4, dtype=bool)
     for k in range(160):
         follow(k)
         answers = np.array(controller.compute_velocity())
+        held |= controller.rows_held
         for w, ((robot, one, _), one_follow) in enumerate(zip(alone, followers)):
             one_follow(k)
             robot.q[:] = robots.q[w]
             expected = np.array(one.compute_velocity())
             assert np.linalg.norm(answers[w] - expected) <= 1e-10 * max(np.linalg.norm(expected), 1e-3), (k, w)
         robots.integrate(answers, DT)
+    np.testing.assert_array_equal(held, [False, True, True, True])
+
+
+def test_a_world_whose_row_binds_goes_to_the_solver_until_the_row_lets_go():
+    """The closed form holds bounds, not rows: while the hand rests against the box the
+    steps go straight to the solver (rows_held); once the target leaves, the row lets
+    go and the closed form answers again."""
+    robot = reach_robot()
+    task = EnginePosition(robot, "hand_site", gain=20.0)
+    task.set_target([0.9, 0.5, 0.0])
+    limit = CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], minimum_distance=D_MIN, detection_distance=0.2)
+    controller = EngineQP(robot, [task, EngineDamping(robot, 1e-3)], [limit], dt=DT)
+    for _ in range(1000):
+        robot.integrate(controller.compute_velocity(), DT)
+    assert controller.rows_held[0] and limit.distances[0] < D_MIN + 2e-3
+    task.set_target(task.target + [-0.3, 0.0, 0.0])
+    calls = []
+    for _ in range(300):
+        robot.integrate(controller.compute_velocity(), DT)
+        calls.append(controller.solver_calls)
+    assert not controller.rows_held[0] and calls[-1] == calls[-50]  # the last steps: closed forms
