@@ -539,10 +539,11 @@ class Robot:
         """(1, 3, nv) Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``) into ``out``."""
         mujoco.mj_jacSubtreeCom(self.model, self.data, out[0], body)
 
-    def point_jacobians(self, body: int, points: np.ndarray, out: np.ndarray) -> None:
-        """(1, 3, nv) translational Jacobian (``mj_jac``) of the world point ``points``
-        (1, 3), fixed to ``body``, into ``out``."""
-        mujoco.mj_jac(self.model, self.data, out[0], None, points[0], body)
+    def point_jacobian_filler(self, body: int, points: np.ndarray, out: np.ndarray) -> Callable[[], None]:
+        """A call with no arguments that writes the (1, 3, nv) translational Jacobian
+        (``mj_jac``) of the world point ``points`` (1, 3) as it is then, fixed to ``body``,
+        into ``out`` (MuJoCo's function with its arguments bound)."""
+        return functools.partial(mujoco.mj_jac, self.model, self.data, out[0], None, points[0], body)
 
     def distance_filler(self, pairs, cutoffs: np.ndarray, distances: np.ndarray,
                         fromto: np.ndarray) -> Callable[[], None]:

@@ -158,7 +158,7 @@ class Robot:
         self.backend.qpos[:] = self.template.q
         self._snapshot = None  # q at the last kinematics update (None: update needed)
         self._world = None  # the one-world robot of world()
-        self._rotational = None  # scratch of point_jacobians
+        self._rotational = None  # scratch of point_jacobian_filler
         self._start_unchecked = keyframe is None
 
     @classmethod
@@ -302,12 +302,13 @@ class Robot:
         """(N, 3, nv) Jacobian of :meth:`subtree_com` into ``out``."""
         return self.backend.subtree_com_jacobian(body, out)
 
-    def point_jacobians(self, body: int, points: np.ndarray, out: np.ndarray) -> None:
-        """(N, 3, nv) translational Jacobians (``mj_jac``'s, formed by the back-end) of the
-        world points ``points`` (N, 3), each fixed to ``body``, into ``out``."""
+    def point_jacobian_filler(self, body: int, points: np.ndarray, out: np.ndarray):
+        """A call with no arguments that writes the (N, 3, nv) translational Jacobians
+        (``mj_jac``'s, formed by the back-end) of the world points ``points`` (N, 3) as
+        they are then, each fixed to ``body``, into ``out``."""
         if self._rotational is None:
             self._rotational = np.empty((self.n, 3, self.nv))
-        self.backend.jacobian(body, points, out, self._rotational)
+        return functools.partial(self.backend.jacobian, body, points, out, self._rotational)
 
     def distance_filler(self, pairs, cutoffs: np.ndarray, distances: np.ndarray,
                         fromto: np.ndarray) -> GeomDistances:

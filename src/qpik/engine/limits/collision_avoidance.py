@@ -103,19 +103,23 @@ class CollisionAvoidanceLimit(Limit):
         self._fromto = np.zeros((n, count, 6))
         self._measure = robot.distance_filler(self.pairs, self.cutoffs, self.pair_distances, self._fromto)
         self._normals, self._norms, self._inverse = np.empty((n, count, 3)), np.empty((n, count)), np.empty((n, count))
-        self._squares, self._inverse_rows = np.empty((n, count, 3)), self._inverse[:, :, None]
+        # Views for one product per pair in every world: nᵀn, and nᵀ(J₂ − J₁) below.
+        self._normal_rows, self._normal_columns = self._normals[:, :, None, :], self._normals[:, :, :, None]
+        self._norm_squares, self._inverse_rows = self._norms[:, :, None, None], self._inverse[:, :, None]
         self._active, self._ahead, self._near = (np.empty((n, count), dtype=bool) for _ in range(3))
         self._inactive = np.empty((n, count), dtype=bool)
         self._inactive_rows = self._inactive[:, :, None]
         self._coincident = np.empty((n, count), dtype=bool)
         self._coincident_rows = self._coincident[:, :, None]
         self._margins, self._damped = np.empty((n, count)), np.empty((n, count))
-        self._jac1, self._jac2 = np.empty((n, 3, robot.nv)), np.empty((n, 3, robot.nv))
+        # Each pair's Jacobians at its closest points (those of a pair without a row: stale).
+        self._jac1, self._jac2 = np.zeros((n, count, 3, robot.nv)), np.zeros((n, count, 3, robot.nv))
+        self._jac_difference = np.empty((n, count, 3, robot.nv))
         bodies = robot.model.geom_bodyid
-        # Per pair: its bodies, views of its closest points (N, 3) and of its normal (N, 1, 3).
-        self._pair_views = [(int(bodies[g1]), int(bodies[g2]), self._fromto[:, p, :3], self._fromto[:, p, 3:],
-                             self._normals[:, p:p + 1]) for p, (g1, g2) in enumerate(self.pairs)]
-        self._rows = (None, None)  # (the G it was last given, its per-pair row views)
+        self._jacobians = [(robot.point_jacobian_filler(int(bodies[g1]), self._fromto[:, p, :3], self._jac1[:, p]),
+                            robot.point_jacobian_filler(int(bodies[g2]), self._fromto[:, p, 3:], self._jac2[:, p]))
+                           for p, (g1, g2) in enumerate(self.pairs)]
+        self._rows = (None, None)  # (the G it was last given, its (N, P, 1, nv) view)
 
     def _check(self, minimum_distance, detection_distance, gain, damper_rate, bound_relaxation) -> None:
         d_s = _signed(minimum_distance, "minimum distance")
@@ -147,9 +151,9 @@ class CollisionAvoidanceLimit(Limit):
         np.less(distances, self.cutoffs, self._active)
         np.logical_not(self._active, self._inactive)
         self._write_normals()
-        rows = self._row_views(G)
-        for p in np.flatnonzero(self._active.any(axis=0)).tolist():
-            self._write_row(p, rows[p])
+        pairs = np.flatnonzero(self._active.any(axis=0)).tolist()
+        if pairs:
+            self._write_rows(pairs, G)
         self._write_bounds(dt, h)
         np.copyto(G, 0.0, where=self._inactive_rows)
 
@@ -170,11 +174,9 @@ class CollisionAvoidanceLimit(Limit):
         r"""The unit normals from :math:`p_1` to :math:`p_2` (``mju_normalize3``: (1, 0, 0)
         for points closer than mjMINVAL), negated where the geoms are apart, so that each
         row is :math:`-\dot d`: the points run the other way once the geoms penetrate."""
-        normals, norms, squares = self._normals, self._norms, self._squares
+        normals, norms = self._normals, self._norms
         np.subtract(self._fromto[:, :, 3:], self._fromto[:, :, :3], normals)
-        np.multiply(normals, normals, squares)
-        np.add(squares[:, :, 0], squares[:, :, 1], norms)
-        np.add(norms, squares[:, :, 2], norms)
+        np.matmul(self._normal_rows, self._normal_columns, self._norm_squares)
         np.sqrt(norms, norms)
         # Coincident points (and a pair without a row: its points are zero).
         np.less(norms, MINVAL, self._coincident)
@@ -185,20 +187,16 @@ class CollisionAvoidanceLimit(Limit):
         np.negative(self._inverse, self._inverse, where=self._ahead)
         np.multiply(normals, self._inverse_rows, normals)
 
-    def _row_views(self, G: np.ndarray) -> list[np.ndarray]:
-        """Each pair's row of G, (N, 1, nv) views (kept while the controller gives the same G)."""
+    def _write_rows(self, pairs: list[int], G: np.ndarray) -> None:
+        r"""The rows :math:`\mp n^T (J_{p_2} - J_{p_1})` of every pair in every world, the
+        Jacobians measured for the ``pairs`` with a row in some world."""
+        for p in pairs:
+            for fill in self._jacobians[p]:
+                fill()
         if self._rows[0] is not G:
-            self._rows = (G, [G[:, p:p + 1] for p in range(self.inequality_rows)])
-        return self._rows[1]
-
-    def _write_row(self, p: int, row: np.ndarray) -> None:
-        r"""Pair p's row :math:`\mp n^T (J_{p_2} - J_{p_1})` in every world."""
-        body1, body2, points1, points2, normal = self._pair_views[p]
-        robot, jac1, jac2 = self.robot, self._jac1, self._jac2
-        robot.point_jacobians(body2, points2, jac2)
-        robot.point_jacobians(body1, points1, jac1)
-        np.subtract(jac2, jac1, jac2)
-        np.matmul(normal, jac2, row)
+            self._rows = (G, G[:, :, None, :])
+        np.subtract(self._jac2, self._jac1, self._jac_difference)
+        np.matmul(self._normal_rows, self._jac_difference, self._rows[1])
 
     def _write_bounds(self, dt: float, h: np.ndarray) -> None:
         """The bounds: the step bound, the damper's within d_i, 0 at or below d_s, +inf
