@@ -538,6 +538,28 @@ class Robot:
     def com_jacobian(self, body: int, out: np.ndarray) -> np.ndarray:
         """(1, 3, nv) Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``) into ``out``."""
         mujoco.mj_jacSubtreeCom(self.model, self.data, out[0], body)
+
+    def point_jacobian_filler(self, body: int, points: np.ndarray, out: np.ndarray) -> Callable[[], None]:
+        """A call with no arguments that writes the (1, 3, nv) translational Jacobian
+        (``mj_jac``) of the world point ``points`` (1, 3) as it is then, fixed to ``body``,
+        into ``out`` (MuJoCo's function with its arguments bound)."""
+        return functools.partial(mujoco.mj_jac, self.model, self.data, out[0], None, points[0], body)
+
+    def distance_filler(self, pairs, cutoffs: np.ndarray, distances: np.ndarray,
+                        fromto: np.ndarray) -> Callable[[], None]:
+        """A call with no arguments that writes the signed distance of each geom pair
+        (g1, g2) into ``distances`` (1, P) and its closest points (from g1 to g2) into
+        ``fromto`` (1, P, 6): ``mj_geomDistance`` on this robot's data, searching up to
+        ``cutoffs`` (1, P) (a pair farther apart reads its cutoff, its points zero)."""
+        model, data = self.model, self.data
+        rows = [(int(g1), int(g2), points) for (g1, g2), points in zip(pairs, fromto[0])]
+        written, limits = distances[0], cutoffs[0]
+
+        def fill() -> None:
+            for p, (g1, g2, points) in enumerate(rows):
+                written[p] = mujoco.mj_geomDistance(model, data, g1, g2, limits[p], points)
+
+        return fill
         return out
 
     # Names -------------------------------------------------------------------------

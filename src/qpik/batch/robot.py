@@ -84,6 +84,47 @@ class Frame:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
 
 
+class GeomDistances:
+    """Signed distances of geom pairs (g1, g2) in every world, in MuJoCo's C
+    (``mj_geomDistance``), world by world on the host.
+
+    The back-end computes the pairs' geoms' poses in every world (``frame_pose``, kept
+    current after each kinematics update); a call writes each world's poses of those
+    geoms into one scratch ``MjData`` (all that ``mj_geomDistance`` reads of it) and
+    measures every pair there. The same poses as a one-world kinematics pass
+    (:meth:`Robot.world`) per world, at less cost, the more so the larger the model
+    (measured on the CPU back-end, distances included: a sixth less on the Jaco, a third
+    less on a humanoid).
+    """
+
+    def __init__(self, robots: Robot, pairs, cutoffs: np.ndarray, distances: np.ndarray, fromto: np.ndarray):
+        self.pairs = [(int(g1), int(g2)) for g1, g2 in pairs]
+        geoms = sorted({g for pair in self.pairs for g in pair})
+        n = robots.n
+        self._poses = [robots.backend.frame_pose("geom", g) for g in geoms]
+        first = geoms[0]
+        self._geoms = slice(first, first + len(geoms)) if geoms == list(range(first, first + len(geoms))) \
+            else np.array(geoms)
+        self._positions, self._rotations = np.empty((n, len(geoms), 3)), np.empty((n, len(geoms), 3, 3))
+        self._model, self._data = robots.model, mujoco.MjData(robots.model)
+        self._xpos, self._xmat = self._data.geom_xpos, self._data.geom_xmat.reshape(-1, 3, 3)
+        # Per world: its poses, its pairs with their rows of fromto (views), its cutoffs
+        # and distances (rows of the caller's arrays, read and written at each call).
+        self._worlds = [(positions, rotations, [(g1, g2, points) for (g1, g2), points in zip(self.pairs, world_fromto)],
+                         world_cutoffs, world_distances)
+                        for positions, rotations, world_cutoffs, world_distances, world_fromto in
+                        zip(self._positions, self._rotations, cutoffs, distances, fromto)]
+
+    def __call__(self) -> None:
+        for k, (positions, rotations) in enumerate(self._poses):
+            self._positions[:, k], self._rotations[:, k] = positions, rotations
+        model, data, xpos, xmat, geoms = self._model, self._data, self._xpos, self._xmat, self._geoms
+        for positions, rotations, rows, limits, written in self._worlds:
+            xpos[geoms], xmat[geoms] = positions, rotations
+            for p, (g1, g2, points) in enumerate(rows):
+                written[p] = mujoco.mj_geomDistance(model, data, g1, g2, limits[p], points)
+
+
 class Robot:
     """N worlds of one model.
 
@@ -117,6 +158,7 @@ class Robot:
         self.backend.qpos[:] = self.template.q
         self._snapshot = None  # q at the last kinematics update (None: update needed)
         self._world = None  # the one-world robot of world()
+        self._rotational = None  # scratch of point_jacobian_filler
         self._start_unchecked = keyframe is None
 
     @classmethod
@@ -259,6 +301,23 @@ class Robot:
     def com_jacobian(self, body: int, out: np.ndarray) -> np.ndarray:
         """(N, 3, nv) Jacobian of :meth:`subtree_com` into ``out``."""
         return self.backend.subtree_com_jacobian(body, out)
+
+    def point_jacobian_filler(self, body: int, points: np.ndarray, out: np.ndarray):
+        """A call with no arguments that writes the (N, 3, nv) translational Jacobians
+        (``mj_jac``'s, formed by the back-end) of the world points ``points`` (N, 3) as
+        they are then, each fixed to ``body``, into ``out``."""
+        if self._rotational is None:
+            self._rotational = np.empty((self.n, 3, self.nv))
+        return functools.partial(self.backend.jacobian, body, points, out, self._rotational)
+
+    def distance_filler(self, pairs, cutoffs: np.ndarray, distances: np.ndarray,
+                        fromto: np.ndarray) -> GeomDistances:
+        """A call with no arguments that writes each world's signed distances of the geom
+        pairs into ``distances`` (N, P) and their closest points into ``fromto`` (N, P, 6),
+        searching up to ``cutoffs`` (N, P): see :class:`GeomDistances`."""
+        filler = GeomDistances(self, pairs, cutoffs, distances, fromto)
+        self.kinematics_stale()  # the back-end computes the geoms' poses from now on
+        return filler
 
     def __getattr__(self, name: str):
         # Names and ids (joint_id, joint_dofs, dof_name, body_id, ...): the template's.

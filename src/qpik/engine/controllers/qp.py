@@ -10,6 +10,12 @@ Solved in three stages, each over the worlds that reach it: the closed form with
 bounds held at the last answer (:mod:`qpik.problem.closed_form`: most steps end there),
 then the chosen solver world by world (:mod:`qpik.controllers.worlds`). With a hard task
 and a joint-space one it is the null-space law while no limit binds (docs/clik.md).
+
+General rows :math:`G\dot q \le h` (collision avoidance): the closed form's answer is
+kept only where it meets them (:func:`~qpik.engine.problem.inside`); a world whose
+rows bind goes to the solver. The closed form holds bounds, not rows: a world whose last
+solver answer had a row active (to ``ACTIVE_TOLERANCE``) goes straight to the solver
+next step, until an answer leaves every row inactive.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from ...errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
 from ..numerics import everywhere
 from ..problem import Cost, HeldBounds, Problem, Stack, check_dt
+from ..problem.closed_form import ACTIVE_TOLERANCE
 from ..tasks import Task
 from .diagnostics import explain_infeasibility
 from .worlds import WorldQP, WorldSolver, check_finite_velocities, solve_each
@@ -66,6 +73,9 @@ class QPController:
         # tolerance-based solver's answers stay its own.
         self.held = HeldBounds(robot.n, robot.nv, self.hard_rows.dim, hold=self._solver.exact)
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
+        # The worlds whose last solver answer had a general row active (see the module).
+        self.rows_held = np.zeros(robot.n, dtype=bool)
+        self._holding_rows = False
         self.qdots = np.zeros((robot.n, robot.nv))
         self._rows = (self.problem.G, self.problem.h) if self.problem.rows else (None, None)
         self._everywhere = everywhere(robot.n)
@@ -96,9 +106,15 @@ class QPController:
         problem.fill()
         self.cost.write()
         self.hard_rows.stack()
-        uncapped = self.cost.uncapped()
-        worlds = None if uncapped is self._everywhere else np.flatnonzero(uncapped)
-        x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, *self._rows, worlds)
+        closed = self.cost.uncapped()  # the worlds a closed form may answer
+        if self._holding_rows:
+            closed = closed & ~self.rows_held
+        worlds = None if closed is self._everywhere else np.flatnonzero(closed)
+        if worlds is not None and not len(worlds):
+            x, solved = self.qdots[:0], np.zeros(0, dtype=bool)
+        else:
+            x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, *self._rows,
+                                        worlds)
         if worlds is None and (solved is self._everywhere or solved.all()):
             np.copyto(self.qdots, x)
             return self.qdot
@@ -115,6 +131,17 @@ class QPController:
         self.solver_calls += len(rest)
         solve_each(rest, self._solve_world, self.qdots, self.robot.batched, "QPController step")
         self.held.remember(rest, self.qdots[rest], self.problem.lower[rest], self.problem.upper[rest])
+        if self.problem.rows:
+            self._remember_rows(rest)
+
+    def _remember_rows(self, worlds: np.ndarray) -> None:
+        """Whether a general row is active at the solver's answers of ``worlds`` (an
+        inactive row, 0 ≤ +inf, never is)."""
+        p = self.problem
+        h = p.h[worlds]
+        slack = h - np.matmul(p.G[worlds], self.qdots[worlds, :, None])[:, :, 0]
+        self.rows_held[worlds] = (slack <= ACTIVE_TOLERANCE * (1.0 + np.abs(h))).any(axis=1)
+        self._holding_rows = bool(self.rows_held.any())
 
     def world_qp(self, w: int) -> WorldQP:
         """World ``w``'s QP (views)."""

@@ -8,6 +8,7 @@ import numpy as np
 
 from ...errors import InvalidInput, ModelError
 from ...robot import VELOCITY_LIMIT_PREFIX
+from ..tasks.inputs import PARAMETER_LIMIT
 from .limit import Limit
 
 
@@ -30,7 +31,8 @@ class JointVelocityLimit(Limit):
     Raises:
         ModelError: ``values`` is None and the model declares no speed limit.
         UnknownName: a joint name the model does not have (the closest are listed).
-        InvalidInput: a bound that is not positive (NaN, zero, negative), a wrong shape.
+        InvalidInput: a bound that is not positive (NaN, zero, negative) or is finite
+            beyond 1e12, a wrong shape.
     """
 
     constant = True  # the same bounds every step: the controller applies them once
@@ -57,8 +59,9 @@ class JointVelocityLimit(Limit):
             if vmax.shape != (robot.nv,):
                 raise InvalidInput(f"velocity limits must be a dict of joint names or an array of shape "
                                    f"({robot.nv},), got shape {vmax.shape}")
-        if not np.all(vmax > 0):  # also catches NaN
-            raise InvalidInput(f"velocity limits must be positive (inf for none), got {vmax}")
+        if not np.all((vmax > 0) & ((vmax <= PARAMETER_LIMIT) | (vmax == np.inf))):  # also catches NaN
+            raise InvalidInput(f"velocity limits must be positive and at most {PARAMETER_LIMIT:g} (inf for none), "
+                               f"got {vmax}")
         self.robot = robot
         self.max_velocity = vmax
 

@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import InvalidInput
+from ..tasks.inputs import PARAMETER_LIMIT
+
 
 class Limit:
     """Base class of the limits: a box on q̇ and/or general rows G q̇ ≤ h for the step Δt.
@@ -38,3 +41,21 @@ class Limit:
 def order_limits(limits) -> list:
     """Constant limits (velocity) first, so position bounds are clipped into their box."""
     return sorted(limits, key=lambda lim: 0 if lim.constant else 1)
+
+
+def bound_values(value, size: int, what: str, entries: str = "") -> np.ndarray:
+    """A limit's bounds: a number for every entry or ``size`` numbers (``entries`` says
+    which, for the message), each positive and at most :data:`PARAMETER_LIMIT`, or +inf
+    for no bound.
+
+    Raises:
+        InvalidInput: a wrong shape, or a bound that is not positive (NaN, zero,
+            negative) or finite beyond the limit.
+    """
+    try:
+        bound = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy()
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} must be a number or {size} numbers{entries}, got {value!r}") from None
+    if not np.all((bound > 0) & ((bound <= PARAMETER_LIMIT) | (bound == np.inf))):  # NaN fails
+        raise InvalidInput(f"{what} must be positive and at most {PARAMETER_LIMIT:g} (inf for none), got {value!r}")
+    return bound
