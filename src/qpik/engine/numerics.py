@@ -21,7 +21,8 @@ from scipy.linalg.lapack import dposv
 
 MINVAL = 1e-15  # mjMINVAL
 
-__all__ = ["cholesky_solve", "mat2quat", "quat2mat", "rotation_error", "weighted_gram", "worlds_last"]
+__all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
+           "weighted_gram", "worlds_last"]
 
 
 @functools.cache
@@ -190,6 +191,27 @@ def quat2vel(q: np.ndarray) -> np.ndarray:
     speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
     axis *= speed
     return axis.T
+
+
+def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
+    r"""``mju_quatIntegrate`` across worlds: unit quaternions (N, 4) turned by the rotation
+    vectors ``velocity`` (N, 3) times ``scale``, normalised (``mju_normalize4``):
+
+    .. math::
+        q \leftarrow q \otimes \big(\cos\tfrac{\theta}{2},\ \hat\omega \sin\tfrac{\theta}{2}\big),
+        \qquad \theta = s\,\lVert\omega\rVert,
+
+    the identity where :math:`\lVert\omega\rVert < ` mjMINVAL (MuJoCo's branch)."""
+    norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
+    small = norm < MINVAL
+    axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
+    angle = scale * np.where(small, 0.0, norm)
+    half = 0.5 * angle
+    rotation = np.empty_like(quat)
+    rotation[:, 0] = np.cos(half)
+    rotation[:, 1:] = axis * np.sin(half)[:, None]
+    rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
+    return normalize4(mul(quat, rotation))
 
 
 def quat2mat(q: np.ndarray) -> np.ndarray:
