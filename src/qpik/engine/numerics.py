@@ -68,15 +68,18 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf) -> tuple
 
     Returns:
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
-        (every pivot > 0) and its pivots span at most ``ratio``; X means nothing elsewhere.
+        (every pivot > 0) and its pivots span at most ``ratio`` (:func:`everywhere` itself
+        when that holds in every world); X means nothing elsewhere.
     """
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B[0], ratio)
     columns = B[..., None] if B.ndim == 2 else B
     X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
     X = np.moveaxis(X, -1, 0)
-    ok = (pivots.min(axis=0) > 0.0) & (pivots.max(axis=0) <= ratio * pivots.min(axis=0))
-    return (X[..., 0] if B.ndim == 2 else X), ok
+    low = pivots.min(axis=0)
+    with np.errstate(invalid="ignore"):  # inf · 0 where a world has no positive pivot: refused anyway
+        ok = (low > 0.0) & (pivots.max(axis=0) <= ratio * low)
+    return (X[..., 0] if B.ndim == 2 else X), (everywhere(len(ok)) if ok.all() else ok)
 
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
