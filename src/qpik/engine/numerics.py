@@ -141,22 +141,31 @@ _MAT2QUAT = (
 
 
 def mat2quat(R: np.ndarray) -> np.ndarray:
-    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3)."""
+    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3).
+    The usual step, every trace positive (rotations within a half turn of the identity),
+    takes the first branch for all worlds at once, without selecting rows."""
     m = R.reshape(-1, 9)
     q = np.empty((len(m), 4))
     trace = m[:, 0] + m[:, 4] + m[:, 8]
-    branch = np.select([trace > 0, (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]), m[:, 4] > m[:, 8]], [0, 1, 2], default=3)
+    first = trace > 0
+    branch = None if first.all() else np.select([first, (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]),
+                                                 m[:, 4] > m[:, 8]], [0, 1, 2], default=3)
     with np.errstate(divide="ignore", invalid="ignore"):
         for k, ((index, s0, s4, s8), others) in enumerate(_MAT2QUAT):
-            rows = branch == k
-            if not rows.any():
-                continue
-            mk = m[rows]
-            out = np.empty((len(mk), 4))
+            if branch is None:
+                rows, mk, out = None, m, q
+            else:
+                rows = branch == k
+                if not rows.any():
+                    continue
+                mk = m[rows]
+                out = np.empty((len(mk), 4))
             main = 0.5 * np.sqrt(1.0 + s0 * mk[:, 0] + s4 * mk[:, 4] + s8 * mk[:, 8])
             out[:, index] = main
             for target, a, b, sign in others:
                 out[:, target] = 0.25 * (mk[:, a] + sign * mk[:, b]) / main
+            if rows is None:
+                break
             q[rows] = out
     return normalize4(q)
 
