@@ -711,11 +711,12 @@ class Robot:
 
 
 def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the controller") -> None:
-    """Refuse a task or limit built on another :class:`Robot` than the controller's.
+    """Refuse a task or limit built on another robot than the controller's.
 
-    Another instance, even of the same model, has its own MjData: a task bound to it
-    would read a robot that never moves. Objects without a ``robot`` attribute (a user's
-    limit that needs none) pass.
+    Another instance, even of the same model, has its own state (its MjData; a
+    :class:`qpik.batch.Robot` its N worlds): a task bound to it would read a robot that
+    never moves. A one-world :class:`Robot` and a batch of the same model are different
+    robots too. Objects without a ``robot`` attribute (a user's limit that needs none) pass.
 
     Raises:
         InvalidInput: the first task or limit bound to another robot, named.
@@ -726,8 +727,23 @@ def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the cont
             if other is robot:
                 continue
             label = getattr(item, "name", None) or type(item).__name__
-            same = isinstance(other, Robot) and (other.name, other.nq, other.nv) == (robot.name, robot.nq, robot.nv)
-            why = (f"another Robot instance of the same model {robot.name!r} (its own MjData, which this controller "
-                   "never moves)" if same else f"robot {getattr(other, 'name', other)!r}")
-            raise InvalidInput(f"{controller}: {kind} {label!r} was built on {why}, not on the controller's robot "
-                               f"{robot.name!r}: build every task and limit on the robot given to the controller")
+            raise InvalidInput(f"{controller}: {kind} {label!r} was built on {_other_robot(other, robot)}, not on "
+                               f"the controller's {_robot_kind(robot)} {robot.name!r}: build every task and limit on "
+                               "the robot given to the controller")
+
+
+def _robot_kind(robot) -> str:
+    """``Robot`` or ``batch.Robot`` (what a message calls it)."""
+    return "batch.Robot" if getattr(robot, "batched", False) else "Robot"
+
+
+def _other_robot(other, robot) -> str:
+    """How a refusal names the robot a task was built on instead of ``robot``."""
+    sizes = (getattr(other, "name", None), getattr(other, "nq", None), getattr(other, "nv", None))
+    if sizes != (robot.name, robot.nq, robot.nv):
+        return f"robot {getattr(other, 'name', other)!r}"
+    kind = _robot_kind(other)
+    if kind != _robot_kind(robot):
+        return f"a {kind} of the same model {robot.name!r}"
+    state = "its own worlds" if other.batched else "its own MjData"
+    return f"another {kind} instance of the same model {robot.name!r} ({state}, which this controller never moves)"

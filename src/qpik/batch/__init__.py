@@ -1,4 +1,4 @@
-"""qpik.batch: the same tasks, limits and controllers over N worlds of one model.
+"""qpik.batch: the engine's tasks, limits and controllers over N worlds of one model.
 
     from qpik import batch
     robots = batch.Robot.load("arm", n=1024)
@@ -8,40 +8,54 @@
     qdot = ctrl.compute_velocity()      # (N, nv)
     robots.integrate(qdot, 0.002)
 
-Names load on first use: ``from qpik import batch`` imports nothing heavy.
+The classes are the engine's (:mod:`qpik.engine`), the same ones a one-world
+:class:`qpik.Robot` runs: each world's answer is the one its own one-world run gives.
+What is batch-only here is the N-world robot (:class:`Robot`, its back-ends) and the
+headless :func:`rollout`. Names load on first use: ``from qpik import batch`` imports
+nothing heavy.
 """
 
 from __future__ import annotations
 
 import importlib
 
+_TASKS, _LIMITS, _CONTROLLERS = "qpik.engine.tasks", "qpik.engine.limits", "qpik.engine.controllers"
+
+# Public name -> module that defines it. An engine class ported later is one line here.
 _EXPORTS = {
+    # the N worlds and their rollouts
     "Robot": "qpik.batch.robot",
     "Frame": "qpik.batch.robot",
-    "Task": "qpik.batch.tasks",
-    "FrameTask": "qpik.batch.tasks",
-    "PositionTask": "qpik.batch.tasks",
-    "OrientationTask": "qpik.batch.tasks",
-    "RelativeFrameTask": "qpik.batch.tasks",
-    "ComTask": "qpik.batch.tasks",
-    "PostureTask": "qpik.batch.tasks",
-    "DampingTask": "qpik.batch.tasks",
-    "ManipulabilityTask": "qpik.batch.tasks",
-    "SigmaProxy": "qpik.batch.tasks",
-    "EqualityTask": "qpik.batch.tasks",
-    "Limit": "qpik.batch.limits",
-    "JointPositionLimit": "qpik.batch.limits",
-    "JointVelocityLimit": "qpik.batch.limits",
-    "AccelerationLimit": "qpik.batch.limits",
-    "CollisionAvoidanceLimit": "qpik.batch.limits",
-    "QPController": "qpik.batch.controllers",
-    "PseudoinverseController": "qpik.batch.controllers",
-    "ActiveSetQP": "qpik.batch.qp",
     "rollout": "qpik.batch.rollout",
+    # the engine's tasks
+    "Task": _TASKS,
+    "JointSpaceTask": _TASKS,
+    "PositionTask": _TASKS,
+    "OrientationTask": _TASKS,
+    "FrameTask": _TASKS,
+    "PostureTask": _TASKS,
+    "DampingTask": _TASKS,
+    "ManipulabilityTask": _TASKS,
+    "ManipulabilityMeasure": _TASKS,
+    "SigmaProxy": _TASKS,
+    # the engine's limits
+    "Limit": _LIMITS,
+    "JointPositionLimit": _LIMITS,
+    "JointVelocityLimit": _LIMITS,
+    "AccelerationLimit": _LIMITS,
+    "FloatingBaseVelocityLimit": _LIMITS,
+    "CollisionAvoidanceLimit": _LIMITS,
+    # the engine's controllers
+    "QPController": _CONTROLLERS,
+    "HierarchicalController": _CONTROLLERS,
+    "SNSController": _CONTROLLERS,
+    "PseudoinverseController": _CONTROLLERS,
+    "JacobianTransposeController": _CONTROLLERS,
+    # errors and warnings
+    "WorldsFailed": "qpik.errors",
+    "InvalidWorlds": "qpik.errors",
+    "HostStepWarning": "qpik.errors",
     "NotBatched": "qpik.batch.errors",
-    "WorldsFailed": "qpik.batch.errors",
-    "InvalidWorlds": "qpik.batch.errors",
-    "HostStepWarning": "qpik.batch.errors",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -15,15 +15,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..errors import InvalidInput, UnknownName
+from ..errors import InvalidInput, InvalidWorlds, UnknownName, listed
 from ..robot import BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot
-from .errors import InvalidWorlds
 
 BACKENDS = ("cpu", "warp")
 # What a batch robot answers as its template (one world of the same model) does.
 _TEMPLATE_NAMES = frozenset({"site_id", "body_id", "geom_id", "joint_id", "keyframe_id", "equality_id", "object_id",
                              "joint_dofs", "dof_name", "joint_qpos_index", "joint_dof_index", "joint_names"})
-MAX_WORLDS_LISTED = 8
 
 
 def make_backend(name: str, model: mujoco.MjModel, n: int, **options):
@@ -41,13 +39,6 @@ def make_backend(name: str, model: mujoco.MjModel, n: int, **options):
             raise MissingExtra(f"the warp back-end is not available here ({exc})") from None
         return WarpBackend(model, n, **options)
     raise UnknownName(f"unknown batch back-end {name!r}; known: {list(BACKENDS)}")
-
-
-def listed(worlds) -> str:
-    """``worlds`` for a message: the first few ids, and how many more."""
-    worlds = [int(w) for w in worlds]
-    shown = ", ".join(map(str, worlds[:MAX_WORLDS_LISTED]))
-    return shown + (f" and {len(worlds) - MAX_WORLDS_LISTED} more" if len(worlds) > MAX_WORLDS_LISTED else "")
 
 
 class Frame:

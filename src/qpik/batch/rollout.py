@@ -16,9 +16,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InvalidInput
+from ..errors import InvalidInput, WorldsFailed
 from ..rollout.plant import Actuation, substeps_per_control_step
-from .errors import WorldsFailed
 
 MODES = ("kinematic", "physics")
 # A bar is drawn for runs of at least this many robot-steps.
@@ -44,7 +43,7 @@ def rollout(controller, steps: int, *, mode: str = "kinematic", on_step: Callabl
     (the physics worlds' in physics mode).
 
     Args:
-        controller: a batched controller (its robots move).
+        controller: an engine controller on a :class:`~qpik.batch.Robot` (its worlds move).
         steps: the number of control periods.
         mode: ``"kinematic"`` or ``"physics"``.
         on_step: called with k before each step (move the targets there).
@@ -56,7 +55,9 @@ def rollout(controller, steps: int, *, mode: str = "kinematic", on_step: Callabl
     """
     if mode not in MODES:
         raise InvalidInput(f"mode must be one of {MODES}, got {mode!r}")
-    robots = controller.robots
+    robots = controller.robot
+    if not robots.batched:
+        raise InvalidInput("batch.rollout steps the worlds of a batch.Robot; roll one robot out with qpik.simulate")
     dt = getattr(controller, "dt", None)
     if dt is None:
         raise InvalidInput("a rollout needs a controller with a period dt (the QP controller)")

@@ -21,7 +21,8 @@ from scipy.linalg.lapack import dposv
 
 MINVAL = 1e-15  # mjMINVAL
 
-__all__ = ["cholesky_solve", "mat2quat", "quat2mat", "rotation_error", "weighted_gram", "worlds_last"]
+__all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
+           "weighted_gram", "worlds_last"]
 
 
 @functools.cache
@@ -68,7 +69,8 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
 
     Returns:
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
-        (every pivot > 0) and its pivots span at most ``ratio``; X means nothing elsewhere.
+        (every pivot > 0) and its pivots span at most ``ratio`` (:func:`everywhere` itself
+        when that holds in every world); X means nothing elsewhere.
     """
     if not M.shape[1]:  # no rows (a level whose rows are all masked): nothing to solve
         return (B if in_place else B.copy()), everywhere(len(M))
@@ -77,12 +79,14 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
     columns = B[..., None] if B.ndim == 2 else B
     X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
     X = np.moveaxis(X, -1, 0)
-    ok = (pivots.min(axis=0) > 0.0) & (pivots.max(axis=0) <= ratio * pivots.min(axis=0))
+    low = pivots.min(axis=0)
+    with np.errstate(invalid="ignore"):  # inf · 0 where a world has no positive pivot: refused anyway
+        ok = (low > 0.0) & (pivots.max(axis=0) <= ratio * low)
     X = X[..., 0] if B.ndim == 2 else X
     if in_place:
         B[...] = X
         X = B
-    return X, ok
+    return X, (everywhere(len(ok)) if ok.all() else ok)
 
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
@@ -147,22 +151,31 @@ _MAT2QUAT = (
 
 
 def mat2quat(R: np.ndarray) -> np.ndarray:
-    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3)."""
+    """``mju_mat2Quat``: unit quaternions (N, 4), w-x-y-z, of rotation matrices (N, 3, 3).
+    The usual step, every trace positive (rotations within a half turn of the identity),
+    takes the first branch for all worlds at once, without selecting rows."""
     m = R.reshape(-1, 9)
     q = np.empty((len(m), 4))
     trace = m[:, 0] + m[:, 4] + m[:, 8]
-    branch = np.select([trace > 0, (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]), m[:, 4] > m[:, 8]], [0, 1, 2], default=3)
+    first = trace > 0
+    branch = None if first.all() else np.select([first, (m[:, 0] > m[:, 4]) & (m[:, 0] > m[:, 8]),
+                                                 m[:, 4] > m[:, 8]], [0, 1, 2], default=3)
     with np.errstate(divide="ignore", invalid="ignore"):
         for k, ((index, s0, s4, s8), others) in enumerate(_MAT2QUAT):
-            rows = branch == k
-            if not rows.any():
-                continue
-            mk = m[rows]
-            out = np.empty((len(mk), 4))
+            if branch is None:
+                rows, mk, out = None, m, q
+            else:
+                rows = branch == k
+                if not rows.any():
+                    continue
+                mk = m[rows]
+                out = np.empty((len(mk), 4))
             main = 0.5 * np.sqrt(1.0 + s0 * mk[:, 0] + s4 * mk[:, 4] + s8 * mk[:, 8])
             out[:, index] = main
             for target, a, b, sign in others:
                 out[:, target] = 0.25 * (mk[:, a] + sign * mk[:, b]) / main
+            if rows is None:
+                break
             q[rows] = out
     return normalize4(q)
 
@@ -200,6 +213,27 @@ def quat2vel(q: np.ndarray) -> np.ndarray:
     speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
     axis *= speed
     return axis.T
+
+
+def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
+    r"""``mju_quatIntegrate`` across worlds: unit quaternions (N, 4) turned by the rotation
+    vectors ``velocity`` (N, 3) times ``scale``, normalised (``mju_normalize4``):
+
+    .. math::
+        q \leftarrow q \otimes \big(\cos\tfrac{\theta}{2},\ \hat\omega \sin\tfrac{\theta}{2}\big),
+        \qquad \theta = s\,\lVert\omega\rVert,
+
+    the identity where :math:`\lVert\omega\rVert < ` mjMINVAL (MuJoCo's branch)."""
+    norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
+    small = norm < MINVAL
+    axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
+    angle = scale * np.where(small, 0.0, norm)
+    half = 0.5 * angle
+    rotation = np.empty_like(quat)
+    rotation[:, 0] = np.cos(half)
+    rotation[:, 1:] = axis * np.sin(half)[:, None]
+    rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
+    return normalize4(mul(quat, rotation))
 
 
 def quat2mat(q: np.ndarray) -> np.ndarray:

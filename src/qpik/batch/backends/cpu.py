@@ -41,7 +41,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from .. import rotations
+from ...engine.numerics import mul, quat2mat, quat_integrate
 from ..errors import NotBatched
 from .base import KinematicsBackend
 
@@ -187,8 +187,8 @@ class CpuBackend(HostIntegration, KinematicsBackend):
                 position[:, i] = xmat[:, i, 0] * local[0] + xmat[:, i, 1] * local[1] + xmat[:, i, 2] * local[2]
             position += xpos
         if same == int(_SAME.mjSAMEFRAME_NONE):
-            quat = rotations.mul(self._fields["xquat"].reshape(n, -1, 4)[:, body], m.geom_quat[geom][None])
-            rotation[:] = rotations.quat2mat(quat)
+            quat = mul(self._fields["xquat"].reshape(n, -1, 4)[:, body], m.geom_quat[geom][None])
+            rotation[:] = quat2mat(quat)
         elif same in (int(_SAME.mjSAMEFRAME_BODY), int(_SAME.mjSAMEFRAME_BODYROT)):
             rotation[:] = xmat
         else:
@@ -426,17 +426,3 @@ class _Integration:
             quat = qpos[:, qadr:qadr + 4]
             qpos[:, qadr:qadr + 4] = quat_integrate(quat, qvel[:, vadr:vadr + 3], dt)
 
-
-def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
-    """``mju_quatIntegrate`` across worlds: quat ⊗ exp(velocity·scale), normalised."""
-    norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
-    small = norm < rotations.MINVAL
-    axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
-    axis[small] = (1.0, 0.0, 0.0)
-    angle = scale * np.where(small, 0.0, norm)
-    half = 0.5 * angle
-    rotation = np.empty_like(quat)
-    rotation[:, 0] = np.cos(half)
-    rotation[:, 1:] = axis * np.sin(half)[:, None]
-    rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
-    return rotations.normalize4(rotations.mul(quat, rotation))

@@ -4,11 +4,12 @@ array) and the general rows G q̇ ≤ h written by the limits."""
 
 from __future__ import annotations
 
+import warnings
 from typing import Sequence
 
 import numpy as np
 
-from ...errors import InvalidInput
+from ...errors import HostStepWarning, InvalidInput
 from ..limits.limit import Limit, order_limits
 from ...robot import check_same_robot
 from ..tasks import Task
@@ -29,6 +30,17 @@ def check_dt(dt) -> float:
     return value
 
 
+def warn_host_step(robot, owner: str) -> None:
+    """A :class:`~qpik.errors.HostStepWarning` when the worlds' kinematics live on a device
+    (MuJoCo Warp): the step's math (the tasks' rows, the limits, the solve) runs on the
+    host, the device's kinematics copied over every step, until the engine's primitives
+    have device mirrors."""
+    device = robot.backend.device if robot.batched else None
+    if device is not None:
+        warnings.warn(f"{owner}: the step's tasks, limits and solve run on the host (the engine has no device "
+                      f"mirror yet); only the kinematics of {robot!r} run on {device}", HostStepWarning, stacklevel=4)
+
+
 class Problem:
     """Tasks and limits laid out once; :meth:`fill` measures them for the step.
 
@@ -43,6 +55,7 @@ class Problem:
                  owner: str = "the controller"):
         self.dt = None if dt is None else check_dt(dt)
         check_same_robot(robot, tasks, limits, owner)
+        warn_host_step(robot, owner)
         self.robot = robot
         self.tasks = list(tasks)
         for task in self.tasks:
