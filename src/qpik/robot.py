@@ -51,6 +51,7 @@ from typing import Callable
 import mujoco
 import numpy as np
 
+from .equalities import EqualityRows
 from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
 from .robots import BUNDLED
 
@@ -367,6 +368,7 @@ class Robot:
         self._velocity_shape = (model.nv,)
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
+        self._equality_rows: dict[tuple[int, ...], EqualityRows] = {}  # per set of equalities read
         # qpos0 is checked at the first step (ensure_kinematics), a keyframe or set_q at once.
         self._start_unchecked = True
         if keyframe is not None:
@@ -560,6 +562,31 @@ class Robot:
                 written[p] = mujoco.mj_geomDistance(model, data, g1, g2, limits[p], points)
 
         return fill
+        return out
+
+    def equality_rows(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo's rows of the equalities ``ids`` (ascending, each active and acting on a
+        dof) at the current kinematics, in ``mj_makeConstraint``'s layout: residual (1, m)
+        and Jacobian (1, m, nv) (``efc_pos``, ``efc_J``; every other constraint type
+        disabled for the call, see :class:`~qpik.equalities.EqualityRows`). The arrays
+        are the robot's, overwritten by the next call for the same equalities; the data's
+        ``efc_*`` arrays are rewritten.
+
+        Raises:
+            ModelError: an id without rows (inactive, acting on no dof), or active
+                equalities changed since the first call for these ids.
+        """
+        key = ids if isinstance(ids, tuple) else tuple(np.asarray(ids, dtype=int).reshape(-1).tolist())
+        reader = self._equality_rows.get(key)
+        if reader is None:
+            reader = self._equality_rows[key] = EqualityRows(self.model, self.data, key)
+        return reader()
+
+    def mass_matrix(self, out: np.ndarray) -> np.ndarray:
+        """(1, nv, nv) joint-space inertia M(q) at the current kinematics (``mj_crb``, then
+        ``mj_fullM``: armature included) into ``out``."""
+        mujoco.mj_crb(self.model, self.data)
+        mujoco.mj_fullM(self.model, self.data, out[0])
         return out
 
     # Names -------------------------------------------------------------------------

@@ -381,3 +381,22 @@ def outer_product(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> np.ndarray:
     At, Bt = worlds_last(A), worlds_last(B)  # (m, k, N), (p, k, N)
     out[...] = np.moveaxis((At[:, None] * Bt[None]).sum(axis=2), -1, 0)
     return out
+
+
+# -- Cross products as matrices (the tasks' Jacobians: relative frame, look-at, axis-align) --
+def skew(vectors: np.ndarray, out: np.ndarray) -> np.ndarray:
+    r"""The cross-product matrices :math:`[v]_\times` (:math:`[v]_\times c = v \times c`) of
+    every world's vector (N, 3), written into ``out`` (N, 3, 3); a product
+    ``np.matmul(out, columns)`` then crosses v with every column of a Jacobian.
+
+    Only the six off-diagonal entries are written: ``out`` is made once with
+    ``np.zeros`` (its diagonal stays zero), as the tasks preallocate it.
+    """
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    np.negative(z, out[:, 0, 1])
+    out[:, 0, 2] = y
+    out[:, 1, 0] = z
+    np.negative(x, out[:, 1, 2])
+    np.negative(y, out[:, 2, 0])
+    out[:, 2, 1] = x
+    return out
