@@ -53,7 +53,7 @@ import numpy as np
 
 from .equalities import EqualityRows
 from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
-from .robots import BUNDLED
+from .scenes import SCENES
 
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
@@ -216,12 +216,12 @@ _URDF_HINT = ("a URDF link without an <inertial> is massless to MuJoCo: give the
 def scene_path(scene: str | Path) -> Path:
     """Resolve a bundled scene name (``"arm"``, ``"hexapod"``) or an MJCF or URDF path."""
     key = str(scene)
-    if key in BUNDLED:
-        return BUNDLED[key][0]
+    if key in SCENES:
+        return SCENES[key]
     path = Path(scene)
     if path.suffix.lower() not in MODEL_SUFFIXES and not path.exists():
         raise UnknownName(
-            f"unknown robot {key!r}: expected one of {sorted(BUNDLED)} or a path to an MJCF or URDF file"
+            f"unknown robot {key!r}: expected one of {sorted(SCENES)} or a path to an MJCF or URDF file"
         )
     if not path.is_file():
         raise ModelError(f"model file not found: {path}")
@@ -399,10 +399,10 @@ class Robot:
         if isinstance(scene, (mujoco.MjModel, mujoco.MjSpec)):
             model, name = as_model(scene), None
         elif isinstance(scene, (str, Path)):
-            name = str(scene) if str(scene) in BUNDLED else None
+            name = str(scene) if str(scene) in SCENES else None
             model = load_model(scene)
         else:
-            raise InvalidInput(f"Robot.load takes a bundled robot's name {sorted(BUNDLED)}, a path, a mujoco.MjModel "
+            raise InvalidInput(f"Robot.load takes a bundled robot's name {sorted(SCENES)}, a path, a mujoco.MjModel "
                                f"or a mujoco.MjSpec, got {type(scene).__name__}")
         if isinstance(keyframe, _BundledDefault):
             keyframe = "home" if name is not None else None
