@@ -221,12 +221,12 @@ def test_kinematic_rollout_equals_the_loop_it_replaces_and_physics_tracks_the_co
 
 
 def test_the_exports_are_the_engines_classes_and_the_shared_errors():
-    import qpik.engine.controllers
-    import qpik.engine.limits
-    import qpik.engine.tasks
+    import qpik.controllers
+    import qpik.limits
+    import qpik.tasks
     import qpik.errors
 
-    engine = (qpik.engine.tasks, qpik.engine.limits, qpik.engine.controllers)
+    engine = (qpik.tasks, qpik.limits, qpik.controllers)
     for name in batch.__all__:
         value = getattr(batch, name)
         owner = next((module for module in engine if name in module.__all__), None)

@@ -102,7 +102,7 @@ def test_the_core_at_work_loads_nothing_above_it():
     batched): no module of the robots, the rollouts or the app is loaded."""
     done = subprocess.run([sys.executable, "-c", CORE_ONLY], capture_output=True, text=True, check=True)
     loaded = done.stdout.split()
-    assert "qpik.robot" in loaded and "qpik.engine.controllers.qp" in loaded and "qpik.scenes" in loaded
+    assert "qpik.robot" in loaded and "qpik.controllers.qp" in loaded and "qpik.scenes" in loaded
     assert not [m for m in loaded if _within(m, ABOVE_THE_CORE)], loaded
 
 

@@ -11,13 +11,13 @@ import pytest
 
 import qpik
 import qpik.controllers as serial
-import qpik.engine.controllers as engine
-import qpik.engine.limits as engine_limits
-import qpik.engine.tasks as engine_tasks
+import qpik.controllers as engine
+import qpik.limits as engine_limits
+import qpik.tasks as engine_tasks
 import qpik.limits as serial_limits
 import qpik.tasks as serial_tasks
-from qpik.engine.controllers import HierarchicalController
-from qpik.engine.problem.least_squares import DampedLeastSquares
+from qpik.controllers import HierarchicalController
+from qpik.problem.least_squares import DampedLeastSquares
 from qpik.errors import InfeasibleProblem, InvalidInput, UnknownName, WorldsFailed
 from qpik.problem.closed_form import damped_least_squares_step
 from qpik.robots.arm.scenarios import ARM_START, SEED_PATH, TOO_FAST_SPEEDS, three_tasks_start

@@ -9,9 +9,9 @@ import pytest
 
 import qpik
 import qpik.controllers as serial
-import qpik.engine.tasks as engine_tasks
+import qpik.tasks as engine_tasks
 import qpik.tasks as serial_tasks
-from qpik.engine.controllers import JacobianTransposeController, PseudoinverseController
+from qpik.controllers import JacobianTransposeController, PseudoinverseController
 from qpik.errors import DivergenceError, InvalidInput, WorldsFailed
 from qpik.robots.arm.scenarios import ARM_START, JT_ALPHA, SEED_DURATION, SEED_PATH
 from qpik.trajectories import Segment
@@ -66,7 +66,7 @@ KINDS = [("pinv", 0.0), ("pinv", 0.1), ("pinv+sigma", 0.0), ("pinv+sigma", 0.05)
 
 @pytest.mark.parametrize(("kind", "damping"), KINDS)
 def test_one_robot_equals_the_serial_law(kind, damping):
-    import qpik.engine.controllers as engine
+    import qpik.controllers as engine
 
     for q in _configurations(6):
         robot = _arm(q)
@@ -82,7 +82,7 @@ def test_one_robot_equals_the_serial_law(kind, damping):
 @pytest.mark.parametrize("kind", ["pinv+sigma", "jt"])
 def test_a_rollout_along_the_seed_path_equals_the_serial_rollout(kind):
     """200 steps of the seed path (the source's segment, cubic law) from the arm's start."""
-    import qpik.engine.controllers as engine
+    import qpik.controllers as engine
 
     segment = Segment(SEED_PATH[0], SEED_PATH[1], SEED_DURATION, time_law="cubic")
     runs = []
@@ -121,7 +121,7 @@ def _batch(q: np.ndarray) -> qpik.batch.Robot:
 def test_each_of_four_worlds_equals_its_own_one_world_run(kind, damping):
     """N = 4 worlds of different states and targets, 20 steps: every world's q̇ equals the
     one-world controller's at that world's state, and the worlds' paths their own runs."""
-    import qpik.engine.controllers as engine
+    import qpik.controllers as engine
 
     q, targets = _worlds()
     robots = _batch(q)
@@ -167,7 +167,7 @@ def test_bad_input_is_typed():
 def test_a_singular_gram_matrix_is_a_divergence_as_in_the_serial_law():
     """x, y and z of the planar arm's tip: the z row is zero, J Jᵀ singular, undamped."""
     robot = _arm()
-    for controllers, tasks in ((qpik.engine.controllers, engine_tasks), (serial, serial_tasks)):
+    for controllers, tasks in ((qpik.controllers, engine_tasks), (serial, serial_tasks)):
         tip = tasks.PositionTask(robot, "end_effector", axes="xyz", gain=10.0)
         tip.set_target([0.6, 1.9, 0.0])
         with pytest.raises(DivergenceError, match="singular"):
@@ -179,7 +179,7 @@ def test_a_singular_gram_matrix_is_a_divergence_as_in_the_serial_law():
 def test_a_diverging_world_is_named_and_the_others_are_solved():
     """World 2's target is 1e120 m away: its law asks for more than 1e100 m/s (one robot: a
     DivergenceError, as the serial law); the other worlds are each their own run."""
-    import qpik.engine.controllers as engine
+    import qpik.controllers as engine
 
     q, targets = _worlds()
     targets[2] = [1e120, 0.0]

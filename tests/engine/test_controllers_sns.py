@@ -10,12 +10,12 @@ import pytest
 
 import qpik
 import qpik.controllers as serial
-import qpik.engine.controllers as engine
-import qpik.engine.limits as engine_limits
-import qpik.engine.tasks as engine_tasks
+import qpik.controllers as engine
+import qpik.limits as engine_limits
+import qpik.tasks as engine_tasks
 import qpik.limits as serial_limits
 import qpik.tasks as serial_tasks
-from qpik.engine.controllers import SNSController
+from qpik.controllers import SNSController
 from qpik.errors import DivergenceError, InvalidInput, WorldsFailed
 from qpik.robots.arm.scenarios import ARM_START, SEED_PATH, TOO_FAST_SPEEDS, three_tasks_start
 from qpik.trajectories import Segment

@@ -11,13 +11,13 @@ import pytest
 
 import qpik
 from qpik import batch
-from qpik.engine.controllers import QPController as EngineQP
-from qpik.engine.limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
-from qpik.engine.limits.geom_pairs import geom_pairs
-from qpik.engine.limits.reach import PairReach
-from qpik.engine.tasks import DampingTask as EngineDamping
-from qpik.engine.tasks import FrameTask as EngineFrame
-from qpik.engine.tasks import PositionTask as EnginePosition
+from qpik.controllers import QPController as EngineQP
+from qpik.limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
+from qpik.limits.geom_pairs import geom_pairs
+from qpik.limits.reach import PairReach
+from qpik.tasks import DampingTask as EngineDamping
+from qpik.tasks import FrameTask as EngineFrame
+from qpik.tasks import PositionTask as EnginePosition
 from qpik.errors import InvalidInput, UnknownName
 from qpik.limits import CollisionAvoidanceLimit as SerialCollisionLimit
 from qpik.limits import JointPositionLimit as SerialPositionLimit

@@ -8,10 +8,10 @@ import pytest
 
 import qpik
 from qpik import batch
-from qpik.engine.controllers import QPController as EngineQP
-from qpik.engine.limits import FloatingBaseVelocityLimit, JointVelocityLimit
-from qpik.engine.tasks import DampingTask as EngineDamping
-from qpik.engine.tasks import FrameTask as EngineFrame
+from qpik.controllers import QPController as EngineQP
+from qpik.limits import FloatingBaseVelocityLimit, JointVelocityLimit
+from qpik.tasks import DampingTask as EngineDamping
+from qpik.tasks import FrameTask as EngineFrame
 from qpik.errors import InvalidInput, ModelError, UnknownName
 from qpik.limits import FloatingBaseVelocityLimit as SerialFloatingBaseLimit
 from qpik.limits import JointVelocityLimit as SerialVelocityLimit

@@ -9,10 +9,10 @@ import pytest
 
 import qpik
 from qpik import batch
-from qpik.engine.controllers import QPController as EngineQP
-from qpik.engine.limits import JointPositionLimit, JointVelocityLimit
-from qpik.engine.tasks import DampingTask as EngineDamping
-from qpik.engine.tasks import PositionTask as EnginePosition
+from qpik.controllers import QPController as EngineQP
+from qpik.limits import JointPositionLimit, JointVelocityLimit
+from qpik.tasks import DampingTask as EngineDamping
+from qpik.tasks import PositionTask as EnginePosition
 from qpik.errors import InvalidInput, ModelError, UnknownName
 from qpik.limits import JointPositionLimit as SerialPositionLimit
 from qpik.limits import JointVelocityLimit as SerialVelocityLimit

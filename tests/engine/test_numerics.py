@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qpik.engine import numerics
+from qpik import numerics
 from qpik.robot import Robot
 
 EPS = np.finfo(float).eps

@@ -1,12 +1,12 @@
 """engine.numerics.cholesky_solve: every world's answer equals LAPACK's (NumPy's solve) at
 N = 1 (its dposv path) and N > 1 (its worlds-last path), and its flags say which worlds
-solved — the shared :func:`~qpik.engine.numerics.everywhere` when all did, so that a caller's
+solved — the shared :func:`~qpik.numerics.everywhere` when all did, so that a caller's
 fast path (``solved is everywhere(n)``) is taken on the usual step."""
 
 import numpy as np
 import pytest
 
-from qpik.engine.numerics import cholesky_solve, everywhere
+from qpik.numerics import cholesky_solve, everywhere
 
 # Well-conditioned SPD systems of entries ~1 (cond < 1e3): the two solves agree to a few
 # hundred roundings.

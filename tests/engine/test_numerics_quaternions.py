@@ -1,11 +1,11 @@
-"""The engine's quaternion primitives (qpik.engine.numerics) against MuJoCo's own routines,
+"""The engine's quaternion primitives (qpik.numerics) against MuJoCo's own routines,
 world by world, on rotations that take every branch of mju_mat2Quat: what the tasks'
 rotation errors and the CPU back-end's geom poses and integration are made of."""
 
 import mujoco
 import numpy as np
 
-from qpik.engine import numerics
+from qpik import numerics
 
 # Unit quaternions and rotations of entries <= 1: MuJoCo's and the vectorised arithmetic
 # differ by a few roundings of O(1) numbers.

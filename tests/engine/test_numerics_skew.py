@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qpik.engine.numerics import skew
+from qpik.numerics import skew
 
 
 def test_skew_times_columns_is_the_cross_product_of_each_world():

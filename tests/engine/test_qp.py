@@ -13,7 +13,7 @@ import qpik.tasks as serial_tasks
 from qpik.batch.robot import Robot as Robots
 from qpik.engine import limits as engine_limits
 from qpik.engine import tasks as engine_tasks
-from qpik.engine.controllers import QPController
+from qpik.controllers import QPController
 from qpik.errors import InfeasibleProblem, InvalidInput, WorldsFailed
 from qpik.robot import Robot
 

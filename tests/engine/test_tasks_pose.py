@@ -38,7 +38,7 @@ def targets(rng, n: int) -> dict:
                 linear=rng.normal(size=(n, 3)), angular=rng.normal(size=(n, 3)))
 
 
-# Each case builds its task with module T (qpik.tasks or qpik.engine.tasks) on ``robot``
+# Each case builds its task with module T (qpik.tasks or qpik.tasks) on ``robot``
 # and gives it targets t (per world, or one world's) relative to ``start`` (the frame's pose).
 def position_xz(T, robot, spec, t, start):
     task = T.PositionTask(robot, *spec["frame"], axes="xz", gain=20.0, weight=[1.0, 2.0])

@@ -8,8 +8,10 @@
     qdot = ctrl.compute_velocity()      # (N, nv)
     robots.integrate(qdot, 0.002)
 
-The classes are the engine's (:mod:`qpik.engine`), the same ones a one-world
-:class:`qpik.Robot` runs: each world's answer is the one its own one-world run gives.
+The tasks, limits and controllers are qpik's own (:mod:`qpik.tasks`, :mod:`qpik.limits`,
+:mod:`qpik.controllers`), each written once over a leading world axis: the classes a
+one-world :class:`qpik.Robot` runs, and each world's answer is the one its own one-world
+run gives.
 What is batch-only here is the N-world robot (:class:`Robot`, its back-ends) and the
 headless :func:`rollout`. Names load on first use: ``from qpik import batch`` imports
 nothing heavy.
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import importlib
 
-_TASKS, _LIMITS, _CONTROLLERS = "qpik.engine.tasks", "qpik.engine.limits", "qpik.engine.controllers"
+_TASKS, _LIMITS, _CONTROLLERS = "qpik.tasks", "qpik.limits", "qpik.controllers"
 
 # Public name -> module that defines it. An engine class ported later is one line here.
 _EXPORTS = {

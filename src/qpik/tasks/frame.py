@@ -2,27 +2,19 @@
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
-from ..robot import Robot
-from .task import (
-    PoseRows,
-    Task,
+from .inputs import (
     axis_rows,
     check_axes_frame,
     feedback_gain,
-    check_targets,
-    float_array,
     homogeneous_transform,
     mocap_pose,
-    rotation_error,
-    rotation_matrix,
+    world_rotations,
+    world_values,
 )
-
-__all__ = ["FrameTask", "rotation_error"]
-
-_ZERO3 = np.zeros(3)
+from .pose import PoseRows
+from .task import Task
 
 
 class FrameTask(Task):
@@ -72,60 +64,58 @@ class FrameTask(Task):
 
     name = "frame task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", position_gain=None, orientation_gain=None,
+    def __init__(self, robot, frame: str, frame_type: str = "site", position_gain=None, orientation_gain=None,
                  weight=1.0, hard: bool = False, lm_damping: float = 0.0, position_axes: str = "xyz",
                  orientation_axes: str = "xyz", axes_frame: str = "world"):
         self.position_rows = axis_rows(position_axes, "position_axes")
         self.orientation_rows = axis_rows(orientation_axes, "orientation_axes")
         self.axes_frame = axes_frame
         local = check_axes_frame(axes_frame)
+        self.frame = robot.frame(frame, frame_type)
+        self._pose = PoseRows(robot, self.frame, self.position_rows, self.orientation_rows, local)
         n_position = len(self.position_rows)
         super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
-        self.frame = robot.frame(frame, frame_type)
-        # Gains and the feed-forward twist live in one array each, the per-block names being
-        # views: v = K e + ẋ_d is then two operations on all rows.
-        self._use_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
-                                       feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
+        self.set_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
+                                      feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
         self.position_gain, self.orientation_gain = self.gain[:n_position], self.gain[n_position:]
-        self.target_position = self.frame.position.copy()
-        self.target_rotation = self.frame.rotation.copy()
-        self._twist = np.zeros(6)
-        self.target_linear_velocity, self.target_angular_velocity = self._twist[:3], self._twist[3:]
-        self.position_error = self.error[:n_position]
-        self.orientation_error = self.error[n_position:]
-        # Every world axis: MuJoCo fills the task's own Jacobian rows (views), no copies.
-        self._whole = self.dim == 6 and not local
+        self.target_positions = np.array(self.frame.positions)  # (N, 3)
+        self.target_rotations = np.array(self.frame.rotations)  # (N, 3, 3)
+        self._twist = np.zeros((robot.n, 6))  # the feed-forward, world axes
+        self.target_position, self.target_rotation = robot.present(self.target_positions), \
+            robot.present(self.target_rotations)
+        twist = robot.present(self._twist)
+        self.target_linear_velocity, self.target_angular_velocity = twist[..., :3], twist[..., 3:]
+        self.position_error, self.orientation_error = self.error[..., :n_position], self.error[..., n_position:]
+        # Every world axis: MuJoCo fills the task's own Jacobian rows, the feed-forward is
+        # the twist itself, the errors are views: no copies.
+        self._whole = self._pose.whole_rows()
         if self._whole:
-            self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
-            self._fill_jacobian = self.frame.jacobian_filler(self._jacp, self._jacr)
-            # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them,
-            # their quaternions and the error in the frame's axes (RotationError's steps, inline).
-            self._target_flat, self._current_flat = self.target_rotation.reshape(9), self.frame.rotation.reshape(9)
-            self._quaternions, self._local_error = (np.empty(4), np.empty(4)), np.empty(3)
-        else:
-            self._rows = PoseRows(self.frame, robot.nv, self.position_rows, self.orientation_rows, local)
-            self._feedforward = np.zeros(self.dim)
+            self._fill = self.frame.jacobians_filler(self.jacobians[:, :3], self.jacobians[:, 3:])
+            self.rates = self._twist
+            self.target_rate = robot.present(self.rates)
+            self._position_errors, self._orientation_errors = self.errors[:, :3], self.errors[:, 3:]
 
     def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``.
-
-        ``rotation`` is a 3x3 rotation matrix or a unit quaternion in MuJoCo's w-x-y-z order.
+        """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``:
+        one for every world, or (N, ...) one per world. ``rotation`` is a 3x3 rotation
+        matrix or a unit quaternion in MuJoCo's w-x-y-z order.
 
         Raises:
-            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
+            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation
+                (InvalidWorlds: in some worlds).
         """
-        position = float_array(position, 3, "target position")
-        linear = _ZERO3 if linear_velocity is None else float_array(linear_velocity, 3, "target linear velocity")
-        angular = _ZERO3 if angular_velocity is None else float_array(angular_velocity, 3, "target angular velocity")
-        check_targets((position, "target position"), (linear, "target linear velocity"),
-                      (angular, "target angular velocity"))
-        self.target_rotation[:] = rotation_matrix(rotation)  # every argument checked before the others are written
-        self.target_position[:] = position
-        self.target_linear_velocity[:] = linear
-        self.target_angular_velocity[:] = angular
+        robot = self.robot
+        position = world_values(robot, position, (3,), "target position")
+        rotation = world_rotations(robot, rotation)
+        linear = 0.0 if linear_velocity is None else world_values(robot, linear_velocity, (3,), "target linear velocity")
+        angular = 0.0 if angular_velocity is None else world_values(robot, angular_velocity, (3,),
+                                                                    "target angular velocity")
+        self.target_positions[...] = position  # every argument checked before any is written
+        self.target_rotations[...] = rotation
+        self._twist[:, :3], self._twist[:, 3:] = linear, angular
 
     def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].
+        """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]] (one world).
 
         Raises:
             InvalidInput: not a 4x4 homogeneous transform with a rotation block.
@@ -134,37 +124,21 @@ class FrameTask(Task):
         self.set_target(position, rotation, linear_velocity, angular_velocity)
 
     def set_target_from_mocap(self, body: str) -> None:
-        """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now.
-
-        Raises:
-            UnknownName: no body of that name.
-            InvalidInput: the body is not a mocap body.
-        """
+        """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now."""
         self.set_target(*mocap_pose(self.robot, body))
 
     def set_target_from_configuration(self) -> None:
-        """Desired world pose: the frame's pose at the robot's current configuration."""
+        """Desired world pose: the frame's pose at the current configuration, in every world."""
         self.robot.ensure_kinematics()
-        self.set_target(self.frame.position, self.frame.rotation)
+        self.target_positions[...] = self.frame.positions
+        self.target_rotations[...] = self.frame.rotations
+        self._twist[...] = 0.0
 
-    def update(self) -> None:
-        if self._whole:
-            self._fill_jacobian()
-        else:
-            self._rows.jacobian(self.jacobian)
-        self.update_target_velocity()
-
-    def update_target_velocity(self) -> None:
-        """Errors and v only (what a law without the Jacobian needs)."""
+    def measure_rows(self) -> None:
+        pose = self._pose
         if not self._whole:
-            self._rows.errors(self.target_position, self.target_rotation, self.target_linear_velocity,
-                              self.target_angular_velocity, self.error, self._feedforward)
-            self._track(self._feedforward)
+            pose.write(self, self.target_positions, self.target_rotations, self._twist[:, :3], self._twist[:, 3:])
             return
-        frame, (desired, current), local = self.frame, self._quaternions, self._local_error
-        np.subtract(self.target_position, frame.position, self.position_error)
-        mujoco.mju_mat2Quat(desired, self._target_flat)
-        mujoco.mju_mat2Quat(current, self._current_flat)
-        mujoco.mju_subQuat(local, desired, current)  # q_current * exp(local) = q_desired
-        frame.rotation.dot(local, self.orientation_error)  # in world axes
-        self._track(self._twist)
+        self._fill()
+        np.subtract(self.target_positions, self.frame.positions, self._position_errors)
+        pose._rotation_error(self.target_rotations, self.frame.rotations, self._orientation_errors)

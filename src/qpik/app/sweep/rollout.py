@@ -103,7 +103,7 @@ class Recorder:
             "stopped_at": self.stopped_at, "stop_reason": self.stop_reason,
         }
         if self.study.name == "hexapod":
-            from ...engine.numerics import rotation_error
+            from ...numerics import rotation_error
             from ...trajectories import rpy_rotations_and_rates
 
             rpy = self.samples["target"][:, 3:]

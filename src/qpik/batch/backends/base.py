@@ -1,6 +1,6 @@
 r"""The interface a batched back-end implements: the N worlds' state and kinematics.
 
-:mod:`qpik.batch` runs the engine's tasks, limits and controllers (:mod:`qpik.engine`)
+:mod:`qpik.batch` runs qpik's tasks, limits and controllers (written once over N worlds)
 over N *worlds*: N copies of one MuJoCo model, each with its own configuration and
 targets. What depends on where the worlds live (the CPU's memory, a GPU's) sits behind
 :class:`KinematicsBackend`: the N configurations, their kinematics (frame poses,

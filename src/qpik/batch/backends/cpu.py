@@ -41,7 +41,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from ...engine.numerics import mul, quat2mat, quat_integrate
+from ...numerics import mul, quat2mat, quat_integrate
 from ..errors import NotBatched
 from .base import KinematicsBackend
 

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...controllers.labels import task_label
-from ...errors import InfeasibleProblem, InvalidInput, QpikError, WorldsFailed
-from ...solvers import make_backend
-from ...controllers.fallbacks import GuardedSolve
+from ..controllers.labels import task_label
+from ..errors import InfeasibleProblem, InvalidInput, QpikError, WorldsFailed
+from ..solvers import make_backend
+from ..controllers.fallbacks import GuardedSolve
 
 
 @dataclass

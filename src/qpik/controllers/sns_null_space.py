@@ -2,7 +2,7 @@
 task's rows (:func:`pseudoinverse`) and the null space the levels done leave
 (:class:`NullSpace`), carried as an orthonormal basis Z or as the projector P = Z Zᵀ.
 
-These run inside SNS's per-world passes (:mod:`qpik.engine.controllers.sns`) on views of
+These run inside SNS's per-world passes (:mod:`qpik.controllers.sns`) on views of
 the (N, ...) arrays: the saturation passes are data-dependent per world. Products use
 ``ndarray.dot``: ``@`` costs twice as much at these sizes.
 """
@@ -12,9 +12,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg.lapack import dgesvd
 
-from ... import linalg
-from ...errors import DivergenceError
+from ..errors import DivergenceError
 
 RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 
@@ -38,7 +38,7 @@ def pseudoinverse(X: np.ndarray, scale: float | None, closed: bool,
         inverse = _two_row_gram_inverse(X, scale, tolerance)
         if inverse is not None:
             return X.T.dot(inverse), 2, None
-    u, s, vt, info = linalg.dgesvd(X)
+    u, s, vt, info = dgesvd(X)
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
         raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
@@ -139,6 +139,6 @@ class NullSpace:
             self.F = self.F - pinv.dot(X)
             return
         if vt is None:  # one row: decompose now
-            vt = linalg.dgesvd(X)[2]
+            vt = dgesvd(X)[2]
         null = vt[rank:].T
         self.F = null if self.F is None else self.F.dot(null)

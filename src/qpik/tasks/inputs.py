@@ -15,7 +15,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from ...errors import InvalidInput, InvalidWorlds, listed
+from ..errors import InvalidInput, InvalidWorlds, listed
 
 _AXES = "xyz"
 AXES_FRAMES = ("world", "local")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ...errors import DivergenceError, InvalidInput
+from ..errors import DivergenceError, InvalidInput
 from ..numerics import all_finite
 from .inputs import as_index, optional_rows
 

@@ -9,8 +9,8 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from ...errors import InvalidInput, UnknownName
-from ...robot import name_hint
+from ..errors import InvalidInput, UnknownName
+from ..robot import name_hint
 
 GeomGroup = Sequence[str | int]
 

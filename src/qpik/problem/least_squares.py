@@ -13,7 +13,7 @@ the rows rather than the Hessian :math:`R_1^TR_1 + D`:
 
 which keeps its digits where D is only a tiny ε on the joints the rows leave free (H⁻¹
 would be of order 1/ε). A level of the hierarchy with soft tasks of their own Jacobian
-is solved so (:class:`~qpik.engine.controllers.hierarchy.HierarchicalController`); its
+is solved so (:class:`~qpik.controllers.hierarchy.HierarchicalController`); its
 solver's answers are polished by the same step with the active bounds held: a held dof
 has :math:`D^{-1} = 0` there (x is 0 on it, its bound's value added after), so one
 shape serves every active set.
