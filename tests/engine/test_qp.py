@@ -11,8 +11,8 @@ import qpik.controllers as serial_controllers
 import qpik.limits as serial_limits
 import qpik.tasks as serial_tasks
 from qpik.batch.robot import Robot as Robots
-from qpik.engine import limits as engine_limits
-from qpik.engine import tasks as engine_tasks
+from qpik import limits as engine_limits
+from qpik import tasks as engine_tasks
 from qpik.controllers import QPController
 from qpik.errors import InfeasibleProblem, InvalidInput, WorldsFailed
 from qpik.robot import Robot

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from qpik import InvalidInput, ModelError, UnknownName, tasks as serial
-from qpik.engine import tasks as engine
+from qpik import tasks as engine
 from qpik.errors import InvalidWorlds
 
 _spec = importlib.util.spec_from_file_location("tasks_support", Path(__file__).with_name("tasks_support.py"))

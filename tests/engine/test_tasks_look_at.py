@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from qpik import InvalidInput, tasks as serial
-from qpik.engine import tasks as engine
+from qpik import tasks as engine
 from qpik.errors import InvalidWorlds
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from qpik import DivergenceError, InvalidInput, UnknownName, tasks as serial
-from qpik.engine import tasks as engine
+from qpik import tasks as engine
 
 
 def _load(name: str, path: Path):
