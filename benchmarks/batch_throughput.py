@@ -577,6 +577,10 @@ def main_inside(args) -> None:
     write_text(out / "batch_throughput.md", markdown(results))
     figure(results, out / "batch_throughput.png")
     print(markdown(results))
+    sys.path.insert(0, str(HERE.parent))  # the repository: tools (the results page)
+    from tools.results import refresh
+
+    refresh(out)
 
 
 def main() -> None:

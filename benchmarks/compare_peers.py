@@ -27,13 +27,16 @@ import numpy as np
 from step_time import RESULTS, measure
 from timing import P99_BOUND
 
-from qpik.app.readme_tables import ratio_cell
-from qpik.app.runs import run_label
-from qpik.rollout import RunSummary
-from qpik.io import write_json, write_text
-from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers
-from qpik.scenario import build_scenario, scenarios
-from qpik.solvers import available_solvers
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers  # noqa: E402
+from qpik.app.runs import run_label  # noqa: E402
+from qpik.io import write_json, write_text  # noqa: E402
+from qpik.rollout import RunSummary  # noqa: E402
+from qpik.scenario import build_scenario, scenarios  # noqa: E402
+from qpik.solvers import available_solvers  # noqa: E402
+from tools.results import refresh  # noqa: E402
+from tools.tables import ratio_cell  # noqa: E402
 
 RUNS = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
 TRACKING = 1e-3  # max error every controller must keep
@@ -133,7 +136,7 @@ def main(argv=None) -> int:
         write_json(args.out / f"peers_{scenario}.json", {"robot": robot, "scenario": scenario, "meta": meta,
                                                           "rows": rows, "ratios": checks, "notes": notes})
         write_text(args.out / f"peers_{scenario}.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
 """Fuzz qpik's promises on any robot: generated and third-party models, every task, limit
-and controller (the bundled robots are benchmarks/fuzz.py's).
+and controller (the bundled robots are benchmarks/fuzz_bundled.py's).
 
 Each case (a seed) draws a model — a random MJCF chain or tree of 2–40 hinge, slide,
 ball or free joints with ranges present, absent, narrow or one-sided, tendons,
 connect/weld/joint/tendon equalities and collision geoms, or a dm_control/gymnasium
 model — a start inside, on or outside the ranges, 1–4 tasks, the limits and a controller,
-and rolls out 25 steps (see qpik.fuzz). Every returned step is checked; a typed error is
+and rolls out 25 steps (see benchmarks.fuzz). Every returned step is checked; a typed error is
 checked against an LP on the step's hard rows and box (HiGHS). Failure classes: untyped
 exception, non-finite answer, limit crossing, hard task missed, invalid parameter
 accepted, typed error on an LP-feasible step, misleading diagnosis, nondeterminism (every
@@ -29,11 +29,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from qpik.fuzz import DEFECTS, run_case
-from qpik.fuzz.sweep import summarise, sweep, to_markdown
-from qpik.io import write_json, write_text
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the fuzz harness (benchmarks.fuzz) and the results page (tools)
 
-RESULTS = Path(__file__).resolve().parent / "results"
+from benchmarks.fuzz.cases import DEFECTS, run_case  # noqa: E402
+from benchmarks.fuzz.sweep import summarise, sweep, to_markdown  # noqa: E402
+from qpik.io import write_json, write_text  # noqa: E402
+from tools.results import refresh  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
 
 
 def main(argv=None) -> int:
@@ -67,7 +71,7 @@ def main(argv=None) -> int:
     print(md)
     write_json(args.out / "fuzz_any_robot.json", {"meta": meta, **summary})
     write_text(args.out / "fuzz_any_robot.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

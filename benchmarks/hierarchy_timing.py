@@ -33,6 +33,10 @@ from qpik.io import write_json, write_text
 from qpik.scenario import build_scenario
 from timing import Contestant, interleave, scenario_run
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from tools.results import refresh  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
 SCENARIOS = ("seed-redundant", "joint-limits", "too-fast", "three-tasks")
 KINDS = ("pinv", "sns", "qp", "qp-hard", "hqp")
@@ -111,7 +115,7 @@ def main(argv=None) -> int:
     print(md)
     write_json(args.out / "hierarchy_timing.json", {"meta": meta, "results": results})
     write_text(args.out / "hierarchy_timing.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ the median step of each back-end for each of 3 repeats, in µs.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -30,9 +31,14 @@ class BackendRun(ControllerRun):
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    scenario, kind = argv[0].split(":")
-    backends = argv[1].split(",") if len(argv) > 1 else ["scipy"]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", metavar="SCENARIO:CONTROLLER", help="e.g. hexapod-circle:qp")
+    parser.add_argument("backends", nargs="?", default="scipy", help="comma-separated: scipy, numpy")
+    args = parser.parse_args(argv)
+    if args.run.count(":") != 1:
+        parser.error(f"expected SCENARIO:CONTROLLER, got {args.run!r}")
+    scenario, kind = args.run.split(":")
+    backends = args.backends.split(",")
     timing = interleave([Contestant(b, lambda b=b: BackendRun(b, scenario, kind)) for b in backends], repeats=3)
     medians = {b: [float(m) for m in timing.contestants[b].repeat_medians_us] for b in backends}
     print(json.dumps({"scenario": scenario, "kind": kind, "median_us_per_repeat": medians}))

@@ -56,6 +56,10 @@ from qpik.scenario import Setup
 from qpik.trajectories import PoseTrajectory, Segment
 from timing import timed_run
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from tools.results import refresh  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
 MOVE, HOLD = 1.0, 0.5  # s: quintic segment, then the target held
 SUCCESS_ERROR = 1e-3  # m
@@ -251,7 +255,7 @@ def main(argv=None) -> int:
             f"{p}/{c}:{s}/{key}": v for p, r in results.items() for (c, s), m in r["metrics"].items()
             for key, v in m.items()})
         plot(results, stem.with_suffix(".png"))
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

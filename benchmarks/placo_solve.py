@@ -25,9 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from qpik.app.peers import peer_installed
-from qpik.app.readme_tables import placo_solve_markdown
 from qpik.io import write_json, write_text
 from timing import Contestant, MethodTimer, interleave, scenario_run, spread
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from tools.results import refresh  # noqa: E402
+from tools.tables import placo_solve_markdown  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -79,7 +83,7 @@ def main(argv=None) -> int:
     write_json(args.out / "placo_solve.json", {"meta": meta, "results": results})
     write_text(args.out / "placo_solve.md", markdown)
     print(markdown)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,10 @@ from timing import Contestant, import_revision, interleave
 
 from qpik.io import write_json, write_text
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from tools.results import refresh  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
 REPO = Path(__file__).resolve().parents[1]
 RUNS = (("arm", "seed-redundant"), ("hexapod", "hexapod-circle"))
@@ -144,7 +148,7 @@ def main(argv=None) -> int:
             "rounds": args.rounds, "against": args.against}
     write_json(args.out / "rollout_speed.json", {"meta": meta, **result})
     write_text(args.out / "rollout_speed.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -21,11 +21,14 @@ from pathlib import Path
 
 from timing import P99_BOUND, Contestant, interleave, logged_run, scenario_run, timed_vs_logged
 
-from qpik.app.readme_tables import ratio_cell
-from qpik.app.runs import run_label
-from qpik.io import write_json, write_text
-from qpik.scenario import scenarios
-from qpik.solvers import available_solvers
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
+
+from qpik.app.runs import run_label  # noqa: E402
+from qpik.io import write_json, write_text  # noqa: E402
+from qpik.scenario import scenarios  # noqa: E402
+from qpik.solvers import available_solvers  # noqa: E402
+from tools.results import refresh  # noqa: E402
+from tools.tables import ratio_cell  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CONTROL_PERIOD_US = 2000.0  # the scenarios' Δt: a step must fit in it to run in real time
@@ -88,7 +91,7 @@ def main(argv=None) -> int:
     write_json(args.out / f"step_time_{args.scenario}.json",
                {"robot": args.robot, "scenario": args.scenario, "meta": meta, "rows": rows, "ratios": ratios})
     write_text(args.out / f"step_time_{args.scenario}.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

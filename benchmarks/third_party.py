@@ -1,7 +1,7 @@
 r"""qpik beside mink on third-party and generated models: the same problem, solver daqp.
 
-Cases (each a qpik problem and its mink mirror, :mod:`qpik.app.peers.mink_mirror`; the untimed
-side-by-side rollouts are :mod:`qpik.app.peers.equivalence`):
+Cases (each a qpik problem and its mink mirror, :mod:`benchmarks.peers.mink_mirror`; the untimed
+side-by-side rollouts are :mod:`benchmarks.peers.equivalence`):
 
 - ``jaco``: dm_control's Kinova Jaco tracks a 3-D circle with a 6-D pose task, joint
   position and speed limits, 5 s at 2 ms (examples/jaco_circle.py);
@@ -27,13 +27,13 @@ sampled for every step beforehand into plain arrays (the arguments of each movin
 - qpik: ``task.set_target(position, rotation, velocity, angular_velocity)`` (or
   ``(position, velocity)``) for each moving task, ``controller.compute_velocity()``,
   ``robot.integrate(qdot, dt)``;
-- mink (:class:`qpik.app.peers.mink_mirror.MinkRun`): each moving task's ``set_target`` in mink's types
+- mink (:class:`benchmarks.peers.mink_mirror.MinkRun`): each moving task's ``set_target`` in mink's types
   (``SE3`` of the pose shifted by the feed-forward over K, precomputed as ``wxyz_xyz``;
   for a position-only task the frame's current pose with the translation replaced; the
   CoM's point), ``mink.solve_ik``, ``configuration.integrate_inplace``. No qpik call.
 
 The tracking, limits and the trajectories' difference come from logged rollouts run
-apart (untimed), mink through the exact mirror of the QP (:class:`~qpik.app.peers.mink_mirror.MinkMirror`);
+apart (untimed), mink through the exact mirror of the QP (:class:`~benchmarks.peers.mink_mirror.MinkMirror`);
 the timed runs' own final configurations are compared too (mink's shifted target is
 first-order equal to the mirror's). Reported per case: median and p99 step, the ratio
 qpik/mink per repeat (median, range), and whether each of the script's bounds holds
@@ -59,6 +59,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "examples"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(ROOT))  # the lab's packages: benchmarks.peers, tools
 
 import collision_avoidance  # noqa: E402
 import humanoid_reach  # noqa: E402
@@ -67,12 +68,13 @@ from demo_support import Demo  # noqa: E402
 from pose_circles import CHAIN_MOTION, PUSHER_MOTION, chain_demo, pusher_demo  # noqa: E402
 from timing import Contestant, call_cost_us, interleave  # noqa: E402
 
-from qpik.app.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_side, mink_controller,  # noqa: E402
-                                        qpik_controller, without_damper)
-from qpik.app.peers.mink_mirror import MinkMirror, MinkRun  # noqa: E402
-from qpik.app.readme_tables import ratio_cell  # noqa: E402
+from benchmarks.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_side, mink_controller,  # noqa: E402
+                                          qpik_controller, without_damper)
+from benchmarks.peers.mink_mirror import MinkMirror, MinkRun  # noqa: E402
 from qpik.errors import QpikError  # noqa: E402
 from qpik.io import write_json, write_text  # noqa: E402
+from tools.results import refresh  # noqa: E402
+from tools.tables import ratio_cell  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -390,7 +392,7 @@ def main(argv=None) -> int:
     print(markdown)
     write_json(args.out / "third_party.json", {"meta": meta, "cases": results})
     write_text(args.out / "third_party.md", markdown)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
 """No import cycle anywhere: among qpik's modules counting every import (those inside
-functions too, which only defer a cycle to the first call), among the benchmark scripts,
-and no test imports a benchmark script (what tests and benchmarks share is library code).
-The imports are read from the sources with ``ast``."""
+functions too, which only defer a cycle to the first call), among the benchmark scripts;
+and no test, harness package or tool imports a benchmark script: what tests and
+benchmarks share is library code, the lab's harness packages (``benchmarks.fuzz``,
+``benchmarks.peers``) and the results renderer (``tools``). The imports are read from
+the sources with ``ast``."""
 
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ import qpik
 SRC = Path(qpik.__file__).resolve().parent
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
+# The lab's packages that tests may import: harnesses, not scripts.
+HARNESS = ("benchmarks.fuzz", "benchmarks.peers")
 
 
 def _module_name(path: Path) -> str:
@@ -88,8 +92,13 @@ def test_no_import_cycle_in_qpik_counting_imports_inside_functions():
     assert not cycle, " -> ".join(cycle)
 
 
+def _scripts() -> list[Path]:
+    """The benchmark scripts (``python benchmarks/NAME.py``): the folder's modules, not its packages."""
+    return [p for p in BENCHMARKS.glob("*.py") if p.name != "__init__.py"]
+
+
 def test_no_import_cycle_among_the_benchmark_scripts():
-    paths = list(BENCHMARKS.glob("*.py"))
+    paths = _scripts()
     scripts = {p.stem for p in paths}
     graph = {p.stem: _script_imports(p, scripts) for p in paths}
     assert graph["third_party"] >= {"timing"}
@@ -108,9 +117,43 @@ def _puts_benchmarks_on_the_path(path: Path) -> bool:
     return False
 
 
-def test_no_test_imports_a_benchmark_script():
-    scripts = {p.stem for p in BENCHMARKS.glob("*.py")}
-    offenders = [f"{path.relative_to(ROOT)}: {sorted(_script_imports(path, scripts))}"
-                 for path in ROOT.joinpath("tests").rglob("*.py")
-                 if _script_imports(path, scripts) or _puts_benchmarks_on_the_path(path)]
+def _imported_modules(path: Path) -> set[str]:
+    """Every module name ``path`` imports, absolute (``from benchmarks import fuzz`` gives
+    ``benchmarks.fuzz``); relative imports are left out (they stay in their package)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.add(node.module)
+            found.update(f"{node.module}.{alias.name}" for alias in node.names)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+    return found
+
+
+def _script_imported(modules: set[str], scripts: set[str]) -> list[str]:
+    """The modules among ``modules`` that are benchmark scripts: by their own name (the
+    benchmarks folder on the path) or as ``benchmarks.NAME``."""
+    return sorted(m for m in modules if m.split(".")[0] in scripts
+                  or (m.startswith("benchmarks.") and m.split(".")[1] in scripts))
+
+
+def test_the_rule_tells_a_harness_from_a_script():
+    scripts = {"step_time", "timing"}
+    assert _script_imported({"benchmarks.fuzz.pool", "benchmarks.fuzz", "tools.tables", "qpik"}, scripts) == []
+    assert _script_imported({"benchmarks", "benchmarks.step_time", "timing"}, scripts) == ["benchmarks.step_time",
+                                                                                            "timing"]
+
+
+def test_tests_harnesses_and_tools_import_no_benchmark_script():
+    """Tests may import the lab's harness packages and tools/, never a benchmark script;
+    neither may those packages and tools."""
+    scripts = {p.stem for p in _scripts()}
+    files = [*ROOT.joinpath("tests").rglob("*.py"), *ROOT.joinpath("tools").rglob("*.py"),
+             *(p for package in HARNESS for p in ROOT.joinpath(*package.split(".")).rglob("*.py"))]
+    offenders = [f"{path.relative_to(ROOT)}: {_script_imported(_imported_modules(path), scripts)}"
+                 for path in files
+                 if _script_imported(_imported_modules(path), scripts) or _puts_benchmarks_on_the_path(path)]
     assert not offenders, offenders
+    harness = {m for path in ROOT.joinpath("tests").rglob("*.py") for m in _imported_modules(path)
+               if m.startswith("benchmarks.")}
+    assert harness and all(m.startswith(HARNESS) for m in harness), harness  # the tests do use the harness

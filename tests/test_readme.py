@@ -1,15 +1,10 @@
-"""The README against the code: its tables (qpik.app.readme_tables, whose command line is
-benchmarks/readme_tables.py --check) and its Python examples (run as written).
+"""The README as a front page: its size, its two commands up front, its examples run as
+printed (and docs/usage.md's), its headline numbers those of the recordings they link
+to, every link and figure it shows present."""
 
-The quick tables are recomputed here on the installed versions (the scenarios table takes
-about 30 s): an edited number, or a change of the code that moves one, fails with the cell
-named. Their numbers are compared to one unit in the last printed digit, rounding-level
-values (below 1e-12) as one class: another CPU's rounding can flip a last digit, never
-more on these well-conditioned runs. The chaotic row is a range over BLAS kernels,
-compared with its recording. The recorded tables (timings, sweeps) are compared with the
-JSON their benchmark wrote.
-"""
+from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -17,109 +12,119 @@ from pathlib import Path
 
 import pytest
 
-from qpik.app import readme_tables, scenarios_table
+from tools import results
 
 ROOT = Path(__file__).resolve().parents[1]
-README_PATH = ROOT / "README.md"
-RESULTS = ROOT / "benchmarks" / "results"
-README = README_PATH.read_text()
+README = (ROOT / "README.md").read_text()
+USAGE = (ROOT / "docs" / "usage.md").read_text()
+RECORDINGS = ROOT / "benchmarks" / "results"
+MAIN_JOB = ('python3 -m venv .venv && . .venv/bin/activate && pip install -c constraints.txt -e ".[peers]" && '
+            "qpik compare arm --scenario seed-redundant --plot --out out/seed-redundant")
+TESTS = ('python3 -m venv .venv && . .venv/bin/activate && pip install -c constraints.txt -e ".[test,peers]" && '
+         "python -m pytest -q -n 2")
 
 
-@pytest.mark.parametrize("name", list(readme_tables.TABLES))
-def test_readme_table_matches_the_code(name):
-    problems = readme_tables.check([name], README_PATH, RESULTS)
-    assert not problems, "\n".join(problems)
+def test_the_readme_is_a_front_page():
+    assert len(README.encode()) <= 12_000
+    first = README.splitlines()[:25]
+    assert MAIN_JOB in first and TESTS in first
+    ci = next(line for line in README.splitlines() if "`.ci/run`" in line)
+    assert "ruff check" in ci + README and ".ci/blas_kernel.py" in README
+    # Nothing about how the project was made: a reader cannot use it.
+    assert not re.search(r"this round|was lent|no GPU was|session|issue \d", README, re.I)
 
 
-def test_the_check_names_an_edited_cell(tmp_path):
-    """An edited README number fails the check, which names the row and the column."""
-    readme = tmp_path / "README.md"
-    block = readme_tables.read_block(README, "calibration")
-    # One unit in the last printed digit is what another CPU's rounding may give: agreed.
-    readme.write_text(readme_tables.write_block(README, "calibration", block.replace("| 1 | 2.1 |", "| 1 | 2.2 |", 1)))
-    assert readme_tables.check(["calibration"], readme, RESULTS) == []
-    edited = block.replace("| 1 | 2.1 |", "| 1 | 2.5 |", 1)
-    assert edited != block
-    readme.write_text(readme_tables.write_block(README, "calibration", edited))
-    problems = readme_tables.check(["calibration"], readme, RESULTS)
-    assert problems == ["calibration: row `qpik calibrate`, column 'condition number': README has 2.5, "
-                        "the code gives 2.1"]
-    # A recorded table: a timing edited in the README no longer matches its JSON.
-    block = readme_tables.read_block(README, "step-time")
-    first_row = block.splitlines()[2]
-    cells = first_row.split("|")
-    cells[3] = " 99.9 "
-    readme.write_text(readme_tables.write_block(README, "step-time", block.replace(first_row, "|".join(cells))))
-    problems = readme_tables.check(["step-time"], readme, RESULTS)
-    assert len(problems) == 1 and "column 'median [µs]': README has 99.9" in problems[0]
+def _run(code: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd)
 
 
-@pytest.mark.parametrize("want, have, agree", [
-    ("6.79e-07", "6.79e-07", True),
-    ("6.79e-07", "6.80e-07", True),              # a last digit flipped by rounding
-    ("6.79e-07", "6.81e-07", False),
-    ("0", "0", True),
-    ("0", "3.1e-13", True),                      # rounding-level: one class
-    ("0", "2.1e-07", False),
-    ("0.0507 / 0.0420", "0.0507 / 0.0421", True),
-    ("0.0507 / 0.0420", "0.0507 / 0.0423", False),
-    ("197", "198", True), ("8", "9", False), ("1.25", "1.26", True),
-    ("complete", "stopped at 0.056 s: infeasible", False),
-    ("stopped at 0.056 s: infeasible", "stopped at 0.056 s: diverged", False),
-])
-def test_numbers_agree_to_their_last_printed_digit(want, have, agree):
-    assert readme_tables.cells_agree(want, have) is agree
-    assert readme_tables.cells_agree(have, want) is agree
+def _examples(text: str) -> list[tuple[str, str | None]]:
+    """Each python block and what the text right after it says it prints, if it says."""
+    found = []
+    for match in re.finditer(r"```python\n(.*?)```\s*\n(prints `(.*?)`)?", text, re.S):
+        found.append((match.group(1), match.group(3)))
+    return found
 
 
-def test_rounding_level_values_print_as_one_class():
-    # 0 on one CPU, a few ε on another: the same cell (they printed `< 1e-12` and `0.00e+00`).
-    assert {scenarios_table.format_cell(v, ".2e") for v in (0.0, 2.48e-16, -3e-16, 9.9e-13)} == {"0"}
-    assert scenarios_table.format_cell(1.5e-12, ".2e") == "1.50e-12" and scenarios_table.format_cell(None, ".2e") == "-"
+EXAMPLES = [(f"README-{i}", code, claim) for i, (code, claim) in enumerate(_examples(README))] + \
+           [(f"usage-{i}", code, claim) for i, (code, claim) in enumerate(_examples(USAGE))]
 
 
-def test_chaotic_rows_are_ranges_over_kernels_and_stated_in_the_readme():
-    record = scenarios_table.load_chaotic(RESULTS / "scenarios_chaotic.json")
-    assert len(record["kernels"]) >= 2 and len(set(record["kernels"])) == len(record["kernels"])
-    block = readme_tables.read_block(README, "scenarios")
-    recorded = scenarios_table.recorded_runs(record)
-    for key in scenarios_table.CHAOTIC:
-        runs = [(kernel, s) for kernel, s in recorded if scenarios_table.row_key(s) == key]
-        assert sorted(kernel for kernel, _ in runs) == sorted(record["kernels"])
-        row = next(line for line in block.splitlines() if line.startswith(f"| {key[0]} | {key[1]} | {key[2]} (chaotic"))
-        low, high = min(s.max_error for _, s in runs), max(s.max_error for _, s in runs)
-        assert f"{low:.2e}–{high:.2e}" in row
-    assert "is chaotic" in README
-
-
-def test_a_stopped_run_is_flagged_in_its_row():
-    """qp-hard on too-fast stops at 0.056 s (its hard task becomes infeasible within the
-    speed limits): its row says so, in the table the script writes and in the README, so
-    its short run's small errors do not read as the best result."""
-    from qpik.app.runs import compare
-
-    _, logs, _ = compare("arm", "too-fast", ["daqp"], classical=("qp-hard", "pinv"), peers=())
-    table = scenarios_table.to_markdown([log.summary() for log in logs]).splitlines()
-    flagged = {line.split("|")[3].strip(): line.split("|")[-2].strip() for line in table[2:]}
-    assert flagged == {"qp (daqp)": "complete", "qp-hard (daqp)": "stopped at 0.056 s: infeasible",
-                       "pinv": "complete"}
-    block = readme_tables.read_block(README, "scenarios")
-    row = next(line for line in block.splitlines() if line.startswith("| too-fast | kinematic | qp-hard"))
-    assert row.split("|")[-2].strip() == "stopped at 0.056 s: infeasible"
-
-
-PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", README, re.S)
-
-
-@pytest.mark.parametrize("code", PYTHON_BLOCKS, ids=[f"example{i}" for i in range(len(PYTHON_BLOCKS))])
-def test_readme_python_examples_run_and_print_what_they_achieved(code, tmp_path):
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+@pytest.mark.parametrize("code, claim", [e[1:] for e in EXAMPLES], ids=[e[0] for e in EXAMPLES])
+def test_the_examples_run_and_print_what_they_achieved(code, claim, tmp_path):
+    done = _run(code, tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip()
+    if claim is not None:
+        assert done.stdout.strip() == claim
 
 
-def test_the_api_example_prints_what_the_readme_says():
-    code = PYTHON_BLOCKS[0]
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    claimed = re.search(r"prints `(.*?)`", README).group(1)
-    assert done.stdout.strip() == claimed
+def test_the_readme_shows_the_serial_and_the_batched_example():
+    (serial, said), (batched, said_batched) = _examples(README)
+    assert "QPController(robot" in serial and said.startswith("end effector at")
+    assert "batch.QPController(robots" in batched and said_batched.startswith("farthest arm")
+
+
+def _recorded(name: str) -> dict:
+    return json.loads((RECORDINGS / name).read_text())
+
+
+def _step_time() -> str:
+    rows = _recorded("step_time_seed-redundant.json")["rows"]
+    return f"{next(r['median_us'] for r in rows if (r['controller'], r['solver']) == ('qp', 'daqp')):.1f} µs"
+
+
+def _beside_mink() -> str:
+    case = next(c for c in _recorded("third_party.json")["cases"] if c["title"].startswith("Kinova Jaco"))
+    return f"{case['timing']['ratio']['median']:.2f} ×"
+
+
+def _batch() -> str:
+    rows = _recorded("batch_throughput.json")["throughput"]["arm"]["rows"]
+    return f"{next(r for r in rows if r['n'] == 1024)['speedup vs qpik serial (N robots)']['median']:.1f} ×"
+
+
+def _joint_limits() -> str:
+    runs = _recorded("scenarios.json")["runs"]
+    pinv = next(r for r in runs if (r["scenario"], r["controller"]) == ("joint-limits", "pinv"))
+    assert all(r["limit_violation_max"] == 0 for r in runs
+               if r["scenario"] == "joint-limits" and r["controller"] in ("qp", "hqp", "sns"))
+    return f"{pinv['limit_violation_max']:.2f} rad"
+
+
+def _fuzz() -> str:
+    from benchmarks.fuzz.cases import DEFECTS
+
+    counts = _recorded("fuzz_any_robot.json")["counts"]
+    assert not any(counts.get(key, 0) for key in DEFECTS)
+    return str(counts["cases"])
+
+
+# A headline's table (its anchor on docs/results.md) -> its number as the recording gives it.
+HEADLINES = {"per-step-controller-time": _step_time, "beside-mink-on-third-party-models": _beside_mink,
+             "many-robots-at-once-qpikbatch": _batch, "every-scenario-every-controller": _joint_limits,
+             "fuzz-any-robot": _fuzz}
+
+
+def test_at_most_five_headline_numbers_each_the_recordings_and_linked_to_its_table():
+    section = README[README.index("## Headline numbers"):README.index("\n## ", README.index("## Headline numbers") + 3)]
+    items = re.findall(r"^- \*\*(.+?)\*\*(.*?)(?=^- |\Z)", section, re.M | re.S)
+    assert 1 <= len(items) <= 5
+    anchors = {results.anchor(s.title) for s in results.SECTIONS}
+    for number, text in items:
+        linked = re.findall(r"\(docs/results\.md#([\w-]+)\)", text)
+        assert len(linked) == 1 and linked[0] in anchors, text
+        assert number == HEADLINES[linked[0]](), (linked[0], number)
+
+
+def test_every_link_and_figure_is_there():
+    for page, text in ((ROOT / "README.md", README), (ROOT / "docs" / "usage.md", USAGE)):
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[\w-]+)?\)", text):
+            if not target.startswith("http"):
+                assert (page.parent / target).exists(), (page.name, target)
+    for gif in ("docs/figures/joint-limits.gif", "docs/figures/hexapod-stroke-limits.gif"):
+        assert f"]({gif})" in README and (ROOT / gif).stat().st_size > 0
+    anchors = {results.anchor(s.title) for s in results.SECTIONS}
+    for page in [ROOT / "README.md", *ROOT.joinpath("docs").glob("*.md")]:
+        for anchor in re.findall(r"results\.md#([\w-]+)", page.read_text()):
+            assert anchor in anchors, (page.name, anchor)

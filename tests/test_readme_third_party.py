@@ -79,12 +79,12 @@ def test_unchanged_the_example_says_what_the_jaco_lacks(jaco_path, tmp_path):
 
 
 def test_the_third_party_table_renders_the_recorded_benchmark():
-    """qpik.app.readme_tables.third_party_table: one row per case of third_party.json, its
-    medians and ratio as recorded (the renderer against the JSON itself; the README block
-    against the renderer is tests/test_readme.py's check)."""
+    """tools.tables.third_party_table: one row per case of third_party.json, its medians
+    and ratio as recorded (the renderer against the JSON itself; docs/results.md against
+    the renderer is tests/test_results_page.py's check)."""
     import json
 
-    from qpik.app.readme_tables import third_party_table
+    from tools.tables import third_party_table
 
     results = ROOT / "benchmarks" / "results"
     data = json.loads((results / "third_party.json").read_text())

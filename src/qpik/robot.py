@@ -51,8 +51,9 @@ from typing import Callable
 import mujoco
 import numpy as np
 
+from .equalities import EqualityRows
 from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
-from .robots import BUNDLED
+from .scenes import SCENES
 
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
@@ -215,12 +216,12 @@ _URDF_HINT = ("a URDF link without an <inertial> is massless to MuJoCo: give the
 def scene_path(scene: str | Path) -> Path:
     """Resolve a bundled scene name (``"arm"``, ``"hexapod"``) or an MJCF or URDF path."""
     key = str(scene)
-    if key in BUNDLED:
-        return BUNDLED[key][0]
+    if key in SCENES:
+        return SCENES[key]
     path = Path(scene)
     if path.suffix.lower() not in MODEL_SUFFIXES and not path.exists():
         raise UnknownName(
-            f"unknown robot {key!r}: expected one of {sorted(BUNDLED)} or a path to an MJCF or URDF file"
+            f"unknown robot {key!r}: expected one of {sorted(SCENES)} or a path to an MJCF or URDF file"
         )
     if not path.is_file():
         raise ModelError(f"model file not found: {path}")
@@ -367,6 +368,7 @@ class Robot:
         self._velocity_shape = (model.nv,)
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
+        self._equality_rows: dict[tuple[int, ...], EqualityRows] = {}  # per set of equalities read
         # qpos0 is checked at the first step (ensure_kinematics), a keyframe or set_q at once.
         self._start_unchecked = True
         if keyframe is not None:
@@ -397,10 +399,10 @@ class Robot:
         if isinstance(scene, (mujoco.MjModel, mujoco.MjSpec)):
             model, name = as_model(scene), None
         elif isinstance(scene, (str, Path)):
-            name = str(scene) if str(scene) in BUNDLED else None
+            name = str(scene) if str(scene) in SCENES else None
             model = load_model(scene)
         else:
-            raise InvalidInput(f"Robot.load takes a bundled robot's name {sorted(BUNDLED)}, a path, a mujoco.MjModel "
+            raise InvalidInput(f"Robot.load takes a bundled robot's name {sorted(SCENES)}, a path, a mujoco.MjModel "
                                f"or a mujoco.MjSpec, got {type(scene).__name__}")
         if isinstance(keyframe, _BundledDefault):
             keyframe = "home" if name is not None else None
@@ -560,6 +562,31 @@ class Robot:
                 written[p] = mujoco.mj_geomDistance(model, data, g1, g2, limits[p], points)
 
         return fill
+        return out
+
+    def equality_rows(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo's rows of the equalities ``ids`` (ascending, each active and acting on a
+        dof) at the current kinematics, in ``mj_makeConstraint``'s layout: residual (1, m)
+        and Jacobian (1, m, nv) (``efc_pos``, ``efc_J``; every other constraint type
+        disabled for the call, see :class:`~qpik.equalities.EqualityRows`). The arrays
+        are the robot's, overwritten by the next call for the same equalities; the data's
+        ``efc_*`` arrays are rewritten.
+
+        Raises:
+            ModelError: an id without rows (inactive, acting on no dof), or active
+                equalities changed since the first call for these ids.
+        """
+        key = ids if isinstance(ids, tuple) else tuple(np.asarray(ids, dtype=int).reshape(-1).tolist())
+        reader = self._equality_rows.get(key)
+        if reader is None:
+            reader = self._equality_rows[key] = EqualityRows(self.model, self.data, key)
+        return reader()
+
+    def mass_matrix(self, out: np.ndarray) -> np.ndarray:
+        """(1, nv, nv) joint-space inertia M(q) at the current kinematics (``mj_crb``, then
+        ``mj_fullM``: armature included) into ``out``."""
+        mujoco.mj_crb(self.model, self.data)
+        mujoco.mj_fullM(self.model, self.data, out[0])
         return out
 
     # Names -------------------------------------------------------------------------

@@ -1,5 +1,5 @@
 """qpik and mink on the same third-party problems (the problems of benchmarks/third_party.py,
-shortened, no timing; qpik.app.peers.equivalence runs them side by side): the same
+shortened, no timing; benchmarks.peers.equivalence runs them side by side): the same
 trajectories where both solve the same QP, and what each collision bound does to a hand
 pulled into a box."""
 
@@ -15,9 +15,9 @@ pytest.importorskip("mink", reason="mink is not installed (pip install -e '.[pee
 pytest.importorskip("dm_control", reason="the models come with dm_control (pip install -e '.[test]')")
 pytest.importorskip("gymnasium", reason="the pusher comes with gymnasium (pip install -e '.[test]')")
 
+from benchmarks.peers.equivalence import PAIR, equivalence, mink_controller, qpik_controller, without_damper  # noqa: E402
+from benchmarks.peers.mink_mirror import MinkMirror  # noqa: E402
 from qpik import JointPositionLimit  # noqa: E402
-from qpik.app.peers.equivalence import PAIR, equivalence, mink_controller, qpik_controller, without_damper  # noqa: E402
-from qpik.app.peers.mink_mirror import MinkMirror  # noqa: E402
 from qpik.app.peers.problem import PeerUnsupported  # noqa: E402
 
 # The problems are the examples' (a folder of scripts, imported as the scripts import each other).

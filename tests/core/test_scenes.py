@@ -4,6 +4,7 @@ found through the package (editable install) and carried by the wheel."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -16,6 +17,7 @@ from setuptools import find_packages
 
 from qpik.robot import Robot
 from qpik.robots import BUNDLED
+from qpik.scenes import SCENES
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE_FILES = ("arm.xml", "arm.urdf", "hexapod.xml")
@@ -26,7 +28,8 @@ def test_bundled_scenes_are_the_top_level_folder_through_the_package():
     for name in SCENE_FILES:
         assert scenes.joinpath(name).is_file(), name
         assert (ROOT / "scenes" / name).read_text() == scenes.joinpath(name).read_text()
-    for robot, (path, _) in BUNDLED.items():
+    assert {robot: path for robot, (path, _) in BUNDLED.items()} == SCENES  # the robots' registry, the core's names
+    for robot, path in SCENES.items():
         assert path == ROOT / "scenes" / f"{robot}.xml"
         model = mujoco.MjModel.from_xml_path(str(path))
         assert Robot.load(robot).model.nq == model.nq
@@ -44,23 +47,40 @@ def test_pyproject_lists_every_package_under_src():
 LOAD_FROM_WHEEL = """
 import sys, qpik
 from pathlib import Path
+from qpik.scenes import SCENES
 assert Path(qpik.__file__).is_relative_to(sys.argv[1]), qpik.__file__
 for name in ("arm", "hexapod"):
     robot = qpik.Robot.load(name)
-    print(name, robot.model.nq, Path(qpik.robots.BUNDLED[name][0]).relative_to(sys.argv[1]))
+    print(name, robot.model.nq, SCENES[name].relative_to(sys.argv[1]))
 """
+
+
+# What a wheel is built from; a copy of them builds it (a build/ folder left in the
+# repository by an earlier build would carry its stale modules into the wheel).
+WHEEL_SOURCES = ("pyproject.toml", "README.md", "src", "scenes")
 
 
 def test_the_wheel_carries_the_scenes(tmp_path):
     """`pip wheel .`, installed (without dependencies, which this environment has) into a
-    folder outside the repository: both bundled robots load from it."""
-    wheels = tmp_path / "wheels"
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(wheels)],
+    folder outside the repository: both bundled robots load from it, and it carries
+    nothing of the lab."""
+    source, wheels = tmp_path / "source", tmp_path / "wheels"
+    source.mkdir()
+    for name in WHEEL_SOURCES:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+        else:
+            shutil.copy(ROOT / name, source / name)
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "-q", "-w", str(wheels)],
                            capture_output=True, text=True)
     assert build.returncode == 0, build.stderr[-2000:]
     (wheel,) = wheels.glob("qpik-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert {f"qpik/scenes/{name}" for name in SCENE_FILES} <= set(names)
+    # The library and the tool a user runs, nothing of the lab (benchmarks/, tools/).
+    lab = [n for n in names if n.startswith(("qpik/fuzz/", "benchmarks/", "tools/"))
+           or n.rsplit("/", 1)[-1] in ("readme_tables.py", "scenarios_table.py", "mink_mirror.py", "equivalence.py")]
+    assert not lab, lab
     target = tmp_path / "site"
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(target),
                               str(wheel)], capture_output=True, text=True)

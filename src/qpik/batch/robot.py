@@ -15,8 +15,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..errors import InvalidInput, InvalidWorlds, UnknownName, listed
+from ..equalities import equality_label, equality_row_ids
+from ..errors import InvalidInput, InvalidWorlds, ModelError, UnknownName, listed
 from ..robot import BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot
+from .errors import NotBatched
 
 BACKENDS = ("cpu", "warp")
 # What a batch robot answers as its template (one world of the same model) does.
@@ -151,6 +153,7 @@ class Robot:
         self._world = None  # the one-world robot of world()
         self._rotational = None  # scratch of point_jacobian_filler
         self._start_unchecked = keyframe is None
+        self._equality_rows: dict[tuple[int, ...], _EqualityRows] = {}  # per set of equalities read
 
     @classmethod
     def load(cls, scene: str | Path | mujoco.MjModel | mujoco.MjSpec, n: int,
@@ -310,6 +313,40 @@ class Robot:
         self.kinematics_stale()  # the back-end computes the geoms' poses from now on
         return filler
 
+    def equality_rows(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """Every world's rows of the equalities ``ids`` (ascending, each active and acting
+        on a dof), in MuJoCo's layout and in the order of ``ids``, as
+        :meth:`qpik.Robot.equality_rows`: residual (N, m), Jacobian (N, m, nv), the robot's
+        arrays (overwritten by the next call for the same equalities).
+
+        Each equality's rows come from the back-end, batched, where it writes that type
+        (the CPU back-end: ``connect`` and ``joint``, from the anchors' Jacobians and the
+        joints' positions; MuJoCo Warp: every type, from its ``make_constraint``); the
+        others (on the CPU: ``weld`` and ``tendon``) from MuJoCo's C, world by world, on
+        :meth:`world` (``mj_makeConstraint``).
+
+        Raises:
+            ModelError: an id without rows (inactive, acting on no dof), or active
+                equalities changed since the first call for these ids.
+        """
+        key = ids if isinstance(ids, tuple) else tuple(np.asarray(ids, dtype=int).reshape(-1).tolist())
+        rows = self._equality_rows.get(key)
+        if rows is None:
+            rows = self._equality_rows[key] = _EqualityRows(self, key)
+        return rows()
+
+    def mass_matrix(self, out: np.ndarray) -> np.ndarray:
+        """(N, nv, nv) joint-space inertia M(q) of every world into ``out``: the back-end's
+        batched matrix where it has one (``backend.mass_matrix``), else MuJoCo's C world
+        by world on :meth:`world` (``mj_crb``, ``mj_fullM``), as the CPU and Warp back-ends
+        have none."""
+        batched = getattr(self.backend, "mass_matrix", None)
+        if batched is not None:
+            return batched(out)
+        for w in range(self.n):
+            self.world(w).mass_matrix(out[w:w + 1])
+        return out
+
     def __getattr__(self, name: str):
         # Names and ids (joint_id, joint_dofs, dof_name, body_id, ...): the template's.
         if name in _TEMPLATE_NAMES:
@@ -318,3 +355,54 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"batch.Robot({self.name!r}, n={self.n}, nq={self.nq}, nv={self.nv}, backend={self.backend.name!r})"
+
+
+def _row_index(rows: list[int]) -> slice | np.ndarray:
+    """Row positions as a slice when consecutive (plain copies), else an index array."""
+    if rows and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(rows[0], rows[-1] + 1)
+    return np.array(rows, dtype=np.int64)
+
+
+class _EqualityRows:
+    """:meth:`Robot.equality_rows` of one set of equalities: which rows the back-end writes
+    and which MuJoCo's C writes world by world, and the (N, m), (N, m, nv) outputs."""
+
+    def __init__(self, robots: Robot, ids: tuple[int, ...]):
+        model = robots.model
+        efc_id = equality_row_ids(model, robots.world(0).data)
+        sizes = [int(np.count_nonzero(efc_id == i)) for i in ids]
+        if not ids or list(ids) != sorted(set(ids)) or 0 in sizes:
+            raise ModelError(f"equality rows need ascending ids of active equalities that act on a dof, got "
+                             f"{[equality_label(model, i) if 0 <= i < model.neq else i for i in ids]}")
+        self.robots, self.backend = robots, robots.backend
+        batched, serial, batched_rows, serial_rows, start = [], [], [], [], 0
+        for eq, size in zip(ids, sizes):
+            on_backend = self._batched(eq)
+            (batched if on_backend else serial).append(eq)
+            (batched_rows if on_backend else serial_rows).extend(range(start, start + size))
+            start += size
+        self.batched, self.serial = np.array(batched, dtype=np.int64), tuple(serial)
+        self.batched_rows, self.serial_rows = _row_index(batched_rows), _row_index(serial_rows)
+        self.residual = np.zeros((robots.n, start))
+        self.jacobian = np.zeros((robots.n, start, robots.nv))
+
+    def _batched(self, equality: int) -> bool:
+        """Whether the back-end writes this equality's rows (it raises NotBatched if not)."""
+        try:
+            self.backend.equality_rows(np.array([equality], dtype=np.int64))
+        except NotBatched:
+            return False
+        return True
+
+    def __call__(self) -> tuple[np.ndarray, np.ndarray]:
+        if len(self.batched):
+            residual, jacobian = self.backend.equality_rows(self.batched)
+            self.residual[:, self.batched_rows] = residual
+            self.jacobian[:, self.batched_rows] = jacobian
+        if self.serial:
+            for w in range(self.robots.n):
+                residual, jacobian = self.robots.world(w).equality_rows(self.serial)
+                self.residual[w, self.serial_rows] = residual[0]
+                self.jacobian[w, self.serial_rows] = jacobian[0]
+        return self.residual, self.jacobian

@@ -16,8 +16,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..actuation import Actuation, substeps_per_control_step
 from ..errors import InvalidInput, WorldsFailed
-from ..rollout.plant import Actuation, substeps_per_control_step
 
 MODES = ("kinematic", "physics")
 # A bar is drawn for runs of at least this many robot-steps.

@@ -345,3 +345,58 @@ def all_finite(a: np.ndarray) -> bool:
         except TypeError:  # not contiguous: MuJoCo takes no strided array
             pass
     return bool(np.isfinite(a).all())
+
+
+# -- Products of every world's small matrices --------------------------------------------
+# NumPy's stacked matmul calls its inner loop once per world: on a control step's small
+# matrices that is mostly overhead. One world: the 2-D product of its views; N worlds: one
+# einsum pass (products with a vector), or the worlds along the last axis for small
+# matrix products (each product one vector operation over every world).
+SMALL_PRODUCT = 16  # rows x columns of a product computed with the worlds last
+
+
+def matvec(A: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` (N, m) = A x in every world, A (N, m, k), x (N, k)."""
+    if len(A) == 1:
+        A[0].dot(x[0], out[0])
+        return out
+    return np.einsum("nij,nj->ni", A, x, out=out)
+
+
+def vecmat(y: np.ndarray, A: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` (N, k) = Aᵀ y in every world, y (N, m), A (N, m, k)."""
+    if len(A) == 1:
+        y[0].dot(A[0], out[0])
+        return out
+    return np.einsum("ni,nij->nj", y, A, out=out)
+
+
+def outer_product(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` (N, m, p) = A Bᵀ in every world, A (N, m, k), B (N, p, k)."""
+    if len(A) == 1:
+        A[0].dot(B[0].T, out[0])
+        return out
+    if A.shape[1] * B.shape[1] > SMALL_PRODUCT:
+        return np.matmul(A, B.transpose(0, 2, 1), out)
+    At, Bt = worlds_last(A), worlds_last(B)  # (m, k, N), (p, k, N)
+    out[...] = np.moveaxis((At[:, None] * Bt[None]).sum(axis=2), -1, 0)
+    return out
+
+
+# -- Cross products as matrices (the tasks' Jacobians: relative frame, look-at, axis-align) --
+def skew(vectors: np.ndarray, out: np.ndarray) -> np.ndarray:
+    r"""The cross-product matrices :math:`[v]_\times` (:math:`[v]_\times c = v \times c`) of
+    every world's vector (N, 3), written into ``out`` (N, 3, 3); a product
+    ``np.matmul(out, columns)`` then crosses v with every column of a Jacobian.
+
+    Only the six off-diagonal entries are written: ``out`` is made once with
+    ``np.zeros`` (its diagonal stays zero), as the tasks preallocate it.
+    """
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    np.negative(z, out[:, 0, 1])
+    out[:, 0, 2] = y
+    out[:, 1, 0] = z
+    np.negative(x, out[:, 1, 2])
+    np.negative(y, out[:, 2, 0])
+    out[:, 2, 1] = x
+    return out

@@ -7,48 +7,10 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from ..equalities import SUPPORTED, make_equality_rows
 from ..errors import InvalidInput, ModelError
 from ..robot import Robot
 from .task import Task, positive_scalar
-
-# The equality types whose rows the task takes from MuJoCo, and their row counts.
-SUPPORTED = {
-    int(mujoco.mjtEq.mjEQ_CONNECT): ("connect", 3),
-    int(mujoco.mjtEq.mjEQ_WELD): ("weld", 6),
-    int(mujoco.mjtEq.mjEQ_JOINT): ("joint", 1),
-    int(mujoco.mjtEq.mjEQ_TENDON): ("tendon", 1),
-}
-_D = mujoco.mjtDisableBit
-# While the rows are made: no contact, limit or friction-loss rows; equalities on.
-_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)
-_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
-_SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)  # a sleeping tree's equalities would be skipped
-
-
-def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool, opt=None) -> None:
-    """MuJoCo's rows of the active equality constraints, alone, at ``data``'s kinematics.
-
-    Runs ``mj_makeConstraint`` (after ``mj_tendon`` when ``tendons``) with contacts,
-    joint limits and friction loss disabled in ``model.opt`` for the call, so that
-    ``data.efc_*`` hold the equality rows only (``data.ne`` of them); the model's flags
-    are restored after. ``data`` must have had ``mj_kinematics`` and ``mj_comPos``.
-    ``opt``: ``model.opt``, when the caller keeps it (MuJoCo's getter makes a new one).
-    """
-    opt = model.opt if opt is None else opt
-    disable, enable = opt.disableflags, opt.enableflags
-    opt.disableflags = (disable | _DISABLE) & ~_ENABLE
-    sleep = enable & _SLEEP  # the enable flags touched only when sleep is on (each access is a call)
-    if sleep:
-        opt.enableflags = enable & ~_SLEEP
-    try:
-        if tendons:
-            mujoco.mj_tendon(model, data)
-        mujoco.mj_makeConstraint(model, data)
-    finally:
-        opt.disableflags = disable
-        if sleep:
-            opt.enableflags = enable
-
 
 class EqualityTask(Task):
     r"""The model's equality constraints (``connect``, ``weld``, ``joint``, ``tendon``) as rows

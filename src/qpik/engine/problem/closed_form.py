@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..numerics import both, cholesky_solve, everywhere, nowhere
+from ..numerics import both, cholesky_solve, everywhere, matvec, nowhere, outer_product, vecmat
 
 # S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
 # more than this ratio (the condition number of S is the square of it: 1e12).
@@ -40,14 +40,11 @@ class EqualityQP:
         self.meq = meq
         self.scaled, self.S = np.empty((n, meq, nv)), np.empty((n, meq, meq))  # Ã H̃⁻¹, Ã H̃⁻¹ Ãᵀ
         self.shift, self.x = np.empty((n, nv)), np.empty((n, nv))  # H̃⁻¹ c̃ (−v on held dofs), x
-        self.r, self.residual = np.empty((n, meq, 1)), np.empty((n, meq, 1))
-        self._r, self._residual = self.r[:, :, 0], self.residual[:, :, 0]  # (N, meq) views
-        self._y_row = self.r.transpose(0, 2, 1)  # y is solved into r
-        self._x_row, self._x_column = self.x[:, None, :], self.x[:, :, None]
+        self._r, self._residual = np.empty((n, meq)), np.empty((n, meq))  # b + A s (then y), A x
+        self._x_row = self.x[:, None, :]
         self._everywhere = everywhere(n)
-        self._shift_column = self.shift[:, :, None]
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
-        self._held_inverse, self._gradient = np.empty((n, nv)), np.empty((n, nv))
+        self._held_inverse, self._gradient, self._multiplied = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv))
         self._inverse = (None, None)  # (an inverse diagonal, its (N, 1, nv) view)
 
     def solve(self, inverse_diagonal, H, c, A, b, fixed=None, values=None):
@@ -81,15 +78,13 @@ class EqualityQP:
         if not meq:
             np.negative(shift, x)
             return x, self._r, both(ok, np.isfinite(x).all(axis=1))
-        np.matmul(scaled, A.transpose(0, 2, 1), self.S)
-        np.matmul(A, self._shift_column, self.r)
-        y = self._r
+        outer_product(scaled, A, self.S)
+        y = matvec(A, shift, self._r)
         np.add(y, b, y)
         _, solved_rows = cholesky_solve(self.S, y, SINGULAR_RATIO, in_place=True)
-        np.matmul(self._y_row, scaled, self._x_row)
+        vecmat(y, scaled, x)
         np.subtract(x, shift, x)
-        np.matmul(A, self._x_column, self.residual)
-        met = rows_met(self._residual, b, EQUALITY_TOLERANCE, self._everywhere)
+        met = rows_met(matvec(A, x, self._residual), b, EQUALITY_TOLERANCE, self._everywhere)
         if solved_rows is ok is met:
             return x, y, ok
         return x, y, both(solved_rows, ok, met)
@@ -114,10 +109,10 @@ class EqualityQP:
         if inverse_diagonal is not None:
             np.divide(self.x, inverse_diagonal, g)
         else:
-            np.matmul(H, self._x_column, g[:, :, None])
+            matvec(H, self.x, g)
         np.add(g, c, g)
         if self.meq:
-            g -= np.matmul(y[:, None, :], A)[:, 0]
+            g -= vecmat(y, A, self._multiplied)
         return g
 
     def _rows_view(self, inverse_diagonal: np.ndarray) -> np.ndarray:

@@ -63,7 +63,8 @@ class Cost:
         self.c = np.zeros((n, nv))
         # c of the joint-space tasks: −w v on their dofs (a first task on every dof writes c).
         self._linear = [(task, np.tile(-task.weight, (n, 1)), as_index(task.dofs)) for task in self.diagonal]
-        self._first_writes = bool(self._linear) and self._linear[0][2] == slice(0, nv)
+        self._first_writes = bool(self._linear) and isinstance(self._linear[0][2], slice) and \
+            self._linear[0][2] == slice(0, nv)
         self._scratch = np.zeros((n, nv))
         if self.general:
             self.H = np.zeros((n, nv, nv))

@@ -23,8 +23,9 @@ A task written as in mink needs its row count and two methods::
             ...
 
 On N worlds such a task is evaluated world by world, on a one-world view of each
-(:meth:`qpik.batch.Robot.world`); one that sets ``vectorized = True`` is given the batch
-robot and returns (N, dim) and (N, dim, nv) itself.
+(:meth:`qpik.batch.Robot.world`); one that sets ``vectorized = True`` is given the robot
+itself and returns (N, dim) and (N, dim, nv) (N = 1 for a :class:`qpik.Robot`), written
+once over the world axis as the built-in tasks are.
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ class Task:
 
     name = "task"
     dim: int | None = None
-    vectorized = False  # a user's task that returns (N, ...) arrays for a batch robot
+    vectorized = False  # a user's task that returns (N, ...) arrays itself (N = 1 for one robot)
     joint_space = False  # J is the fixed selection I[dofs] (a controller may use its diagonal)
     target: np.ndarray | None = None  # x_d, for a task that tracks one (set_target)
     _priority = 0
@@ -222,16 +223,27 @@ class Task:
         ``compute_error`` and ``compute_jacobian`` (world by world unless ``vectorized``)."""
         robot, n, nv = self.robot, self.robot.n, self.robot.nv
         if not robot.batched or self.vectorized:
-            shape = (self.dim,) if not robot.batched else (n, self.dim)
+            shape = (n, self.dim) if self.vectorized else (self.dim,)
             self.errors[...] = _checked_rows(self.compute_error(robot), shape, self.name, "compute_error")
             self.jacobians[...] = _checked_rows(self.compute_jacobian(robot), shape + (nv,), self.name,
                                                 "compute_jacobian")
             return
-        for w in range(n):
-            world = robot.world(w)
-            self.errors[w] = _checked_rows(self.compute_error(world), (self.dim,), self.name, "compute_error")
-            self.jacobians[w] = _checked_rows(self.compute_jacobian(world), (self.dim, nv), self.name,
-                                              "compute_jacobian")
+        self._measure_each_world()
+
+    def _measure_each_world(self) -> None:
+        """World by world, on a one-world view of each; while world w is measured
+        ``self.target`` is its row (dim,), as the methods read it on one robot."""
+        robot, nv, targets = self.robot, self.robot.nv, self.target
+        try:
+            for w in range(robot.n):
+                world = robot.world(w)
+                if targets is not None:
+                    self.target = targets[w]
+                self.errors[w] = _checked_rows(self.compute_error(world), (self.dim,), self.name, "compute_error")
+                self.jacobians[w] = _checked_rows(self.compute_jacobian(world), (self.dim, nv), self.name,
+                                                  "compute_jacobian")
+        finally:
+            self.target = targets
 
     def track(self) -> None:
         """v = ẋ_d + K e in every world (outputs by position: a keyword costs more per call)."""

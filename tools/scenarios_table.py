@@ -1,5 +1,6 @@
-"""Every named scenario, qp (DAQP) beside the classical laws and the peers: the README's
-results table (its command line: ``python benchmarks/scenarios_table.py [--check]``).
+"""Every named scenario, qp (DAQP) beside the classical laws and the peers: the rows of
+the scenarios table (recorded by ``python benchmarks/scenarios_table.py``, rendered on
+docs/results.md by :mod:`tools.results`, recomputed by the tests).
 
 A chaotic row (:data:`CHAOTIC`: its numbers depend on rounding, so on the CPU and the
 BLAS kernel) is not given as one build's numbers: :func:`record_chaotic` runs it under
@@ -17,11 +18,13 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from ..io import write_json
-from ..rollout.log import RunSummary
-from ..scenario import build_scenario, scenarios
-from .progress import iterate
-from .runs import compare, run, run_label
+from qpik.app.progress import iterate
+from qpik.app.runs import compare, run, run_label
+from qpik.io import write_json
+from qpik.rollout.log import RunSummary
+from qpik.scenario import build_scenario, scenarios
+
+ROOT = Path(__file__).resolve().parents[1]  # the repository: tools/ is a package in it
 
 PHYSICS = ("seed-redundant", "hexapod-circle")
 
@@ -83,8 +86,9 @@ def record_chaotic(path: Path) -> dict:
     """Run the CHAOTIC rows under each of KERNELS (a subprocess each) and record them in ``path``."""
     runs, kernels = [], []
     for kernel in KERNELS:
-        env = {**os.environ, "OPENBLAS_CORETYPE": kernel}
-        done = subprocess.run([sys.executable, "-m", "qpik.app.scenarios_table", "--chaotic-rows"], env=env,
+        path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "PYTHONPATH": path}
+        done = subprocess.run([sys.executable, "-m", "tools.scenarios_table", "--chaotic-rows"], env=env,
                               capture_output=True, text=True, check=True)
         rows = json.loads(done.stdout.splitlines()[-1])
         if rows[0]["kernel"] in kernels:  # fell back to a kernel already run

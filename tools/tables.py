@@ -1,36 +1,25 @@
-"""The README's results tables: written between markers and checked against the code.
+"""The results tables, each rendered from the JSON its benchmark wrote under
+``benchmarks/results/`` (:mod:`tools.results` puts them on ``docs/results.md``), and the
+comparison of a recomputed table with its recording.
 
-A table lives in the README between ``<!-- table:NAME -->`` and ``<!-- /table:NAME -->``.
-Two kinds:
-
-- *recomputed* (``scenarios``, ``calibration``): the check runs the code on the installed
-  versions (about 30 s and 2 s) and compares every cell, numbers to one unit in their last
-  printed digit (:func:`cells_agree`: a value near a rounding boundary prints one digit
-  apart on another CPU). The scenarios table's chaotic rows are ranges over BLAS kernels,
-  compared with their recording (:mod:`qpik.app.scenarios_table`).
-- *recorded* (``step-time``, ``peers-arm``, ``peers-hexapod``, ``monte-carlo-arm``,
-  ``monte-carlo-hexapod``, ``third-party``, ``hierarchy-timing``, ``rollout-speed``,
-  ``fuzz``, ``placo-solve``, ``sweep-arm``, ``batch-throughput``): timings and hour-long sweeps; the table is rendered from the
-  JSON a benchmark wrote into a results folder (re-run the benchmark to refresh it), and
-  the check compares the README with that rendering.
-
-Every function takes the README's path and the results folder: the repository's
-``README.md`` and ``benchmarks/results`` for its own command line
-(``python benchmarks/readme_tables.py [--check]``) and its tests.
+Every renderer takes the results folder. The scenarios' and the calibration's rows are
+recorded too (``benchmarks/scenarios_table.py``, ``benchmarks/calibration.py``); a test
+recomputes them on the installed versions and compares every cell with the recording
+(:func:`compare` with ``tolerant``: numbers to one unit in their last printed digit,
+:func:`cells_agree`, as another CPU's rounding may flip it).
 """
 
 from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from ..rollout.log import RunSummary
-from .runs import run_label
+from qpik.app.runs import run_label
+from qpik.rollout.log import RunSummary
 
 # A number in a cell: 6.79e-07, 0.188, 197, -1.5.
 NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?", re.I)
@@ -38,27 +27,8 @@ NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?", re.I)
 ROUNDING = 1e-12
 
 
-class TableDrift(AssertionError):
-    pass
-
-
-def _marker(name: str) -> tuple[str, str]:
-    return f"<!-- table:{name} -->", f"<!-- /table:{name} -->"
-
-
-def read_block(text: str, name: str) -> str:
-    begin, end = _marker(name)
-    match = re.search(re.escape(begin) + r"\n(.*?)" + re.escape(end), text, re.S)
-    if match is None:
-        raise TableDrift(f"README.md has no {begin} ... {end} block")
-    return match.group(1)
-
-
-def write_block(text: str, name: str, table: str) -> str:
-    begin, end = _marker(name)
-    read_block(text, name)  # must exist
-    return re.sub(re.escape(begin) + r"\n.*?" + re.escape(end), lambda _: f"{begin}\n{table}{end}", text,
-                  count=1, flags=re.S)
+class MissingResult(FileNotFoundError):
+    """A table's recording is not in the results folder: its benchmark has not run."""
 
 
 def _cells(line: str) -> list[str]:
@@ -68,7 +38,7 @@ def _cells(line: str) -> list[str]:
 def parse_table(markdown: str) -> tuple[list[str], list[list[str]]]:
     lines = [line for line in markdown.splitlines() if line.strip().startswith("|")]
     if len(lines) < 2:
-        raise TableDrift(f"not a markdown table:\n{markdown}")
+        raise ValueError(f"not a markdown table:\n{markdown}")
     return _cells(lines[0]), [_cells(line) for line in lines[2:]]
 
 
@@ -98,25 +68,25 @@ def cells_agree(want: str, have: str) -> bool:
 
 
 def compare(name: str, expected: str, actual: str, key_columns: int, tolerant: bool = False) -> list[str]:
-    """Every cell where ``actual`` (the README) differs from ``expected`` (the code), named;
-    ``tolerant``: numbers compared with :func:`cells_agree` (a table recomputed here)."""
+    """Every cell where ``actual`` (the recording) differs from ``expected`` (the code),
+    named; ``tolerant``: numbers compared with :func:`cells_agree` (a recomputed table)."""
     header, rows = parse_table(expected)
     header_r, rows_r = parse_table(actual)
     if header != header_r:
-        return [f"{name}: header {header_r} in the README, the code writes {header}"]
+        return [f"{name}: header {header_r} in the recording, the code writes {header}"]
     problems = []
     keyed = {tuple(r[:key_columns]): r for r in rows_r}
     for row in rows:
         key = tuple(row[:key_columns])
         other = keyed.pop(key, None)
         if other is None:
-            problems.append(f"{name}: row {' / '.join(key)} is missing from the README")
+            problems.append(f"{name}: row {' / '.join(key)} is missing from the recording")
             continue
         for column, (want, have) in enumerate(zip(row, other)):
             if not (cells_agree(want, have) if tolerant else want == have):
-                problems.append(f"{name}: row {' / '.join(key)}, column '{header[column]}': README has {have}, "
+                problems.append(f"{name}: row {' / '.join(key)}, column '{header[column]}': recorded {have}, "
                                 f"the code gives {want}")
-    problems += [f"{name}: row {' / '.join(k)} is in the README but not produced" for k in keyed]
+    problems += [f"{name}: row {' / '.join(k)} is recorded but not produced" for k in keyed]
     return problems
 
 
@@ -132,10 +102,11 @@ def _label(controller: str, solver: str, robot: str = "") -> str:
     return run_label(controller, solver)
 
 
-def _recorded(results: Path, name: str) -> dict:
+def recorded(results: Path, name: str) -> dict:
+    """The JSON a benchmark wrote (``name`` relative to the results folder)."""
     path = Path(results) / name
     if not path.exists():
-        raise TableDrift(f"{path} is missing: run its benchmark first")
+        raise MissingResult(f"{path} is missing: run its benchmark first")
     return json.loads(path.read_text())
 
 
@@ -143,7 +114,7 @@ def step_time_table(results: Path) -> str:
     lines = ["| robot / scenario | controller | median [µs] | p99 [µs] | ratio to pinv |",
              "|---|---|---:|---:|---:|"]
     for scenario in ("seed-redundant", "hexapod-circle"):
-        data = _recorded(results, f"step_time_{scenario}.json")
+        data = recorded(results, f"step_time_{scenario}.json")
         reference = next(r["median_us"] for r in data["rows"] if r["controller"] == "pinv")
         for r in data["rows"]:
             lines.append(f"| {data['robot']} / {scenario} | {_label(r['controller'], r['solver'], data['robot'])} | "
@@ -152,7 +123,7 @@ def step_time_table(results: Path) -> str:
 
 
 def peers_table(results: Path, scenario: str) -> str:
-    data = _recorded(results, f"peers_{scenario}.json")
+    data = recorded(results, f"peers_{scenario}.json")
     summaries = [RunSummary.from_json(r["summary"]) for r in data["rows"]]
     loops = all(s.constraint_violation_max is not None for s in summaries)
     lines = [f"| {data['robot']} / {scenario} | median [µs] | p99 [µs] | max error [m] | "
@@ -171,7 +142,7 @@ def _violation(value: float, unit: str) -> str:
 
 
 def monte_carlo_table(results: Path, robot: str) -> str:
-    data = _recorded(results, f"monte_carlo_{robot}.json")
+    data = recorded(results, f"monte_carlo_{robot}.json")
     hard = {(r["controller"], r["solver"]): r for r in data["results"]["hard"]}
     soft = {(r["controller"], r["solver"]): r for r in data["results"]["soft"]}
     speed_unit = "rad/s" if robot == "arm" else "m/s"
@@ -193,7 +164,7 @@ def monte_carlo_table(results: Path, robot: str) -> str:
 
 def third_party_table(results: Path) -> str:
     """qpik beside mink on the third-party and generated models (benchmarks/third_party.py)."""
-    data = _recorded(results, "third_party.json")
+    data = recorded(results, "third_party.json")
     lines = ["| problem | qpik [µs] | mink [µs] | qpik / mink (range) | the script's bound | "
              "max \\|q_qpik − q_mink\\| | qpik max error |",
              "|---|---:|---:|---:|---|---:|---:|"]
@@ -230,7 +201,7 @@ def _spread(values) -> str:
 def hierarchy_timing_table(results: Path) -> str:
     """Strict hierarchies against their one-QP / one-pseudoinverse counterparts
     (benchmarks/hierarchy_timing.py): median step and the ratios over the repeats."""
-    data = _recorded(results, "hierarchy_timing.json")
+    data = recorded(results, "hierarchy_timing.json")
     lines = ["| scenario | levels (hqp) | pinv [µs] | sns [µs] | qp [µs] | hqp [µs] | sns / pinv | hqp per level / qp |",
              "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for scenario, r in data["results"].items():
@@ -243,7 +214,7 @@ def hierarchy_timing_table(results: Path) -> str:
 
 def rollout_speed_table(results: Path) -> str:
     """Whole rollouts of this tree against an older commit (benchmarks/rollout_speed.py)."""
-    data = _recorded(results, "rollout_speed.json")
+    data = recorded(results, "rollout_speed.json")
     this = {(r["robot"], r["scenario"]): r for r in data["rows"] if r["version"].startswith("this tree")}
     old = {(r["robot"], r["scenario"]): r for r in data["rows"] if not r["version"].startswith("this tree")}
     lines = [f"| robot / scenario | this tree [ms] | {data['meta']['against']} [ms] | speed-up (range over rounds) |",
@@ -273,46 +244,75 @@ def placo_solve_markdown(results: Sequence[dict], repeats: int) -> str:
 
 def placo_solve_table(results: Path) -> str:
     """qpik's whole step against placo's compiled solve alone (benchmarks/placo_solve.py)."""
-    data = _recorded(results, "placo_solve.json")
+    data = recorded(results, "placo_solve.json")
     return "\n".join(placo_solve_markdown(data["results"], data["meta"]["repeats"]).splitlines()[2:]) + "\n"
 
 
 def fuzz_table(results: Path) -> str:
-    from ..fuzz.bundled_sweep import outcome_table  # the fuzz needs SciPy: only for this table
+    from benchmarks.fuzz.bundled_sweep import outcome_table
 
-    return "\n".join(outcome_table(_recorded(results, "fuzz.json")["counts"])) + "\n"
-
-
-def _relative_error(worst_pct: float, result) -> str:
-    """The worst relative error, or the rounding floor it is below. The strokes are computed
-    to ε·L (every length of the hexapod is under L = 1 m), which the fit carries into the
-    parameters amplified by its condition number κ: errors below 100·κ·ε·L / |smallest
-    deviation| percent (5e-9 % here) are rounding, whose digits change with the BLAS kernel
-    (4.8e-11 % with Haswell, 8.3e-11 % with Sandybridge for the same fit)."""
-    deviation = min(abs(v) for v in result.reference if v != 0)
-    floor = 100 * result.ident.condition_number * np.finfo(float).eps * 1.0 / deviation
-    return f"< {floor:.0e} %" if worst_pct < floor else f"{worst_pct:.2g} %"
+    return "\n".join(outcome_table(recorded(results, "fuzz.json")["counts"])) + "\n"
 
 
-def calibration_table(results: Path) -> str:
-    from ..robots.hexapod.calibration import calibrate
+def fuzz_any_robot_table(results: Path) -> str:
+    """The any-robot fuzz's cases per class (defects in bold; benchmarks/fuzz_any_robot.py)."""
+    from benchmarks.fuzz.cases import CLASSES
 
-    lines = ["| command | parameters | max relative error | iterations | condition number |",
-             "|---|---|---:|---:|---:|"]
-    for method, command in (("linear", "`qpik calibrate`"), ("gauss-newton", "`qpik calibrate --method gauss-newton`"),
-                            ("lm", "`qpik calibrate --method lm` (SciPy, MINPACK)")):
-        result = calibrate(method)
-        worst = max(v for v in result.relative_error_pct if v == v)
-        lines.append(f"| {command} | {result.params.size} leg lengths | {_relative_error(worst, result)} | "
-                     f"{result.fit.iterations} | {result.ident.condition_number:.2g} |")
+    counts = recorded(results, "fuzz_any_robot.json")["counts"]
+    lines = ["| class | cases |", "|---|---:|", f"| cases run | {counts['cases']} |"]
+    lines += [f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |" for key, label, bad in CLASSES]
     return "\n".join(lines) + "\n"
 
 
-def scenarios_table(results: Path) -> str:
-    from .progress import wanted
-    from .scenarios_table import compute_rows, load_chaotic, to_markdown
+# The calibration table's commands: (method, how the README's user runs it).
+CALIBRATION_COMMANDS = (("linear", "`qpik calibrate`"), ("gauss-newton", "`qpik calibrate --method gauss-newton`"),
+                        ("lm", "`qpik calibrate --method lm` (SciPy, MINPACK)"))
 
-    return to_markdown(compute_rows(progress=wanted()), load_chaotic(Path(results) / "scenarios_chaotic.json"))
+
+def calibration_rows() -> list[dict]:
+    """Each method's calibration on the source's seed poses, as the table needs it
+    (about 2 s; recorded by benchmarks/calibration.py, recomputed by the tests).
+
+    ``floor_pct`` is the rounding floor of the relative error: the strokes are computed
+    to ε·L (every length of the hexapod is under L = 1 m), which the fit carries into the
+    parameters amplified by its condition number κ, so errors below 100·κ·ε·L /
+    |smallest deviation| percent are rounding, whose digits change with the BLAS kernel."""
+    from qpik.robots.hexapod.calibration import calibrate
+
+    rows = []
+    for method, command in CALIBRATION_COMMANDS:
+        result = calibrate(method)
+        deviation = min(abs(v) for v in result.reference if v != 0)
+        rows.append({"method": method, "command": command, "parameters": int(result.params.size),
+                     "worst_relative_error_pct": float(max(v for v in result.relative_error_pct if v == v)),
+                     "floor_pct": float(100 * result.ident.condition_number * np.finfo(float).eps / deviation),
+                     "iterations": int(result.fit.iterations),
+                     "condition_number": float(result.ident.condition_number)})
+    return rows
+
+
+def calibration_markdown(rows: Sequence[dict]) -> str:
+    lines = ["| command | parameters | max relative error | iterations | condition number |",
+             "|---|---|---:|---:|---:|"]
+    for r in rows:
+        worst, floor = r["worst_relative_error_pct"], r["floor_pct"]
+        error = f"< {floor:.0e} %" if worst < floor else f"{worst:.2g} %"
+        lines.append(f"| {r['command']} | {r['parameters']} leg lengths | {error} | {r['iterations']} | "
+                     f"{r['condition_number']:.2g} |")
+    return "\n".join(lines) + "\n"
+
+
+def calibration_table(results: Path) -> str:
+    return calibration_markdown(recorded(results, "calibration.json")["rows"])
+
+
+def scenarios_table(results: Path) -> str:
+    """Every named scenario's rows as benchmarks/scenarios_table.py recorded them, the
+    chaotic rows as their range over the recorded BLAS kernels."""
+    from .scenarios_table import load_chaotic, to_markdown
+
+    runs = [RunSummary.from_json(r) for r in recorded(results, "scenarios.json")["runs"]]
+    return to_markdown(runs, load_chaotic(Path(results) / "scenarios_chaotic.json"))
 
 
 def _speedup(row: dict, against: str) -> str:
@@ -323,7 +323,7 @@ def _speedup(row: dict, against: str) -> str:
 def batch_throughput_table(results: Path) -> str:
     """qpik.batch against qpik's serial loop and mink-warp (benchmarks/batch_throughput.py),
     at the batch sizes the README's claims are about."""
-    data = _recorded(results, "batch_throughput.json")
+    data = recorded(results, "batch_throughput.json")
     lines = ["| robot | N | qpik.batch [robot-steps/s] | vs the serial loop (N robots) | vs 32 robots' loop | "
              "vs one robot's loop | vs mink-warp constrained | max \\|q_batch − q_serial\\| after 1 s [rad] |",
              "|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -338,56 +338,6 @@ def batch_throughput_table(results: Path) -> str:
 
 
 def sweep_table(results: Path, robot: str) -> str:
-    from .sweep.report import table
+    from qpik.app.sweep.report import table
 
-    return table(_recorded(results, f"sweep_{robot}/summary.json"))
-
-
-@dataclass(frozen=True)
-class Table:
-    """A README table: how it is rendered from a results folder, how many leading columns
-    name a row, and whether the check recomputes it (else it renders a recording)."""
-
-    render: Callable[[Path], str]
-    key_columns: int
-    recomputed: bool
-
-
-TABLES = {
-    "scenarios": Table(scenarios_table, 3, True),
-    "calibration": Table(calibration_table, 1, True),
-    "step-time": Table(step_time_table, 2, False),
-    "peers-arm": Table(lambda results: peers_table(results, "seed-redundant"), 1, False),
-    "peers-hexapod": Table(lambda results: peers_table(results, "hexapod-circle"), 1, False),
-    "monte-carlo-arm": Table(lambda results: monte_carlo_table(results, "arm"), 1, False),
-    "monte-carlo-hexapod": Table(lambda results: monte_carlo_table(results, "hexapod"), 1, False),
-    "third-party": Table(third_party_table, 1, False),
-    "hierarchy-timing": Table(hierarchy_timing_table, 1, False),
-    "rollout-speed": Table(rollout_speed_table, 1, False),
-    "fuzz": Table(fuzz_table, 1, False),
-    "placo-solve": Table(placo_solve_table, 1, False),
-    "sweep-arm": Table(lambda results: sweep_table(results, "arm"), 1, False),
-    "batch-throughput": Table(batch_throughput_table, 2, False),
-}
-
-
-def check(names, readme: Path, results: Path, rendered: dict[str, str] | None = None) -> list[str]:
-    """Differences between the README and the code, one line per cell (empty: in step);
-    ``rendered``: tables already rendered, by name."""
-    text = Path(readme).read_text()
-    problems = []
-    for name in names:
-        expected = rendered[name] if rendered and name in rendered else TABLES[name].render(results)
-        table = TABLES[name]
-        problems += compare(name, expected, read_block(text, name), table.key_columns, tolerant=table.recomputed)
-    return problems
-
-
-def update(names, readme: Path, results: Path, rendered: dict[str, str] | None = None) -> None:
-    """Rewrite the named tables in the README (whole file written at once)."""
-    from ..io import write_text
-
-    text = Path(readme).read_text()
-    for name in names:
-        text = write_block(text, name, rendered[name] if rendered and name in rendered else TABLES[name].render(results))
-    write_text(readme, text)
+    return table(recorded(results, f"sweep_{robot}/summary.json"))

@@ -1,8 +1,8 @@
 """Fuzz qpik's promises as an outside tester would: random rollouts and mutated models.
 
 The promises checked and the case kinds (``arm``, ``hexapod``, ``physics``, ``model``, each
-case reproducible from its seed as ``kind:seed``) are described in :mod:`qpik.fuzz.bundled`;
-this is their command line.
+case reproducible from its seed as ``kind:seed``) are described in
+:mod:`benchmarks.fuzz.bundled`; this is their command line.
 
 The sweep runs in chunks of cases in worker subprocesses; the parent times every case
 and kills a worker whose case runs past ``--cap`` seconds: that case is a *hang* (its
@@ -10,8 +10,8 @@ seed recorded), the rest of the chunk goes to a fresh worker. A step over 50 ms 
 *slow step*; slow cases are re-run once at the end (a busy machine can stall one step)
 and reported as confirmed only if slow again.
 
-    nice -n 10 python benchmarks/fuzz.py --arm 1000 --hexapod 200 --physics 50 --model 50 --seed 0
-    python benchmarks/fuzz.py --case arm:17        # one case, in this process, with details
+    nice -n 10 python benchmarks/fuzz_bundled.py --arm 1000 --hexapod 200 --physics 50 --model 50 --seed 0
+    python benchmarks/fuzz_bundled.py --case arm:17        # one case, in this process, with details
 
 writes benchmarks/results/fuzz.json (every failing case with its command) and fuzz.md
 (the counts of every outcome class, per kind and per solver).
@@ -26,10 +26,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from qpik.fuzz.bundled import DEFECTS, KINDS, build_case, installed_solvers, run_case
-from qpik.fuzz.bundled_sweep import jsonable, summarise, sweep, to_markdown
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the fuzz harness (benchmarks.fuzz) and the results page (tools)
 
-RESULTS = Path(__file__).resolve().parent / "results"
+from benchmarks.fuzz.bundled import DEFECTS, KINDS, build_case, installed_solvers, run_case  # noqa: E402
+from benchmarks.fuzz.bundled_sweep import jsonable, summarise, sweep, to_markdown  # noqa: E402
+from tools.results import refresh  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
 
 
 def main(argv=None) -> int:
@@ -80,7 +84,7 @@ def main(argv=None) -> int:
     summary = summarise(results)
     meta = {"seed": args.seed, "cap_s": args.cap, "jobs": args.jobs, "chunk": args.chunk,
             "elapsed_s": time.monotonic() - started, "solvers": installed_solvers(), "python": sys.version.split()[0],
-            "command": "python benchmarks/fuzz.py " + " ".join(f"--{k} {getattr(args, k)}" for k in KINDS)
+            "command": "python benchmarks/fuzz_bundled.py " + " ".join(f"--{k} {getattr(args, k)}" for k in KINDS)
                        + f" --seed {args.seed}"}
     md = to_markdown(summary, meta)
     print(md)
@@ -89,7 +93,7 @@ def main(argv=None) -> int:
     everything = {"results": sorted(results.values(), key=lambda r: r["case"])} if args.all_results else {}
     write_json(args.out / "fuzz.json", jsonable({"meta": meta, **summary, **everything}))
     write_text(args.out / "fuzz.md", md)
-    return 0
+    return refresh(args.out)
 
 
 if __name__ == "__main__":

@@ -26,9 +26,9 @@ Case kinds, each case reproducible from its seed (``kind:seed``):
   velocity limits removed), then a scenario built on them and rolled out: a typed error
   at load or a clean run are the promise.
 
-:func:`run_case` builds, runs and classifies one case; :mod:`qpik.fuzz.bundled_sweep`
+:func:`run_case` builds, runs and classifies one case; :mod:`.bundled_sweep`
 runs many in worker processes with a hang detector and summarises them. The benchmark
-``benchmarks/fuzz.py`` is their command line; the test suite runs a few dozen cases.
+``benchmarks/fuzz_bundled.py`` is their command line; the test suite runs a few dozen cases.
 """
 
 from __future__ import annotations
@@ -41,18 +41,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import (DampingTask, EqualityTask, FrameTask, JointPositionLimit, JointVelocityLimit, ManipulabilityTask,
-                PositionReference, PositionTask, QPController, Robot, Segment, SigmaProxy)
-from ..errors import GainWarning, QpikError, UnreachablePose
-from ..robots import BUNDLED
-from ..robots.hexapod.control import (HexapodModel, PlatformManipulability, PlatformManipulabilityTask,
+from qpik import (DampingTask, EqualityTask, FrameTask, JointPositionLimit, JointVelocityLimit, ManipulabilityTask,
+                  PositionReference, PositionTask, QPController, Robot, Segment, SigmaProxy)
+from qpik.errors import GainWarning, QpikError, UnreachablePose
+from qpik.robots import BUNDLED
+from qpik.robots.hexapod.control import (HexapodModel, PlatformManipulability, PlatformManipulabilityTask,
                                       PlatformReference)
-from ..robots.hexapod.kinematics import rotation_from_rpy
-from ..robots.hexapod.scene import assembly_qpos
-from ..rollout import Rollout
-from ..scenario import build_scenario
-from ..solvers import available_solvers
-from ..trajectories import PoseTrajectory
+from qpik.robots.hexapod.kinematics import rotation_from_rpy
+from qpik.robots.hexapod.scene import assembly_qpos
+from qpik.rollout import Rollout
+from qpik.scenario import build_scenario
+from qpik.solvers import available_solvers
+from qpik.trajectories import PoseTrajectory
 
 KINDS = ("arm", "hexapod", "physics", "model")
 KIND_CODE = {kind: i + 1 for i, kind in enumerate(KINDS)}

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ModelError
-from ..models import third_party, third_party_names
+from qpik.errors import ModelError
+from qpik.models import third_party, third_party_names
 
 # Model folders of the third-party packages, scanned for MJCF files.
 PACKAGE_FOLDERS = (("dm_control", "suite"), ("dm_control", "third_party"), ("gymnasium", "envs/mujoco/assets"))

@@ -1,42 +1,41 @@
-"""Run any-robot fuzz cases in chunks of worker processes: a hang detector, a determinism
-repeat in a second process, resumable chunk files, and the summary per failure class.
+"""Run any-robot fuzz cases in the fuzzes' worker pool (:mod:`.pool`: chunks, the hang
+detector), with a determinism repeat in a second process, resumable chunk files, and
+the summary per failure class.
 
-A worker (``python -m qpik.fuzz.sweep --worker SEED ...``) prints a line when a case
-starts and one with its result; the parent kills a worker whose case runs past ``cap``
-seconds (that case is a hang) and gives the rest of its chunk to a fresh worker. Each
-finished chunk is written whole to ``chunks/`` (when a folder is given), so a stopped
-sweep resumes where it was.
+Each finished chunk is written whole to ``chunks/`` (when a folder is given), so a
+stopped sweep resumes where it was.
 """
 
 from __future__ import annotations
 
+import functools
 import json
-import os
-import queue
-import signal
-import subprocess
-import sys
 import tempfile
-import threading
-import time
 from collections import Counter, defaultdict
-from contextlib import contextmanager
 from pathlib import Path
 
-from ..io import write_json
+from qpik.io import write_json
+
 from .cases import ALL_SOLVERS, CLASSES, DEFECTS, run_case
+from .pool import run_cases
 
-PROTOCOL = "@@qpik-fuzz "
+# One BLAS thread per worker: the sweep's parallelism is its workers. With OpenBLAS's
+# default (a thread per core) two workers oversubscribe the cores, and the threads that
+# spin while they wait for a core count as CPU time: an 85-dof step read 100–170 ms of it
+# against 4–7 ms with one thread.
+WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
-def worker(seeds: list[int], replays: dict[int, list] | None = None) -> None:
-    """Run the seeds, replaying a case's recorded configurations where ``replays`` has them."""
-    replays = replays or {}
-    with tempfile.TemporaryDirectory(prefix="qpik_fuzz_") as folder:
-        for seed in seeds:
-            print(PROTOCOL + json.dumps({"start": seed}), flush=True)
-            result = run_case(seed, Path(folder), replay=replays.get(seed))
-            print(PROTOCOL + json.dumps({"result": _jsonable(result)}), flush=True)
+def run_seed(seed: int, folder: Path, replays: str | None = None) -> dict:
+    """A worker's case (:mod:`.pool`): case ``seed``, replaying the configurations
+    recorded for it in the JSON file ``replays`` where it has them."""
+    replay = _replays(replays).get(seed) if replays else None
+    return _jsonable(run_case(seed, folder, replay=replay))
+
+
+@functools.lru_cache(maxsize=1)
+def _replays(path: str) -> dict[int, list]:
+    return {int(seed): steps for seed, steps in json.loads(Path(path).read_text()).items()}
 
 
 def _jsonable(value):
@@ -51,136 +50,17 @@ def _jsonable(value):
     return value
 
 
-class WorkerProcess:
-    """A worker subprocess whose protocol lines go to ``lines`` as ``(index, message)``,
-    then ``(index, None)`` when its output ends; the reader closes the pipe it reads."""
-
-    def __init__(self, command: list[str], lines: queue.Queue, index: int, **popen):
-        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                        **popen)
-        self.reader = threading.Thread(target=self._read, args=(lines, index), daemon=True)
-        self.reader.start()
-
-    def _read(self, lines: queue.Queue, index: int) -> None:
-        with self.process.stdout:
-            for line in self.process.stdout:
-                if line.startswith(PROTOCOL):
-                    lines.put((index, json.loads(line[len(PROTOCOL):])))
-        lines.put((index, None))
-
-    def end(self) -> None:
-        """Kill it if it still runs, reap it and wait for its reader (which closes the pipe)."""
-        if self.process.poll() is None:
-            self.process.kill()  # our own child
-        self.process.wait()
-        self.reader.join(timeout=10.0)
-
-
-@contextmanager
-def ending_workers_on_exit(workers: dict):
-    """Every worker in ``workers`` ended on the way out — normally, on an error, Ctrl-C or
-    SIGTERM (turned into SystemExit while this runs in the main thread)."""
-    main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm) if main else None
-    try:
-        yield
-    finally:
-        for w in list(workers.values()):
-            w.end()
-        if main:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def wait_for_message(workers: dict, cap: float) -> float:
-    """Seconds to wait for a message: 0.2, or less when a running case's cap comes first
-    (a case is a hang when its cap passes, however soon its result would have come)."""
-    now = time.monotonic()
-    return max(0.0, min([0.2, *(w.started + cap - now for w in workers.values() if w.current is not None)]))
-
-
-def _exit_on_sigterm(signum, frame):
-    raise SystemExit(128 + signum)
-
-
-# One BLAS thread per worker: the sweep's parallelism is its workers. With OpenBLAS's
-# default (a thread per core) two workers oversubscribe the cores, and the threads that
-# spin while they wait for a core count as CPU time: an 85-dof step read 100–170 ms of it
-# against 4–7 ms with one thread.
-WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-
-
-class _Worker(WorkerProcess):
-    def __init__(self, seeds: list[int], lines: queue.Queue, index: int, replays: Path | None = None):
-        self.seeds, self.done = seeds, set()
-        self.current, self.started = None, 0.0
-        self.replays = replays
-        replay = ["--replay", str(replays)] if replays is not None else []
-        super().__init__([sys.executable, "-m", "qpik.fuzz.sweep", *replay, "--worker", *map(str, seeds)], lines,
-                         index, env={**os.environ, **WORKER_ENVIRONMENT})
-
-    def rest(self) -> list[int]:
-        return [s for s in self.seeds if s not in self.done and s != self.current]
-
-
-def _lost(seed: int, why: str, detail: dict) -> dict:
-    return {"case": seed, "classes": [why], "params": {}, "details": detail}
+def _died(seed: int, exit_code: int) -> dict:
+    return {"case": seed, "classes": ["untyped"], "params": {}, "details": {"error": f"worker died: exit {exit_code}"}}
 
 
 def run_workers(seeds: list[int], jobs: int, chunk: int, cap: float, progress=None,
                 replays: Path | None = None) -> dict[int, dict]:
     """Every seed's result, ``chunk`` seeds per worker, ``jobs`` workers at once
     (``replays``: a JSON file of configurations to replay, by seed)."""
-    pending = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
-    results: dict[int, dict] = {}
-    lines: queue.Queue = queue.Queue()
-    workers: dict[int, _Worker] = {}
-    count = 0
-
-    def finish(seed: int, result: dict) -> None:
-        results[seed] = result
-        if progress:
-            progress(1)
-
-    with ending_workers_on_exit(workers):
-        while pending or workers:
-            while pending and len(workers) < jobs:
-                workers[count] = _Worker(pending.pop(0), lines, count, replays)
-                count += 1
-            _handle(lines, workers, pending, finish, cap)
-            for index, w in list(workers.items()):
-                if w.current is not None and time.monotonic() - w.started > cap:  # the hang detector
-                    w.end()
-                    finish(w.current, _lost(w.current, "hang", {"cap_s": cap}))
-                    w.done.add(w.current)
-                    rest, w.current = w.rest(), None
-                    if rest:
-                        pending.insert(0, rest)
-                    del workers[index]
-    return results
-
-
-def _handle(lines: queue.Queue, workers: dict, pending: list, finish, cap: float) -> None:
-    """One message from a worker (or none before the next deadline): a case started, a result, its end."""
-    try:
-        index, message = lines.get(timeout=wait_for_message(workers, cap))
-    except queue.Empty:
-        return
-    w = workers.get(index)
-    if w is None:  # a killed worker's last words
-        return
-    if message is None:  # the worker ended, cleanly or mid-case
-        w.end()
-        if w.current is not None:
-            finish(w.current, _lost(w.current, "untyped", {"error": f"worker died: exit {w.process.returncode}"}))
-        if w.rest():
-            pending.insert(0, w.rest())
-        del workers[index]
-    elif "start" in message:
-        w.current, w.started = message["start"], time.monotonic()
-    else:
-        w.done.add(message["result"]["case"])
-        w.current = None
-        finish(message["result"]["case"], message["result"])
+    options = {"replays": str(replays)} if replays is not None else {}
+    return run_cases(seeds, "benchmarks.fuzz.sweep:run_seed", jobs=jobs, chunk=chunk, cap=cap, options=options,
+                     environment=WORKER_ENVIRONMENT, on_death=_died, progress=progress)
 
 
 def sweep(seeds: list[int], jobs: int = 1, chunk: int = 50, cap: float = 60.0, folder: Path | None = None,
@@ -346,13 +226,3 @@ def to_markdown(summary: dict, meta: dict) -> str:
                 lines.append(f"- case {example['case']}: {json.dumps(example['params'])[:300]} — "
                              f"{example['error'][:150]} (`{example['command']}`)")
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":
-    arguments = sys.argv[1:]
-    stored = {}
-    if arguments[:1] == ["--replay"]:
-        stored = {int(seed): steps for seed, steps in json.loads(Path(arguments[1]).read_text()).items()}
-        arguments = arguments[2:]
-    if arguments[:1] == ["--worker"]:
-        worker([int(s) for s in arguments[1:]], stored)

@@ -15,9 +15,10 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from ...limits import CollisionAvoidanceLimit, JointVelocityLimit
-from ...robot import Robot
-from ...rollout import Rollout, RolloutLog
+from qpik.limits import CollisionAvoidanceLimit, JointVelocityLimit
+from qpik.robot import Robot
+from qpik.rollout import Rollout, RolloutLog
+
 from .mink_mirror import MinkMirror
 
 SOLVER = "daqp"
@@ -29,7 +30,7 @@ def qpik_controller(problem):
 
 
 def mink_controller(problem):
-    """mink on the same QP (:class:`~qpik.app.peers.mink_mirror.MinkMirror`)."""
+    """mink on the same QP (:class:`~benchmarks.peers.mink_mirror.MinkMirror`)."""
     return MinkMirror(problem.robot, problem.tasks, problem.limits, problem.dt, solver=SOLVER,
                       regularization=problem.regularization, moving=problem.moving)
 

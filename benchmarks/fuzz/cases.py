@@ -1,6 +1,6 @@
 """One any-robot fuzz case: built from its seed, rolled out, every returned step checked.
 
-A case draws a model (:mod:`qpik.fuzz.models`), a start inside, on or outside the joint
+A case draws a model (:mod:`.models`), a start inside, on or outside the joint
 ranges, 1–4 tasks of every kind (soft or hard, gains up to K·Δt just below 2, reachable,
 far, huge or malformed targets), the limits, and a controller (QPController with each
 solver and the fast path on or off, HierarchicalController with 2–3 levels,
@@ -20,7 +20,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..errors import GainWarning, QpikError, SolverError
+from qpik.errors import GainWarning, QpikError, SolverError
+
 from .checks import box_and_rows, crossing, hard_residual, lp_feasible, velocity_excess
 from .models import _log_uniform, random_mjcf, short_name, third_party_models
 
@@ -61,7 +62,7 @@ BAD_VALUES = (None, "fast", [[1.0, 2.0]], float("nan"), float("inf"), -50.0)  # 
 
 
 def solvers() -> list[str]:
-    from ..solvers import available_solvers
+    from qpik.solvers import available_solvers
 
     return [s for s in ALL_SOLVERS if s in available_solvers()]
 
@@ -95,7 +96,7 @@ class Case:
     # Building ---------------------------------------------------------------------------
 
     def build(self) -> None:
-        from ..robot import Robot
+        from qpik.robot import Robot
 
         rng, params = self.rng, self.params
         models = third_party_models()
@@ -116,7 +117,7 @@ class Case:
 
     def _inverted_range(self, robot):
         """The same model with one limited joint's range reversed after compilation."""
-        from ..robot import Robot
+        from qpik.robot import Robot
 
         model = robot.model
         limited = [j for j in range(model.njnt) if model.jnt_limited[j] and model.jnt_type[j] >= 2]
@@ -155,8 +156,8 @@ class Case:
     def _refused_outside(self, robot, q: np.ndarray) -> bool:
         """Whether ``q`` lies outside the ranges; if so, ``set_q`` without the opt-in must
         refuse it naming exactly the joints outside, and by how much (else a defect)."""
-        from ..errors import OutsideJointLimits
-        from ..robot import KEYFRAME_TOLERANCE
+        from qpik.errors import OutsideJointLimits
+        from qpik.robot import KEYFRAME_TOLERANCE
 
         limits = robot.joint_limits
         values = q[limits.qpos_index]
@@ -190,7 +191,7 @@ class Case:
         return self.bad("task_gain", kdt / DT)
 
     def _tasks(self, robot) -> list:
-        from .. import DampingTask, PostureTask
+        from qpik import DampingTask, PostureTask
 
         rng = self.rng
         count = int(rng.integers(1, 5))
@@ -215,8 +216,8 @@ class Case:
         return tasks
 
     def _task(self, robot, kind: str):
-        from .. import (ComTask, DampingTask, EqualityTask, FrameTask, ManipulabilityTask, OrientationTask,
-                        PositionTask, PostureTask, RelativeFrameTask, Yoshikawa)
+        from qpik import (ComTask, DampingTask, EqualityTask, FrameTask, ManipulabilityTask, OrientationTask,
+                          PositionTask, PostureTask, RelativeFrameTask, Yoshikawa)
 
         rng = self.rng
         frames = self._frames(robot)
@@ -302,7 +303,7 @@ class Case:
         return target
 
     def _limits(self, robot) -> list:
-        from .. import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
+        from qpik import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
 
         rng, limits = self.rng, []
         if len(robot.joint_limits.names) and rng.random() < 0.8:
@@ -322,7 +323,7 @@ class Case:
         return limits
 
     def _controller(self, robot):
-        from .. import HierarchicalController, PseudoinverseController, QPController, SNSController
+        from qpik import HierarchicalController, PseudoinverseController, QPController, SNSController
 
         rng, params = self.rng, self.params
         kind = self.kind
@@ -354,7 +355,7 @@ class Case:
 
     def _levels(self) -> list[list]:
         """2–3 levels; hard tasks only at level 0 (then no lower level may be infeasible)."""
-        from .. import DampingTask
+        from qpik import DampingTask
 
         rng = self.rng
         tasks = sorted(self.tasks, key=lambda t: not t.hard)
@@ -403,7 +404,7 @@ def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = 
     cost of each level of its QP at each answer (``step_costs``); ``replay`` (another
     run's ``q_steps``) sets the robot to those configurations instead of integrating its
     own answers, so that two processes answer the same problems (see
-    :func:`qpik.fuzz.sweep.same_run`)."""
+    :func:`.sweep.same_run`)."""
     result = {"case": seed, "classes": [], "details": {}}
     with warnings.catch_warnings(record=True) as records:
         warnings.simplefilter("always")

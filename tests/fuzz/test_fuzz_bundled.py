@@ -1,5 +1,5 @@
-"""A fast subset of the bundled robots' fuzz (qpik.fuzz.bundled, whose command line is
-benchmarks/fuzz.py): the same random cases, a few dozen.
+"""A fast subset of the bundled robots' fuzz (benchmarks.fuzz.bundled, whose command line
+is benchmarks/fuzz_bundled.py): the same random cases, a few dozen.
 
 The promises are checked on cases hypothesis draws (derandomized, so every run checks
 the same cases), and each defect the first full sweep found is pinned by the case that
@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from qpik.fuzz.bundled import MUTATIONS, run_case
-from qpik.fuzz.bundled_sweep import sweep
+from benchmarks.fuzz.bundled import MUTATIONS, run_case
+from benchmarks.fuzz.bundled_sweep import sweep
 
 FAST = settings(max_examples=12, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -70,7 +70,7 @@ def test_the_sweep_kills_a_case_past_its_cap_and_goes_on_with_the_rest():
         {"arm:1": ["hang"], "arm:3": ["hang"], "hexapod:0": ["hang"]}
 
 
-# Defects of the solver layer (found by `python benchmarks/fuzz.py --seed 0`): each case fails today.
+# Defects of the solver layer (found by `python benchmarks/fuzz_bundled.py --seed 0`): each case fails today.
 
 def test_daqp_keeps_the_limits_on_a_soft_hexapod_task(tmp_path):
     result = _case("hexapod", 24, tmp_path)

@@ -17,10 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qpik.fuzz import CLASSES, DEFECTS, run_case
-from qpik.fuzz.checks import lp_feasible
-from qpik.fuzz.sweep import PROXQP_COST_TOLERANCE, run_workers, same_run, summarise, sweep
+from benchmarks.fuzz.cases import CLASSES, DEFECTS, run_case
+from benchmarks.fuzz.checks import lp_feasible
+from benchmarks.fuzz.sweep import PROXQP_COST_TOLERANCE, run_workers, same_run, summarise, sweep
 from qpik.io import write_json
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SHORT = 300
 
@@ -93,7 +95,7 @@ def test_an_active_set_solve_that_cycles_stops_at_its_cap(tmp_path, monkeypatch)
 def test_a_step_is_timed_in_cpu_time(tmp_path, monkeypatch):
     """A step that waits 0.15 s (a busy machine) is no hang; one that computes for 0.15 s
     of CPU time is."""
-    from qpik.fuzz import cases
+    from benchmarks.fuzz import cases
 
     def slowed(pause):
         build = cases.Case.build
@@ -180,15 +182,18 @@ def _children(pid: int) -> list[int]:
                 command = Path(f"/proc/{child}/cmdline").read_bytes()
             except OSError:  # already gone
                 continue
-            if b"qpik.fuzz.sweep" in command:
+            if b"benchmarks.fuzz.pool" in command:
                 found.append(int(child))
     return found
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads child processes from /proc")
-def test_sigterm_ends_the_sweep_and_its_workers():
-    script = "from qpik.fuzz.sweep import run_workers; run_workers(list(range(40)), 1, 40, 600.0)"
-    parent = subprocess.Popen([sys.executable, "-c", script])
+def test_sigterm_ends_the_sweep_and_its_workers(tmp_path):
+    """Run as a script would, from another folder with only the repository on its path:
+    its workers start, and SIGTERM ends them with it."""
+    script = "from benchmarks.fuzz.sweep import run_workers; run_workers(list(range(40)), 1, 40, 600.0)"
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
     children: list[int] = []
     try:
         deadline = time.monotonic() + 60

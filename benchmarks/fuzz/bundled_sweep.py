@@ -1,104 +1,33 @@
-"""The bundled robots' fuzz run many cases at once (:mod:`qpik.fuzz.bundled`): chunks of
-cases in worker processes, a hang detector, and the summary per outcome class.
-
-A worker (``python -m qpik.fuzz.bundled_sweep --worker KIND:SEED ...``) prints a line
-when a case starts and one with its result; the parent times every case and kills a
-worker whose case runs past ``cap`` seconds: that case is a *hang*, the rest of the
-chunk goes to a fresh worker.
+"""The bundled robots' fuzz run many cases at once (:mod:`.bundled`) in the fuzzes' worker
+pool (:mod:`.pool`: chunks, the hang detector), and the summary per outcome class.
 """
 
 from __future__ import annotations
 
-import json
-import queue
-import sys
-import tempfile
-import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
 
 from .bundled import CLASSES, DEFECTS, KINDS, run_case
-from .sweep import PROTOCOL, WorkerProcess, ending_workers_on_exit, wait_for_message
+from .pool import run_cases
 
 # Worker and parent --------------------------------------------------------------------
 
-def worker(case_ids: list[str]) -> None:
-    """Run cases one after the other, printing a start line and a result line for each."""
-    with tempfile.TemporaryDirectory(prefix="qpik_fuzz_") as folder:
-        for case_id in case_ids:
-            kind, seed = case_id.split(":")
-            print(PROTOCOL + json.dumps({"start": case_id}), flush=True)
-            result = run_case(kind, int(seed), Path(folder))
-            print(PROTOCOL + json.dumps({"result": result}, default=float), flush=True)
+def run_case_id(case_id: str, folder: Path) -> dict:
+    """A worker's case (:mod:`.pool`): ``"kind:seed"``."""
+    kind, seed = case_id.split(":")
+    return run_case(kind, int(seed), folder)
 
 
-class _Worker(WorkerProcess):
-    def __init__(self, cases: list[str], lines: queue.Queue, index: int):
-        self.cases, self.current, self.started, self.done = cases, None, 0.0, set()
-        super().__init__([sys.executable, "-m", "qpik.fuzz.bundled_sweep", "--worker", *cases], lines, index)
+def _crashed(case_id: str, exit_code: int) -> dict:
+    return {"case": case_id, "classes": ["crash"], "params": {}, "details": {"exit_code": exit_code}}
 
 
 def sweep(case_ids: list[str], jobs: int, chunk: int, cap: float, progress=None) -> dict[str, dict]:
     """Every case's result, in chunks over ``jobs`` worker processes, hangs detected."""
-    pending = [case_ids[i:i + chunk] for i in range(0, len(case_ids), chunk)]
-    results: dict[str, dict] = {}
-    lines: queue.Queue = queue.Queue()
-    workers: dict[int, _Worker] = {}
-    next_index = 0
-    with ending_workers_on_exit(workers):
-        while pending or workers:
-            while pending and len(workers) < jobs:
-                workers[next_index] = _Worker(pending.pop(0), lines, next_index)
-                next_index += 1
-            _handle(lines, workers, pending, results, progress, cap)
-            now = time.monotonic()
-            for index, w in list(workers.items()):
-                if w.current is not None and now - w.started > cap:
-                    w.end()  # the hang detector
-                    results[w.current] = {"case": w.current, "classes": ["hang"], "params": {},
-                                          "details": {"cap_s": cap}}
-                    w.done.add(w.current)
-                    if progress:
-                        progress(1)
-                    rest = [c for c in w.cases if c not in w.done]
-                    if rest:
-                        pending.insert(0, rest)
-                    del workers[index]  # its reader thread sees EOF and its message is ignored
-    return results
-
-
-def _handle(lines: queue.Queue, workers: dict, pending: list, results: dict, progress, cap: float) -> None:
-    """One message from a worker (or none before the next deadline): a case started, a result, its end."""
-    try:
-        index, message = lines.get(timeout=wait_for_message(workers, cap))
-    except queue.Empty:
-        return
-    w = workers.get(index)
-    if w is None:
-        return
-    if message is None:  # the worker ended: cleanly, or it crashed mid-case
-        w.end()
-        if w.current is not None and w.current not in w.done:
-            results[w.current] = {"case": w.current, "classes": ["crash"], "params": {},
-                                  "details": {"exit_code": w.process.returncode}}
-            w.done.add(w.current)
-            if progress:
-                progress(1)
-        rest = [c for c in w.cases if c not in w.done and c != w.current]
-        if rest:
-            pending.insert(0, rest)
-        del workers[index]
-    elif "start" in message:
-        w.current, w.started = message["start"], time.monotonic()
-    else:
-        result = message["result"]
-        results[result["case"]] = result
-        w.done.add(result["case"])
-        w.current = None
-        if progress:
-            progress(1)
+    return run_cases(case_ids, "benchmarks.fuzz.bundled_sweep:run_case_id", jobs=jobs, chunk=chunk, cap=cap,
+                     on_death=_crashed, progress=progress)
 
 
 # Report --------------------------------------------------------------------------------
@@ -168,7 +97,7 @@ def _failure(result: dict) -> dict:
     if "error" in details:
         details["error"] = details["error"][:200]
     return {"case": result["case"], "classes": result["classes"], "solver": result["params"].get("solver"),
-            "details": details, "command": f"python benchmarks/fuzz.py --case {result['case']}"}
+            "details": details, "command": f"python benchmarks/fuzz_bundled.py --case {result['case']}"}
 
 
 def outcome_table(counts: dict) -> list[str]:
@@ -212,13 +141,8 @@ def to_markdown(summary: dict, meta: dict) -> str:
     lines += ["", "Worst values: " + ", ".join(f"{k} {v:.3g}" for k, v in sorted(summary["worst"].items()))]
     if summary["failing"]:
         lines += ["", f"Failing cases ({len(summary['failing'])}; first 40), each reproduced by "
-                  "`python benchmarks/fuzz.py --case KIND:SEED`:", ""]
+                  "`python benchmarks/fuzz_bundled.py --case KIND:SEED`:", ""]
         for f in summary["failing"][:40]:
             lines.append(f"- `{f['case']}`: {', '.join(f['classes'])}"
                          + (f" — {f['details'].get('error', '')[:100]}" if f["details"].get("error") else ""))
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":
-    if sys.argv[1:2] == ["--worker"]:
-        worker(sys.argv[2:])

@@ -45,12 +45,12 @@ import mink
 import mujoco
 import numpy as np
 
-from ...errors import SolverError
-from ...limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
-from ...robot import Robot
-from ...tasks import ComTask, DampingTask, FrameTask, PositionTask, PostureTask
-from .mink_peer import TaskRows, qpsolvers_settings, rplus
-from .problem import PeerUnsupported
+from qpik.app.peers.mink_peer import TaskRows, qpsolvers_settings, rplus
+from qpik.app.peers.problem import PeerUnsupported
+from qpik.errors import SolverError
+from qpik.limits import CollisionAvoidanceLimit, JointPositionLimit, JointVelocityLimit
+from qpik.robot import Robot
+from qpik.tasks import ComTask, DampingTask, FrameTask, PositionTask, PostureTask
 
 FREE = int(mujoco.mjtJoint.mjJNT_FREE)
 

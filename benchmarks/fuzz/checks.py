@@ -10,9 +10,14 @@ from __future__ import annotations
 from fractions import Fraction
 
 import numpy as np
-from scipy.optimize import linprog
 
-from ..limits import JointPositionLimit, JointVelocityLimit, order_limits
+from qpik.extras import require
+
+require("scipy", "the fuzz (its LP is the independent feasibility reference)", extra="test")
+
+from scipy.optimize import linprog  # noqa: E402
+
+from qpik.limits import JointPositionLimit, JointVelocityLimit, order_limits
 
 # The LP's box and rows pulled in by this much (relative to each bound's size): a step
 # feasible with this margin is feasible for every solver's tolerance (1e-9 to 1e-6).

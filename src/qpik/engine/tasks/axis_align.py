@@ -1,0 +1,91 @@
+"""Align a frame's axis with a target direction, in every world; the roll about the axis is left free."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import InvalidInput
+from ..numerics import skew
+from .inputs import feedback_gain
+from .look_at import FrameAxes, unit_axis, world_unit_vectors
+from .task import Task
+
+
+class AxisAlignTask(Task):
+    r"""Align a frame's axis :math:`a` (its own coordinates) with a world direction
+    :math:`t` (a surface normal, gravity), as mink's ``AxisAlignTask``: a
+    :class:`~qpik.engine.tasks.look_at.LookAtTask` at a point at infinity, the roll about
+    the axis left free (rank 2).
+
+    With the frame's rotation R the target direction in the frame's axes is
+    :math:`x = R^T t`, driven to :math:`x_d = a`, in every world:
+
+    .. math::
+        e = a - R^T t,\qquad
+        J = \frac{\partial (R^T t)}{\partial q} = [R^T t]_\times J_\omega,
+
+    :math:`J_\omega` the frame's angular Jacobian in its own axes (mink's J with the
+    opposite sign). Only turning the frame changes the error. Degenerate when the axis
+    is opposite the target (:math:`R^T t = -a`): ``lm_damping`` keeps the step bounded
+    there. Three rows of rank 2: keep the task soft.
+
+    Args:
+        robot: the robot (one world or N).
+        frame: name of the site, body or geom.
+        frame_type: ``"site"``, ``"body"`` or ``"geom"``.
+        axis: the axis in the frame's own coordinates (normalised), default +z; one for
+            every world.
+        gain, weight, hard, priority, lm_damping: as for :class:`~qpik.engine.tasks.task.Task`.
+
+    The target is the axis's current world direction at construction (met);
+    :meth:`set_target` changes it.
+
+    Raises:
+        UnknownName: no frame of that type has this name.
+        InvalidInput: a zero or non-finite axis or direction, a bad gain or weight.
+    """
+
+    name = "axis-align task"
+    dim = 3
+
+    def __init__(self, robot, frame: str, frame_type: str = "site", axis=(0.0, 0.0, 1.0), **options):
+        super().__init__(robot, **options)
+        if self.gains is None:  # dead-beat by default, as every tracking task
+            self.set_gain(feedback_gain(None, self.dim, f"{self.name} gain"))
+        self.frame = robot.frame(frame, frame_type)
+        self.axis = unit_axis(axis, f"{self.name} axis")
+        robot.ensure_kinematics()
+        self.directions = np.matmul(self.frame.rotations, self.axis)  # (N, 3)
+        self.direction = robot.present(self.directions)
+        self._axes = FrameAxes(robot, self.frame)
+        self._seen = np.zeros((robot.n, 3))  # x = Rᵀt
+        self._skew = np.zeros((robot.n, 3, 3))
+
+    def set_target(self, direction, velocity=None) -> None:
+        """The world direction (3,) to align the axis with (normalised), or (N, 3) one per world.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN, inf or zero (InvalidWorlds: in some worlds),
+                or a feed-forward velocity.
+        """
+        if velocity is not None:
+            raise InvalidInput(f"{self.name}: the target is a direction; it takes no velocity")
+        self.directions[...] = world_unit_vectors(self.robot, direction, f"{self.name} target direction")
+
+    def _seen_directions(self, rotations: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """x = Rᵀt of every world (as the rows tᵀR), into ``out`` (N, 3)."""
+        np.matmul(self.directions[:, None, :], rotations, out[:, None, :])
+        return out
+
+    def measured(self, robot=None) -> np.ndarray:
+        """x = Rᵀt, the target direction in the frame's axes (a copy), on the bound robot
+        or another robot of the same model and number of worlds."""
+        frame = self.frame if robot is None or robot is self.robot else robot.frame(self.frame.name, self.frame.type)
+        robot = robot or self.robot
+        return robot.present(self._seen_directions(frame.rotations, np.zeros((robot.n, 3))))
+
+    def measure_rows(self) -> None:
+        seen, axes = self._seen_directions(self.frame.rotations, self._seen), self._axes
+        axes.update(linear=False)
+        np.subtract(self.axis, seen, self.errors)
+        np.matmul(skew(seen, self._skew), axes.angular, self.jacobians)
