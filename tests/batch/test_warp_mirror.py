@@ -191,6 +191,38 @@ def test_weighted_gram_equals_the_engines():
         assert np.linalg.norm(out.numpy() - expected) <= 2 * 5 * EPS * np.linalg.norm(magnitudes)
 
 
+def test_products_equal_the_engines():
+    rng = np.random.default_rng(7)
+    A, x, y = rng.normal(size=(N, 3, 7)), rng.normal(size=(N, 7)), rng.normal(size=(N, 3))
+
+    def assert_sums_close(got, expected, magnitudes, terms):
+        # two orders of a sum of `terms` products: 2·terms·ε times the sum of their magnitudes
+        assert np.linalg.norm(got - expected) <= 2 * terms * EPS * np.linalg.norm(magnitudes)
+
+    out = _output(N, wp.float64, (3,))
+    _run(mirror.matvec_worlds, N, _device(A), _device(x), out)
+    assert_sums_close(out.numpy(), numerics.matvec(A, x, np.empty((N, 3))),
+                      np.einsum("nij,nj->ni", np.abs(A), np.abs(x)), 7)
+    out = _output(N, wp.float64, (7,))
+    _run(mirror.vecmat_worlds, N, _device(y), _device(A), out)
+    assert_sums_close(out.numpy(), numerics.vecmat(y, A, np.empty((N, 7))),
+                      np.einsum("ni,nij->nj", np.abs(y), np.abs(A)), 3)
+    for p in (3, 7):  # 3 x 3 (the engine's worlds-last path), 3 x 7 (its matmul)
+        B = rng.normal(size=(N, p, 7))
+        out = _output(N, wp.float64, (3, p))
+        _run(mirror.outer_product_worlds, N, _device(A), _device(B), out)
+        assert_sums_close(out.numpy(), numerics.outer_product(A, B, np.empty((N, 3, p))),
+                          np.abs(A) @ np.abs(B).transpose(0, 2, 1), 7)
+
+    v, columns = rng.normal(size=(N, 3)), rng.normal(size=(N, 3, 7))
+    matrices = _output(N, wp.mat33d)
+    _run(mirror.skew_worlds, N, _device(v, wp.vec3d), matrices)
+    expected = numerics.skew(v, np.zeros((N, 3, 3)))
+    np.testing.assert_array_equal(matrices.numpy(), expected)  # entries copied or negated: exact
+    np.testing.assert_allclose(matrices.numpy() @ columns, np.cross(v[:, :, None], columns, axis=1), rtol=0,
+                               atol=4 * EPS * np.abs(v).max() * np.abs(columns).max())
+
+
 # -- the checks ----------------------------------------------------------------------------------
 def test_all_finite_rows_met_and_inside_decide_as_the_engine():
     rng = np.random.default_rng(6)
@@ -260,7 +292,7 @@ def _device_solve(inverse_diagonal, H, c, A, b, fixed, values, dense: bool, held
     g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
     _run(mirror.equality_qp_worlds, n, _device(inverse_diagonal), _device(H), _device(c), _device(A), _device(b),
          _device(fixed.astype(np.int32), wp.int32), _device(values), int(dense), int(held), arrays, g, ok)
-    return arrays.x.numpy(), arrays.y.numpy()[:, :, 0], g.numpy(), ok.numpy().astype(bool)
+    return arrays.x.numpy(), arrays.y.numpy(), g.numpy(), ok.numpy().astype(bool)
 
 
 def _kkt_condition(H, A, fixed) -> float:

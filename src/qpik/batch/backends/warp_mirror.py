@@ -17,6 +17,10 @@ engine primitive                               device function
 ``numerics.cholesky_solve``                    :func:`cholesky_solve`
 ``numerics.weighted_gram``                     :func:`weighted_gram`
 ``numerics.all_finite``                        :func:`all_finite`
+``numerics.matvec``                            :func:`matvec`
+``numerics.vecmat``                            :func:`vecmat`
+``numerics.outer_product``                     :func:`outer_product`
+``numerics.skew``                              :func:`skew`
 ``closed_form.rows_met``                       :func:`rows_met`
 ``closed_form.inside``                         :func:`inside`
 ``closed_form.EqualityQP.solve``               :func:`equality_qp_solve`
@@ -50,8 +54,9 @@ from ...extras import require
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
 __all__ = ["EqualityQPArrays", "all_finite", "cholesky_solve", "configuration_difference", "equality_qp_arrays",
-           "equality_qp_gradient", "equality_qp_solve", "inside", "mat2quat", "normalize4", "quat2mat", "quat2vel",
-           "quat_integrate", "quat_mul", "rotation_error", "rows_met", "weighted_gram"]
+           "equality_qp_gradient", "equality_qp_solve", "inside", "mat2quat", "matvec", "normalize4", "outer_product",
+           "quat2mat", "quat2vel", "quat_integrate", "quat_mul", "rotation_error", "rows_met", "skew", "vecmat",
+           "weighted_gram"]
 
 # Forward code only: nothing here is differentiated, and the adjoints would double the compile.
 wp.set_module_options({"enable_backward": False})
@@ -300,6 +305,44 @@ def all_finite(a: wp.array2d(dtype=F64), w: int) -> int:
 
 
 @wp.func
+def matvec(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), w: int, out: wp.array2d(dtype=F64)):
+    """``numerics.matvec``: out[w] = A[w] x[w]."""
+    for i in range(A.shape[1]):
+        s = F64(0.0)
+        for j in range(A.shape[2]):
+            s = s + A[w, i, j] * x[w, j]
+        out[w, i] = s
+
+
+@wp.func
+def vecmat(y: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), w: int, out: wp.array2d(dtype=F64)):
+    """``numerics.vecmat``: out[w] = A[w]ᵀ y[w]."""
+    for j in range(A.shape[2]):
+        s = F64(0.0)
+        for i in range(A.shape[1]):
+            s = s + y[w, i] * A[w, i, j]
+        out[w, j] = s
+
+
+@wp.func
+def outer_product(A: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, out: wp.array3d(dtype=F64)):
+    """``numerics.outer_product``: out[w] = A[w] B[w]ᵀ."""
+    for i in range(A.shape[1]):
+        for p in range(B.shape[1]):
+            s = F64(0.0)
+            for k in range(A.shape[2]):
+                s = s + A[w, i, k] * B[w, p, k]
+            out[w, i, p] = s
+
+
+@wp.func
+def skew(v: wp.vec3d) -> wp.mat33d:
+    """``numerics.skew``: the cross-product matrix [v]× ([v]× c = v × c)."""
+    zero = F64(0.0)
+    return wp.mat33d(zero, -v[2], v[1], v[2], zero, -v[0], -v[1], v[0], zero)
+
+
+@wp.func
 def rows_met(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), w: int, tolerance: F64) -> int:
     """``closed_form.rows_met``: 1 where |Ax − b| <= tolerance (1 + |b|) (Euclidean norms,
     compared squared; NaN fails)."""
@@ -341,10 +384,12 @@ class EqualityQPArrays:
     scaled: wp.array3d(dtype=F64)  # (N, meq, nv): Ã H̃⁻¹
     S: wp.array3d(dtype=F64)  # (N, meq, meq): Ã H̃⁻¹ Ãᵀ
     S_factor: wp.array3d(dtype=F64)  # (N, meq, meq): its Cholesky factor
-    y: wp.array3d(dtype=F64)  # (N, meq, 1): b + A s, then the multipliers y
+    y: wp.array2d(dtype=F64)  # (N, meq): b + A s, then the multipliers y
+    y_column: wp.array3d(dtype=F64)  # (N, meq, 1): a view of y (the Cholesky solve's right-hand side)
     residual: wp.array2d(dtype=F64)  # (N, meq): A x
     shift: wp.array2d(dtype=F64)  # (N, nv): s = H̃⁻¹ c̃ (−v on held dofs)
     x: wp.array2d(dtype=F64)  # (N, nv)
+    multiplied: wp.array2d(dtype=F64)  # (N, nv): H v (held dofs, dense H), Aᵀ y (the gradient)
     held_H: wp.array3d(dtype=F64)  # (N, nv, nv): H̃ (a dense H)
     H_factor: wp.array3d(dtype=F64)  # (N, nv, nv): its Cholesky factor
     columns: wp.array3d(dtype=F64)  # (N, nv, meq + 1): [Ãᵀ | c̃], then H̃⁻¹ [Ãᵀ | c̃]
@@ -354,9 +399,11 @@ def equality_qp_arrays(n: int, nv: int, meq: int, device) -> EqualityQPArrays:
     """:class:`EqualityQPArrays` for n worlds on ``device`` (the dense-H ones included)."""
     arrays = EqualityQPArrays()
     for name, shape in (("scaled", (n, meq, nv)), ("S", (n, meq, meq)), ("S_factor", (n, meq, meq)),
-                        ("y", (n, meq, 1)), ("residual", (n, meq)), ("shift", (n, nv)), ("x", (n, nv)),
-                        ("held_H", (n, nv, nv)), ("H_factor", (n, nv, nv)), ("columns", (n, nv, meq + 1))):
+                        ("y", (n, meq)), ("residual", (n, meq)), ("shift", (n, nv)), ("x", (n, nv)),
+                        ("multiplied", (n, nv)), ("held_H", (n, nv, nv)), ("H_factor", (n, nv, nv)),
+                        ("columns", (n, nv, meq + 1))):
         setattr(arrays, name, wp.zeros(shape, dtype=F64, device=device))
+    arrays.y_column = arrays.y.reshape((n, meq, 1))
     return arrays
 
 
@@ -387,14 +434,13 @@ def _factor_dense(H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64), A: wp.arra
     definite."""
     nv = c.shape[1]
     meq = A.shape[1]
+    if held != 0:
+        matvec(H, values, w, arrays.multiplied)
     for i in range(nv):
         free_i = held == 0 or fixed[w, i] == 0
         target = c[w, i]
         if held != 0:
-            s = F64(0.0)
-            for j in range(nv):
-                s = s + H[w, i, j] * values[w, j]
-            target = c[w, i] + s
+            target = c[w, i] + arrays.multiplied[w, i]
             if not free_i:
                 target = -values[w, i]
         for j in range(nv):
@@ -424,29 +470,15 @@ def _minimiser(A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), w: int, array
     the rows' check (``EqualityQP.solve`` after the factorisation). Whether S is solved
     (pivots spanning at most ``SINGULAR_RATIO``) and A x meets b to
     ``EQUALITY_TOLERANCE``."""
-    nv = A.shape[2]
-    meq = A.shape[1]
-    for i in range(meq):
-        for k in range(meq):
-            s = F64(0.0)
-            for j in range(nv):
-                s = s + arrays.scaled[w, i, j] * A[w, k, j]
-            arrays.S[w, i, k] = s
-        r = F64(0.0)
-        for j in range(nv):
-            r = r + A[w, i, j] * arrays.shift[w, j]
-        arrays.y[w, i, 0] = r + b[w, i]
-    solved = cholesky_solve(arrays.S, arrays.y, w, SINGULAR_RATIO, arrays.S_factor)
-    for j in range(nv):
-        s = F64(0.0)
-        for i in range(meq):
-            s = s + arrays.y[w, i, 0] * arrays.scaled[w, i, j]
-        arrays.x[w, j] = s - arrays.shift[w, j]
-    for i in range(meq):
-        s = F64(0.0)
-        for j in range(nv):
-            s = s + A[w, i, j] * arrays.x[w, j]
-        arrays.residual[w, i] = s
+    outer_product(arrays.scaled, A, w, arrays.S)
+    matvec(A, arrays.shift, w, arrays.y)
+    for i in range(A.shape[1]):
+        arrays.y[w, i] = arrays.y[w, i] + b[w, i]
+    solved = cholesky_solve(arrays.S, arrays.y_column, w, SINGULAR_RATIO, arrays.S_factor)
+    vecmat(arrays.y, arrays.scaled, w, arrays.x)
+    for j in range(A.shape[2]):
+        arrays.x[w, j] = arrays.x[w, j] - arrays.shift[w, j]
+    matvec(A, arrays.x, w, arrays.residual)
     if solved != 0 and rows_met(arrays.residual, b, w, EQUALITY_TOLERANCE) != 0:
         return 1
     return 0
@@ -486,21 +518,17 @@ def equality_qp_gradient(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(
                          arrays: EqualityQPArrays, g: wp.array2d(dtype=F64)):
     """``closed_form.EqualityQP.gradient``: g[w] = Hx + c − Aᵀy of the last solve (the
     original H, c, A): on a held dof, its bound's multiplier."""
-    nv = c.shape[1]
-    for j in range(nv):
-        value = F64(0.0)
-        if dense != 0:
-            for k in range(nv):
-                value = value + H[w, j, k] * arrays.x[w, k]
-        else:
-            value = arrays.x[w, j] / inverse_diagonal[w, j]
-        value = value + c[w, j]
-        if A.shape[1] > 0:
-            s = F64(0.0)
-            for i in range(A.shape[1]):
-                s = s + arrays.y[w, i, 0] * A[w, i, j]
-            value = value - s
-        g[w, j] = value
+    if dense != 0:
+        matvec(H, arrays.x, w, g)
+    else:
+        for j in range(c.shape[1]):
+            g[w, j] = arrays.x[w, j] / inverse_diagonal[w, j]
+    for j in range(c.shape[1]):
+        g[w, j] = g[w, j] + c[w, j]
+    if A.shape[1] > 0:
+        vecmat(arrays.y, A, w, arrays.multiplied)
+        for j in range(c.shape[1]):
+            g[w, j] = g[w, j] - arrays.multiplied[w, j]
 
 
 # -- one thread per world ----------------------------------------------------------------------
@@ -567,6 +595,30 @@ def cholesky_solve_worlds(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), ra
 def weighted_gram_worlds(J: wp.array3d(dtype=F64), weight: wp.array(dtype=F64), out: wp.array3d(dtype=F64)):
     w = wp.tid()
     weighted_gram(J, weight, w, out)
+
+
+@wp.kernel
+def matvec_worlds(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), out: wp.array2d(dtype=F64)):
+    w = wp.tid()
+    matvec(A, x, w, out)
+
+
+@wp.kernel
+def vecmat_worlds(y: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), out: wp.array2d(dtype=F64)):
+    w = wp.tid()
+    vecmat(y, A, w, out)
+
+
+@wp.kernel
+def outer_product_worlds(A: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), out: wp.array3d(dtype=F64)):
+    w = wp.tid()
+    outer_product(A, B, w, out)
+
+
+@wp.kernel
+def skew_worlds(v: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.mat33d)):
+    w = wp.tid()
+    out[w] = skew(v[w])
 
 
 @wp.kernel
