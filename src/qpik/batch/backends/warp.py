@@ -12,8 +12,9 @@ What runs where:
   precision; the host reads them as float64;
 - the engine's step (the tasks' rows, the limits, the QP) runs on the host, as on the
   CPU back-end: a controller built on these worlds says so once
-  (:class:`~qpik.errors.HostStepWarning`) until the engine's primitives have device
-  mirrors;
+  (:class:`~qpik.errors.HostStepWarning`). The engine's numerical primitives have device
+  mirrors (:mod:`qpik.batch.backends.warp_mirror`), its tasks, limits, cost assembly and
+  held-bounds iteration do not, so no part of the step moves to the device;
 - the physics rollouts step MuJoCo Warp's ``step`` on the device.
 
 Install with the ``gpu`` extra: ``pip install -e ".[gpu]"``.
