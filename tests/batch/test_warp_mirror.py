@@ -19,8 +19,8 @@ import pytest
 wp = pytest.importorskip("warp", reason="the warp back-end needs the gpu extra (pip install -e \".[gpu]\")")
 
 from qpik.batch.backends import warp_mirror as mirror  # noqa: E402
-from qpik.engine import numerics  # noqa: E402
-from qpik.engine.problem.closed_form import EQUALITY_TOLERANCE, EqualityQP, inside, rows_met  # noqa: E402
+from qpik import numerics  # noqa: E402
+from qpik.problem.closed_form import EQUALITY_TOLERANCE, EqualityQP, inside, rows_met  # noqa: E402
 
 DEVICE = "cpu"
 N = 64

@@ -32,13 +32,14 @@ def check_dt(dt) -> float:
 
 def warn_host_step(robot, owner: str) -> None:
     """A :class:`~qpik.errors.HostStepWarning` when the worlds' kinematics live on a device
-    (MuJoCo Warp): the step's math (the tasks' rows, the limits, the solve) runs on the
-    host, the device's kinematics copied over every step, until the engine's primitives
-    have device mirrors."""
+    (MuJoCo Warp): the step's math runs on the host, the device's kinematics copied over
+    every step (the primitives have device functions, the tasks, limits, cost and
+    held-bounds iteration none: docs/batch.md)."""
     device = robot.backend.device if robot.batched else None
     if device is not None:
-        warnings.warn(f"{owner}: the step's tasks, limits and solve run on the host (the engine has no device "
-                      f"mirror yet); only the kinematics of {robot!r} run on {device}", HostStepWarning, stacklevel=4)
+        warnings.warn(f"{owner}: the step's tasks, limits, cost and held-bounds iteration have no device function "
+                      f"and run on the host; only the kinematics of {robot!r} run on {device}", HostStepWarning,
+                      stacklevel=4)
 
 
 class Problem:

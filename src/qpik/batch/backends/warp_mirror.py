@@ -1,5 +1,5 @@
 r"""The engine's numerical primitives on a Warp device: one ``@wp.func`` per primitive of
-:mod:`qpik.engine.numerics` and of the closed form (:mod:`qpik.engine.problem.closed_form`),
+:mod:`qpik.numerics` and of the closed form (:mod:`qpik.problem.closed_form`),
 named after it, in float64, branch for branch and operation for operation as the NumPy
 primitive computes one world (its N > 1 path: the world axis is the thread index here).
 
@@ -46,9 +46,9 @@ import math
 
 import mujoco
 
-from ...engine.numerics import MINVAL as _MINVAL
-from ...engine.problem.closed_form import EQUALITY_TOLERANCE as _EQUALITY_TOLERANCE
-from ...engine.problem.closed_form import SINGULAR_RATIO as _SINGULAR_RATIO
+from ...numerics import MINVAL as _MINVAL
+from ...problem.closed_form import EQUALITY_TOLERANCE as _EQUALITY_TOLERANCE
+from ...problem.closed_form import SINGULAR_RATIO as _SINGULAR_RATIO
 from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
