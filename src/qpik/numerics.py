@@ -22,7 +22,7 @@ from scipy.linalg.lapack import dposv
 MINVAL = 1e-15  # mjMINVAL
 
 __all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
-           "weighted_gram", "worlds_last"]
+           "worlds_last"]
 
 
 @functools.cache
@@ -64,13 +64,16 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
     Args:
         M: (N, k, k).
         B: (N, k) or (N, k, m).
-        ratio: the most L's diagonal may span (max / min) for a world to count as solved.
+        ratio: the most any √M_ii / L_ii may be for a world to count as solved: 1 where
+            M's rows are orthogonal, growing as a row depends on those before it (whatever
+            the rows' scales; the condition number of M scaled to a unit diagonal is at
+            most about ratio²).
         in_place: write X into B instead of a new array.
 
     Returns:
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
-        (every pivot > 0) and its pivots span at most ``ratio`` (:func:`everywhere` itself
-        when that holds in every world); X means nothing elsewhere.
+        (every pivot > 0) within ``ratio`` (:func:`everywhere` itself when that holds in
+        every world); X means nothing elsewhere.
     """
     if not M.shape[1]:  # no rows (a level whose rows are all masked): nothing to solve
         return (B if in_place else B.copy()), everywhere(len(M))
@@ -79,9 +82,9 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
     columns = B[..., None] if B.ndim == 2 else B
     X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
     X = np.moveaxis(X, -1, 0)
-    low = pivots.min(axis=0)
+    scales = np.sqrt(np.maximum(np.einsum("nii->in", M), 0.0))  # (k, N) √M_ii
     with np.errstate(invalid="ignore"):  # inf · 0 where a world has no positive pivot: refused anyway
-        ok = (low > 0.0) & (pivots.max(axis=0) <= ratio * low)
+        ok = (pivots.min(axis=0) > 0.0) & (scales <= ratio * pivots).all(axis=0)
     X = X[..., 0] if B.ndim == 2 else X
     if in_place:
         B[...] = X
@@ -92,11 +95,10 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
     """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
     factor, X, info = dposv(M, B[0])
-    pivots = factor.diagonal().tolist()
+    ok = info == 0 and all(math.sqrt(d) <= ratio * p for d, p in zip(M.diagonal().tolist(), factor.diagonal().tolist()))
     if in_place:
         B[0] = X
-    return B if in_place else X[None], \
-        everywhere(1) if info == 0 and max(pivots) <= ratio * min(pivots) else nowhere(1)
+    return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 
 
 def _cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -125,17 +127,6 @@ def _cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np
         else:
             X[j] = Y[j] / L[j, j]
     return X, pivots
-
-
-# -- JᵀWJ -----------------------------------------------------------------------------
-def weighted_gram(J: np.ndarray, weight: np.ndarray | None, out: np.ndarray) -> np.ndarray:
-    """``out`` (N, nv, nv) = Jᵀ diag(weight) J of every world's J (N, m, nv); ``weight``
-    (m,) or None for ones."""
-    if len(J) == 1:
-        mujoco.mju_sqrMatTD(out[0], J[0], weight)
-        return out
-    weighted = J if weight is None else J * weight[:, None]
-    return np.matmul(weighted.transpose(0, 2, 1), J, out=out)
 
 
 # -- Rotations (MuJoCo's quaternion routines across worlds) ----------------------------

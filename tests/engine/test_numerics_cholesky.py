@@ -36,6 +36,10 @@ def test_worlds_not_positive_definite_or_too_ill_conditioned_are_flagged(n):
     M[-1] = -np.eye(3)  # not positive definite
     _, ok = cholesky_solve(M, b)
     assert ok is not everywhere(n) and ok.tolist() == [True] * (n - 1) + [False]
-    M[-1] = np.diag([1.0, 1.0, 1e-20])  # pivots spanning 1e10 > the ratio asked
+    M[-1] = np.diag([1.0, 1e-20, 1e20])  # orthogonal rows of any scales: solved
+    _, ok = cholesky_solve(M, b, ratio=1e6)
+    assert ok is everywhere(n)
+    delta = 1e-14  # rows 0 and 1 at an angle of about √(2δ) = 1.4e-7: √M₁₁ / L₁₁ = 7e6 > the ratio asked
+    M[-1] = [[1.0, 1.0 - delta, 0.0], [1.0 - delta, 1.0, 0.0], [0.0, 0.0, 1.0]]
     _, ok = cholesky_solve(M, b, ratio=1e6)
     assert ok.tolist() == [True] * (n - 1) + [False]

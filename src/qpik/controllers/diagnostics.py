@@ -70,7 +70,7 @@ def _unmet_tasks(controller, qp, x: np.ndarray) -> list[str]:
     """Each hard task that the elastic solution misses, with its frame and by how much."""
     A, b = qp.A, qp.b
     unmet = []
-    for task, rows in controller.hard_rows.task_rows:
+    for task, rows in controller.cost.hard_task_rows:
         residual = A[rows] @ x - b[rows]
         worst = float(np.max(np.abs(residual))) if residual.size else 0.0
         if worst > 1e-6 * (1.0 + float(np.max(np.abs(b[rows])))):

@@ -17,12 +17,10 @@ without hard tasks that every solver fails on keeps :math:`\dot q^*_{k-1}`
 
 Each level is solved in two stages, as the QP is (docs/controllers.md):
 
-1. in every world at once, in closed form: a level whose soft tasks are joint-space (or
-   none: hard tasks alone give the minimum norm) by the QP's closed form with the bounds
-   held at the last answer (:class:`~qpik.problem.HeldBounds`); a level with soft
-   tasks of their own Jacobian in damped least-squares form
-   (:class:`~qpik.problem.least_squares.DampedLeastSquares`: accurate when only ε
-   makes the Hessian definite). An answer inside every limit is the level's minimiser.
+1. in every world at once, by the QP's closed form with the bounds held at the last
+   answer (:class:`~qpik.problem.HeldBounds`, in damped least-squares form: accurate
+   when only ε makes the Hessian definite). An answer inside every limit is the level's
+   minimiser.
 2. the worlds left, one by one, by the chosen solver with its fallbacks
    (:class:`~qpik.controllers.worlds.WorldSolver`), a least-squares answer
    polished on the active set it found, and, where the solver fails with rows above, the
@@ -43,9 +41,7 @@ from ..controllers.labels import task_label
 from ..errors import InfeasibleProblem, InvalidInput, SolverError, WorldsFailed
 from ..limits import Limit
 from ..numerics import everywhere
-from ..problem import Cost, HeldBounds, Problem, Stack, check_dt, group_levels, inside
-from ..problem.closed_form import ACTIVE_TOLERANCE
-from ..problem.least_squares import DampedLeastSquares
+from ..problem import Cost, DampedLeastSquares, HeldBounds, Problem, Stack, active_bounds, check_dt, group_levels, inside
 from ..tasks import Task
 from ..tasks.inputs import positive_scalar
 from .worlds import WorldQP, WorldSolver, check_finite_velocities, solve_each
@@ -70,7 +66,8 @@ class _Level:
     """One level: its rows in the hierarchy's stack, its cost, closed form and solvers.
 
     Its equalities are rows ``[0, rows)`` of the stack (the rows above, then its hard
-    rows: hard tasks come first within a level) with the right-hand side ``b`` (N, rows):
+    rows: hard tasks come first within a level), copied after its cost's rows, with the
+    right-hand side ``b`` (N, rows):
     :math:`J_{above}\\dot q^*_{k-1}`, then the hard tasks' v.
     """
 
@@ -85,29 +82,16 @@ class _Level:
         self.hard_rows = slice(self.above, self.rows)
         soft = [task for task in self.tasks if not task.hard]
         epsilon = _level_regularization(nv, soft, regularization)
-        self.cost = Cost(robot, soft, epsilon)
+        self.cost = Cost(robot, soft, epsilon, spare_rows=self.rows)
         self.general = bool(self.cost.general)
-        self.A = controller._J[:, : self.rows]  # a view of the stack
-        self.b = np.zeros((n, self.rows))
+        self.A, self.b = controller._J[:, : self.rows], self.cost.b  # the stack's rows, the cost's right side
         self.frozen = self.b[:, : self.above, None]  # (N, above, 1) view: J_above q̇*_{k-1}
         self.solver = WorldSolver(solver, nv, self.rows, controller.problem.rows, controller._native,
                                   **controller._solver_settings)
         self.reduced: dict[int, WorldSolver] = {}  # for rows replaced by a basis, by its rank
-        if self.general:
-            # R = [√W J_soft; A], rhs = [√W v_soft; b], D = ε + the joint-space weights + LM.
-            self.diagonal = Cost(robot, self.cost.diagonal, epsilon)  # c of the joint-space tasks alone
-            self.soft = Stack(robot, self.cost.general, weighted=True)
-            m = self.soft_rows = self.soft.dim
-            self.R, self.rhs, self.dinv = np.zeros((n, m + self.rows, nv)), np.zeros((n, m + self.rows)), np.zeros((n, nv))
-            self.least_squares = DampedLeastSquares(n, nv, m, self.rows)
-            self.polisher = DampedLeastSquares(1, nv, m, self.rows)  # one world's, after its solver
-            self.held = None
-        else:
-            self.held = HeldBounds(n, nv, self.rows, hold=self.solver.exact)
-
-    def linear_term(self, world: slice | int = slice(None)) -> np.ndarray | None:
-        """c of the joint-space tasks (the least-squares form's), or None where there are none."""
-        return self.diagonal.c[world] if self.cost.diagonal else None
+        self.held = HeldBounds(n, nv, self.cost.soft_rows, self.rows, hold=self.solver.exact)
+        # One world's closed form, to polish its solver's answer (see _polish).
+        self.polisher = DampedLeastSquares(1, nv, self.cost.soft_rows, self.rows) if self.general else None
 
 
 class HierarchicalController:
@@ -231,41 +215,21 @@ class HierarchicalController:
         rest = np.flatnonzero(~settled)
         if not len(rest):
             return
-        if level.general:
-            level.cost.write()  # H and c for the solver (the closed form read the rows)
         solve_each(rest, lambda w: self._solve_world(level, w, previous), out, self.robot.batched,
                    "HierarchicalController step", failures)
-        if level.held is not None:
-            level.held.remember(rest, out[rest], self.problem.lower[rest], self.problem.upper[rest])
+        level.held.remember(rest, out[rest], self.problem.lower[rest], self.problem.upper[rest])
 
     def _closed_form(self, level: _Level):
         """``(x, solved, worlds)``: the level's closed form in ``worlds`` (None: every world),
         ``solved`` where x is its minimiser inside every limit."""
-        problem = self.problem
+        problem, cost = self.problem, level.cost
         G, h = (problem.G, problem.h) if problem.rows else (None, None)
-        if not level.general:
-            level.cost.write()
-            uncapped = level.cost.uncapped()  # where a solver would see c capped, it decides
-            worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
-            x, solved = level.held.solve(level.cost, level.A, level.b, problem.box, G, h, worlds)
-            return x, solved, worlds
-        self._least_squares(level)
-        x, ok = level.least_squares.solve(level.dinv, level.R, level.rhs, level.linear_term())
-        if ok is everywhere(len(x)):
-            return x, inside(x, problem.box, G, h), None
-        return x, ok & inside(x, problem.box, G, h), None
-
-    def _least_squares(self, level: _Level) -> None:
-        """R = [√W J_soft; A], its right-hand side [√W v_soft; b], D⁻¹ and c of the
-        joint-space tasks, in every world (the form DampedLeastSquares takes)."""
-        level.diagonal.write()
-        level.soft.stack()
-        m = level.soft_rows
-        level.R[:, :m], level.rhs[:, :m] = level.soft.J, level.soft.v
-        if level.rows:
-            level.R[:, m:], level.rhs[:, m:] = level.A, level.b
-        np.add(level.diagonal.diagonal0, level.cost.levenberg_marquardt()[:, None], level.dinv)
-        np.divide(1.0, level.dinv, level.dinv)
+        cost.write()
+        cost.A[...] = level.A
+        uncapped = cost.uncapped()  # where a solver would see c capped, it decides
+        worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
+        x, solved = level.held.solve(cost, problem.box, G, h, worlds)
+        return x, solved, worlds
 
     # -- stage 2: the worlds left, one by one ------------------------------------------------
     def _world_qp(self, level: _Level, w: int, A: np.ndarray, b: np.ndarray) -> WorldQP:
@@ -307,24 +271,21 @@ class HierarchicalController:
         if not level.general or (problem.rows and not (problem.G[w] @ x < problem.h[w]).all()):
             return x  # a general row on its bound: left to the solver
         lb, ub = problem.lower[w], problem.upper[w]
-        # An absent bound (±inf) is never "reached" (|x − inf| <= inf would say it is).
-        at_lower = np.isfinite(lb) & (np.abs(x - lb) <= ACTIVE_TOLERANCE * (1.0 + np.abs(lb)))
-        at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= ACTIVE_TOLERANCE * (1.0 + np.abs(ub)))
+        at_lower, at_upper = active_bounds(x, lb, ub)
         fixed = at_lower | at_upper
         if fixed.all():
             return x
-        one = slice(w, w + 1)
+        one, cost = slice(w, w + 1), level.cost
         bound = np.where(at_lower, lb, np.where(at_upper, ub, 0.0))
-        R, rhs, dinv, c = level.R[one], level.rhs[one], level.dinv[one], level.linear_term(one)
-        step, ok = level.polisher.solve(dinv * ~fixed, R, rhs - R[0] @ bound, c)
-        if not ok[0]:
-            return x
-        polished = step + bound  # (1, nv): held dofs on their bounds exactly
+        R, rhs, damping = cost.R[one], cost.rhs[one], cost.damping[one]
+        c = None if cost.linear is None else cost.linear[one]
+        polished, _, ok = level.polisher.solve(cost.dinv[one], R, rhs, c, fixed[None], bound[None])
         G, h = (problem.G[one], problem.h[one]) if problem.rows else (None, None)
-        if not inside(polished, problem.box[one], G, h)[0]:
+        if not ok[0] or not inside(polished, problem.box[one], G, h)[0]:
             return x
-        cost = level.polisher.cost
-        return polished[0] if cost(polished, dinv, R, rhs, c)[0] <= cost(x[None], dinv, R, rhs, c)[0] else x
+        objective = level.polisher.objective
+        kept = objective(polished, damping, R, rhs, c)[0] <= objective(x[None], damping, R, rhs, c)[0]
+        return polished[0].copy() if kept else x
 
     @staticmethod
     def _named(level: _Level, exc: Exception) -> Exception:

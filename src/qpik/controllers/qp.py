@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import InfeasibleProblem, InvalidInput
 from ..limits import Limit
 from ..numerics import everywhere
-from ..problem import Cost, HeldBounds, Problem, Stack, check_dt
+from ..problem import Cost, HeldBounds, Problem, check_dt
 from ..problem.closed_form import ACTIVE_TOLERANCE
 from ..tasks import Task
 from .diagnostics import explain_infeasibility
@@ -66,12 +66,11 @@ class QPController:
         self.problem = Problem(robot, tasks, limits, dt, "QPController")
         self.robot, self.dt, self.tasks, self.limits = robot, self.problem.dt, self.problem.tasks, self.problem.limits
         self.solver = solver
-        self.hard_rows = Stack(robot, self.problem.hard)
-        self.cost = Cost(robot, self.problem.soft, float(regularization))
-        self._solver = WorldSolver(solver, robot.nv, self.hard_rows.dim, self.problem.rows, native, **solver_settings)
+        self.cost = cost = Cost(robot, self.problem.soft, float(regularization), hard=self.problem.hard)
+        self._solver = WorldSolver(solver, robot.nv, cost.A.shape[1], self.problem.rows, native, **solver_settings)
         # An active-set solver's bounds are held by the closed form next step; a
         # tolerance-based solver's answers stay its own.
-        self.held = HeldBounds(robot.n, robot.nv, self.hard_rows.dim, hold=self._solver.exact)
+        self.held = HeldBounds(robot.n, robot.nv, cost.soft_rows, cost.A.shape[1], hold=self._solver.exact)
         self.updated_tasks = tuple(self.tasks)  # fresh after every step (rollouts read them)
         # The worlds whose last solver answer had a general row active (see the module).
         self.rows_held = np.zeros(robot.n, dtype=bool)
@@ -83,8 +82,8 @@ class QPController:
         self.solver_calls = 0  # world-steps that needed the solver
 
     # The step's problem, as the solver sees it (world 0 for one robot).
-    A = property(lambda self: self.robot.present(self.hard_rows.J), doc="The hard rows' Jacobian of the last step.")
-    b = property(lambda self: self.robot.present(self.hard_rows.v), doc="The hard rows' target velocities.")
+    A = property(lambda self: self.robot.present(self.cost.A), doc="The hard rows' Jacobian of the last step.")
+    b = property(lambda self: self.robot.present(self.cost.b), doc="The hard rows' target velocities.")
     H = property(lambda self: self.robot.present(np.stack([self.cost.world_hessian(w) for w in range(self.robot.n)])),
                  doc="The Hessian of the last step.")
     c = property(lambda self: self.robot.present(self.cost.c), doc="The cost vector of the last step.")
@@ -105,7 +104,6 @@ class QPController:
         problem = self.problem
         problem.fill()
         self.cost.write()
-        self.hard_rows.stack()
         closed = self.cost.uncapped()  # the worlds a closed form may answer
         if self._holding_rows:
             closed = closed & ~self.rows_held
@@ -113,8 +111,7 @@ class QPController:
         if worlds is not None and not len(worlds):
             x, solved = self.qdots[:0], np.zeros(0, dtype=bool)
         else:
-            x, solved = self.held.solve(self.cost, self.hard_rows.J, self.hard_rows.v, problem.box, *self._rows,
-                                        worlds)
+            x, solved = self.held.solve(self.cost, problem.box, *self._rows, worlds)
         if worlds is None and (solved is self._everywhere or solved.all()):
             np.copyto(self.qdots, x)
             return self.qdot
@@ -146,14 +143,14 @@ class QPController:
     def world_qp(self, w: int) -> WorldQP:
         """World ``w``'s QP (views)."""
         p = self.problem
-        return WorldQP(self.cost.world_hessian(w), self.cost.c[w], self.hard_rows.J[w], self.hard_rows.v[w],
+        return WorldQP(self.cost.world_hessian(w), self.cost.c[w], self.cost.A[w], self.cost.b[w],
                        p.lower[w], p.upper[w], p.G[w], p.h[w])
 
     def _solve_world(self, w: int) -> np.ndarray:
         qp = self.world_qp(w)
         check_finite_velocities(self.tasks, qp.c, qp.b, w)
         try:
-            return self._solver.solve(w, qp, hessian_changed=self.cost.H is not None)
+            return self._solver.solve(w, qp, hessian_changed=bool(self.cost.general))
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, w, exc.variable)}",
                                     exc.variable) from None

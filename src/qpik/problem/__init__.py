@@ -4,10 +4,10 @@ general rows written), the hard rows (:class:`Stack`), the cost (:class:`Cost`),
 closed form with bounds held (:class:`HeldBounds`). The controllers only solve it.
 """
 
-from .closed_form import HeldBounds, equality_minimiser, inside, rows_met
+from .closed_form import DampedLeastSquares, HeldBounds, active_bounds, inside, rows_met
 from .cost import Cost
 from .problem import Problem, check_dt
 from .rows import Stack, group_levels, row_slices
 
-__all__ = ["Cost", "HeldBounds", "Problem", "Stack", "check_dt", "equality_minimiser", "group_levels", "inside",
+__all__ = ["Cost", "DampedLeastSquares", "HeldBounds", "Problem", "Stack", "active_bounds", "check_dt", "group_levels", "inside",
            "row_slices", "rows_met"]

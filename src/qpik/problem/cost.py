@@ -1,12 +1,14 @@
-r"""The cost of a set of soft tasks in every world, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`:
-:math:`H = \epsilon I + \sum W_i` (joint-space tasks, on the diagonal, once)
-:math:`+ \sum J_i^TW_iJ_i + \sum \mu_i e_i^TW_ie_i\, I` (the others, each step),
-:math:`c = -\sum J_i^TW_iv_i`. The Levenberg–Marquardt term (mink's ``lm_damping``)
-grows with the error; past ``LM_RESCALE`` H and c are scaled down together (the same
-minimiser) so that no solver sees overflowing numbers.
+r"""The cost of a set of soft tasks in every world, :math:`\tfrac12 \dot q^T H \dot q + c^T \dot q`,
+kept as rows: :math:`H = D + R_1^TR_1`, :math:`c = c_0 - R_1^Tr_1`, where :math:`R_1, r_1`
+are the tasks of their own Jacobian, their rows scaled by √w, D is the diagonal
+:math:`\epsilon + \sum w_i` (joint-space tasks, read once) :math:`+ \sum \mu_i e_i^TW_ie_i`
+(the Levenberg–Marquardt term, mink's ``lm_damping``) and :math:`c_0 = -\sum w_i v_i` the
+joint-space tasks' linear term. The closed form reads the rows; a solver gets one world's
+H, formed when it asks. Past ``LM_RESCALE`` the solver's H and c are scaled down together
+(the same minimiser) so that no solver sees overflowing numbers.
 
-Without a task of its own Jacobian, H is a constant diagonal: the cost keeps its inverse
-(``inverse_diagonal``, (N, nv)) and no matrix.
+The hard rows follow :math:`R_1` in the same arrays (``R``, ``rhs``), as the closed form
+takes them.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..numerics import everywhere, weighted_gram
+from ..numerics import everywhere
 from ..tasks import Task
 from ..tasks.inputs import as_index
 from .rows import Stack
@@ -41,18 +43,25 @@ def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np
 
 
 class Cost:
-    """H and c of the soft tasks ``soft`` in every world, ε = ``regularization``.
+    """The cost of the soft tasks ``soft`` (ε = ``regularization``) in every world, and the
+    hard rows after its own.
+
+    Args:
+        hard: hard tasks, their rows stacked after the soft ones (the QP's).
+        spare_rows: rows after those, written by the owner each step (a hierarchy level's
+            equalities).
 
     Attributes:
-        diagonal: the joint-space tasks (on H's diagonal, read once).
-        general: the others (JᵀWJ every step).
-        H: (N, nv, nv) after :meth:`write`, or None when H is the constant diagonal whose
-            inverse is ``inverse_diagonal`` (N, nv).
-        c: (N, nv) after :meth:`write`.
-        scale: (N,) H's largest diagonal entry (what the cost cap is relative to).
+        diagonal, general: the joint-space tasks (in D), the others (rows of R₁).
+        R, rhs: (N, soft_rows + hard rows, nv), (N, soft_rows + hard rows) after :meth:`write`;
+            ``A``, ``b``: views of their hard rows; ``hard_task_rows``: (task, its rows of A).
+        damping, dinv: (N, nv) D and D⁻¹.
+        linear: (N, nv) c₀, or None without joint-space tasks.
+        c: (N, nv) the QP's c (scaled with H where the damping is past ``LM_RESCALE``).
     """
 
-    def __init__(self, robot, soft: Sequence[Task], regularization: float):
+    def __init__(self, robot, soft: Sequence[Task], regularization: float, hard: Sequence[Task] = (),
+                 spare_rows: int = 0):
         n, nv = robot.n, robot.nv
         self.diagonal = [task for task in soft if task.joint_space]
         self.general = [task for task in soft if not task.joint_space]
@@ -60,46 +69,46 @@ class Cost:
         for task in self.diagonal:
             diagonal0[task.dofs] += task.weight
         self.diagonal0 = np.tile(diagonal0, (n, 1))
-        self.c = np.zeros((n, nv))
-        # c of the joint-space tasks: −w v on their dofs (a first task on every dof writes c).
+        self.damping, self.dinv = self.diagonal0, 1.0 / self.diagonal0
+        # c₀ of the joint-space tasks: −w v on their dofs (a first task on every dof writes c₀).
         self._linear = [(task, np.tile(-task.weight, (n, 1)), as_index(task.dofs)) for task in self.diagonal]
         self._first_writes = bool(self._linear) and isinstance(self._linear[0][2], slice) and \
             self._linear[0][2] == slice(0, nv)
+        self.linear = np.zeros((n, nv)) if self._linear else None
         self._scratch = np.zeros((n, nv))
-        if self.general:
-            self.H = np.zeros((n, nv, nv))
-            self._rows = Stack(robot, self.general, weighted=True)  # (√W J, √W v): H = RᵀR, c = −Rᵀr
-            self._lm = [(task, task.lm_damping * task.weight) for task in self.general if task.lm_damping]
-            self.inverse_diagonal = None
-            self.scale = np.zeros(n)
-        else:
-            self.H, self._lm = None, []
-            self.inverse_diagonal = 1.0 / self.diagonal0
-            self.scale = self.diagonal0.max(axis=1)
+        self.rows = Stack(robot, self.general + list(hard), weighted=True, spare_rows=spare_rows)
+        self.soft_rows = self.rows.dim - sum(task.dim for task in hard)
+        self.R, self.rhs = self.rows.J, self.rows.v
+        self.A, self.b = self.R[:, self.soft_rows:], self.rhs[:, self.soft_rows:]
+        self.hard_task_rows = [(task, slice(rows.start - self.soft_rows, rows.stop - self.soft_rows))
+                               for task, rows in self.rows.task_rows if task.hard]  # (task, its rows of A)
+        self.c = np.zeros((n, nv)) if self.soft_rows or self.linear is None else self.linear
+        self._lm = [(task, task.lm_damping * task.weight) for task in self.general if task.lm_damping]
+        self.factor = np.ones(n)  # H and c's scale for the solver (below 1 past LM_RESCALE)
 
     def write(self) -> None:
-        """The step's c (and H where it changes), in every world."""
+        """The step's rows, D and c, in every world."""
         self._write_linear()
-        if self.H is None:
-            return
-        rows = self._rows
-        rows.stack()
-        weighted_gram(rows.J, None, self.H)
-        np.einsum("nij,ni->nj", rows.J, rows.v, out=self._scratch)
-        self.c -= self._scratch
-        lm = self.levenberg_marquardt()
-        diagonal = np.einsum("nii->ni", self.H)  # a writable view of every world's diagonal
-        diagonal += self.diagonal0 + lm[:, None]
-        self.scale = diagonal.max(axis=1)
-        big = lm > LM_RESCALE
-        if big.any():  # the same minimiser, numbers a solver can take
-            factor = 1.0 / (1.0 + lm[big])
-            self.H[big] *= factor[:, None, None]
-            self.c[big] *= factor[:, None]
-            self.scale[big] *= factor
+        self.rows.stack()
+        if self._lm:
+            lm = self.levenberg_marquardt()
+            self.damping = self.diagonal0 + lm[:, None]
+            self.dinv = 1.0 / self.damping
+            big = lm > LM_RESCALE
+            self.factor = np.where(big, 1.0 / (1.0 + lm), 1.0) if big.any() else np.ones(len(lm))
+        m = self.soft_rows
+        if m:
+            np.einsum("nij,ni->nj", self.R[:, :m], self.rhs[:, :m], out=self.c)
+            np.negative(self.c, self.c)
+            if self.linear is not None:
+                self.c += self.linear
+            if self.factor.min() < 1.0:  # the same minimiser, numbers a solver can take
+                self.c *= self.factor[:, None]
 
     def _write_linear(self) -> None:
-        c = self.c
+        c = self.linear
+        if c is None:
+            return
         if not self._first_writes:
             c.fill(0.0)
         for k, (task, neg_weight, dofs) in enumerate(self._linear):
@@ -117,13 +126,19 @@ class Cost:
         Raises:
             InvalidInput: it overflows (a target absurdly far away).
         """
-        total = np.zeros(len(self.c))
+        total = np.zeros(len(self.diagonal0))
         for task, weight in self._lm:
             total += np.einsum("ni,i,ni->n", task.errors, weight, task.errors)
         if not np.isfinite(total).all():
             raise InvalidInput("a soft task's error is too large to weigh (its squared norm overflows): "
                                "check its target")
         return total
+
+    def scale(self) -> np.ndarray:
+        """(N,) H's largest diagonal entry, as the solver sees H (what the cost cap is
+        relative to)."""
+        R1 = self.R[:, :self.soft_rows]
+        return (self.damping + np.einsum("nij,nij->nj", R1, R1)).max(axis=1) * self.factor
 
     def uncapped(self) -> np.ndarray:
         """(N,) whether :func:`tame` leaves each world's c as it is: only there may a closed
@@ -132,8 +147,11 @@ class Cost:
         if np.vdot(c, c) <= UNCAPPED_NORM2:  # the usual step: every world's c is small
             return everywhere(len(c))
         small = np.einsum("ni,ni->n", c, c) <= UNCAPPED_NORM2
-        return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale))
+        return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale()))
 
     def world_hessian(self, w: int) -> np.ndarray:
-        """World ``w``'s H as a matrix (a copy where H is kept as its diagonal)."""
-        return np.diag(self.diagonal0[w]) if self.H is None else self.H[w]
+        """World ``w``'s H as the solver sees it (a new matrix)."""
+        R1 = self.R[w, :self.soft_rows]
+        H = R1.T @ R1
+        H.flat[:: H.shape[0] + 1] += self.damping[w]
+        return H * self.factor[w] if self.factor[w] != 1.0 else H

@@ -80,24 +80,27 @@ class Stack:
     written by :meth:`stack` (after the tasks' ``update``).
 
     Rows of zero weight of a soft task are left out (a zero weight masks a row); a hard
-    task keeps all its rows. ``weighted`` scales each row by √w, so that a least-squares
-    solution of the stack weighs the tasks as the QP's cost does. One task whose rows
-    need no change is its own stack (its arrays, no copy).
+    task keeps all its rows. ``weighted`` scales each soft row by √w, so that a
+    least-squares solution of the stack weighs the tasks as the QP's cost does.
+    ``spare_rows`` more rows follow the tasks', for the owner to write. One task whose
+    rows need no change is its own stack (its arrays, no copy).
     """
 
-    def __init__(self, robot, tasks: Sequence[Task], weighted: bool = False):
+    def __init__(self, robot, tasks: Sequence[Task], weighted: bool = False, spare_rows: int = 0):
         n, nv = robot.n, robot.nv
         self.tasks = list(tasks)
         kept = [np.arange(t.dim) if t.hard else np.flatnonzero(t.weight > 0) for t in self.tasks]
         self.dim = sum(len(keep) for keep in kept)
         self.task_rows = list(zip(self.tasks, row_slices([len(keep) for keep in kept])))  # (task, its rows)
-        roots = [np.sqrt(t.weight[keep]) if weighted else np.ones(len(keep)) for t, keep in zip(self.tasks, kept)]
-        single = len(self.tasks) == 1 and len(kept[0]) == self.tasks[0].dim and np.all(roots[0] == 1.0)
+        roots = [np.sqrt(t.weight[keep]) if weighted and not t.hard else np.ones(len(keep))
+                 for t, keep in zip(self.tasks, kept)]
+        single = len(self.tasks) == 1 and not spare_rows and len(kept[0]) == self.tasks[0].dim and \
+            np.all(roots[0] == 1.0)
         self._direct = self.tasks[0] if single else None
         if single:
             self.J, self.v = self.tasks[0].jacobians, self.tasks[0].target_velocities
         else:
-            self.J, self.v = np.zeros((n, self.dim, nv)), np.zeros((n, self.dim))
+            self.J, self.v = np.zeros((n, self.dim + spare_rows, nv)), np.zeros((n, self.dim + spare_rows))
         self._blocks = [(task, None if len(keep) == task.dim else keep, rows,
                          None if np.all(root == 1.0) else np.tile(root, (n, 1)))
                         for (task, rows), keep, root in zip(self.task_rows, kept, roots)]
