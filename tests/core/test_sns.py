@@ -181,7 +181,7 @@ def test_closed_form_pseudoinverse_equals_numpy_and_falls_back_near_singular():
     random rows, rows at a small angle (the closed form from ‖x2 − c x1‖²), nearly
     parallel rows (the SVD takes over), dependent and zero rows (rank decided as the SVD
     decides it, against ``scale``)."""
-    from qpik.controllers.sns import _solve
+    from qpik.controllers.sns_null_space import pseudoinverse as _solve
     rng = np.random.default_rng(3)
     for _ in range(200):
         X = rng.normal(size=(2, int(rng.integers(2, 8))))
@@ -211,19 +211,21 @@ def test_closed_form_pseudoinverse_equals_numpy_and_falls_back_near_singular():
 
 def test_scaling_takes_b_as_q_minus_a_or_zero():
     """_scaling reads b = q̇ − a joint by joint from the pass's q̇ (None: b = 0), skips
-    the saturated joints, and names the joint that limits s."""
+    the saturated joints, and names the joint that limits s (the passes of the last
+    world SNS ran, with its box as lists)."""
     robot = _arm_at([0.9, -0.7, 0.5, 0.5])
     position, _ = _tasks(robot)
     caps = np.array([1.0, 2.0, 4.0, 8.0])
     sns = SNSController(robot, [position], [JointVelocityLimit(robot, caps)], dt=DT)
     sns.compute_velocity()
-    assert sns._lower == list(-caps) and sns._upper == list(caps)
+    passes = sns._passes
+    assert passes.lower == list(-caps) and passes.upper == list(caps)
     a = [2.0, -1.0, 0.5, 0.0]
-    assert sns._scaling(a, None, []) == (0.5, 0)  # b = 0: joint 0 reaches 1 at s = 0.5
+    assert passes._scaling(a, None, []) == (0.5, 0)  # b = 0: joint 0 reaches 1 at s = 0.5
     q = [x + y for x, y in zip(a, [0.5, -1.5, 0.0, 0.0])]  # b = (0.5, -1.5, 0, 0)
-    assert sns._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
-    assert sns._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
-    assert sns._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8
+    assert passes._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
+    assert passes._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
+    assert passes._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8
 
 
 def test_reversal_fraction_counts_sign_changes_above_the_speed_on_both_sides():
