@@ -81,8 +81,7 @@ def test_yoshikawa_gradient_matches_finite_differences(model_path, name, frame, 
         mujoco.mj_integratePos(robot.model, robot.q, rng.normal(scale=0.4, size=robot.nv), 1.0)
         robot.update_kinematics()
         measure = Yoshikawa(robot, frame, frame_type, axes=axes, orientation_axes=orientation_axes)
-        gradient = np.zeros(robot.nv)
-        measure.gradient(gradient)
+        gradient = robot.present(measure.gradient()).copy()  # (nv,): the robot's one world
         fd = central_differences(measure, robot)
         assert np.max(np.abs(fd)) > 1e-3  # a measure that varies, so the check can fail
         np.testing.assert_allclose(gradient, fd, rtol=0, atol=1e-6 * np.max(np.abs(fd)))
@@ -102,12 +101,12 @@ def test_yoshikawa_on_the_arm_is_the_closed_form():
 def test_singular_configuration_has_zero_measure_and_gradient():
     robot = Robot(mujoco.MjModel.from_xml_string(MIXED))
     measure = Yoshikawa(robot, "base", "body", axes="", orientation_axes="xyz")  # the base's angular rows...
-    gradient = np.full(robot.nv, np.nan)
-    measure.gradient(gradient)
+    gradient = robot.present(measure.gradient())
+    assert gradient.shape == (robot.nv,)
     assert measure.value() == pytest.approx(1.0)  # ...are the identity: w = 1, constant
     np.testing.assert_allclose(gradient, 0.0, atol=1e-15)
     lifeless = Yoshikawa(Robot.load("arm"), "end_effector", axes="z")  # the planar arm never moves along z
-    lifeless.gradient(gradient)
+    gradient = lifeless.robot.present(lifeless.gradient())
     assert lifeless.value() == 0.0
     np.testing.assert_array_equal(gradient, 0.0)
 
@@ -117,8 +116,7 @@ def test_manipulability_task_follows_the_gradient_on_its_dofs(humanoid_path):
     measure = Yoshikawa(robot, "lhand", "body")
     task = ManipulabilityTask(robot, measure, gain=3.0)
     task.update()
-    gradient = np.zeros(robot.nv)
-    measure.gradient(gradient)
+    gradient = robot.present(measure.gradient()).copy()
     assert task.joint_space and 0 not in task.dofs  # the free base is left out
     np.testing.assert_allclose(task.target_velocity, 3.0 * gradient[task.dofs])
 
@@ -127,8 +125,7 @@ def test_sigma_proxy_takes_its_joints_explicitly(jaco_path):
     robot = Robot.load(jaco_path)
     sigma = SigmaProxy(robot, ["joint_2", "joint_3"])
     robot.q[1:3] = [0.4, 1.1]
-    gradient = np.zeros(robot.nv)
-    sigma.gradient(gradient)
+    gradient = robot.present(sigma.gradient())
     np.testing.assert_allclose(gradient, [0, np.sin(0.4) * np.cos(0.4), np.sin(1.1) * np.cos(1.1), 0, 0, 0])
     assert sigma.value() == pytest.approx(0.5 * (np.sin(0.4) ** 2 + np.sin(1.1) ** 2))
     with pytest.raises(TypeError):

@@ -68,7 +68,8 @@ class Task:
     Levenberg–Marquardt: :math:`\tfrac12 \mu\, e^TWe\, \|\dot q\|^2` added to a soft
     task's cost), and :math:`v = \dot x_d + K e`. A subclass measures: :meth:`measure_rows`
     writes ``errors`` and ``jacobians`` (a built-in task), or ``compute_error`` and
-    ``compute_jacobian`` return them (a user's task, as in mink).
+    ``compute_jacobian`` return them (a user's task, as in mink). Every task answers both
+    methods (a built-in one from its own rows, on its robot) and :meth:`measured`.
 
     Args:
         robot: the robot (one world, or a batch of N) whose kinematics the task reads.
@@ -110,7 +111,7 @@ class Task:
         self._allocate_jacobians()
         self.error, self.target_velocity = robot.present(self.errors), robot.present(self.target_velocities)
         self.target_rate = robot.present(self.rates)
-        self.jacobian = robot.present(self.jacobians)
+        self._present_jacobians()
         self._user_rows = self._computes_rows()
         self.gains = None  # (N, dim) K, at the operand's full shape; None: no feedback
         if self._user_rows or gain is not None:
@@ -119,25 +120,71 @@ class Task:
     def _allocate_jacobians(self) -> None:
         self.jacobians = np.zeros((self.robot.n, self.dim, self.robot.nv))
 
+    def _present_jacobians(self) -> None:
+        """``jacobian``: what a user reads of ``jacobians``."""
+        self.jacobian = self.robot.present(self.jacobians)
+
     def _computes_rows(self) -> bool:
         """Whether the rows come from compute_error/compute_jacobian (no own ``measure_rows``)."""
         cls = type(self)
         if cls.measure_rows is not Task.measure_rows:
             return False
-        missing = [m for m in ("compute_error", "compute_jacobian") if getattr(cls, m, None) is None]
+        missing = [m for m in ("compute_error", "compute_jacobian")
+                   if getattr(cls, m, None) in (None, getattr(Task, m))]
         if missing:
             raise InvalidInput(f"{self.name} must define {' and '.join(m + '(robot)' for m in missing)} "
                                "(or a measure_rows() filling errors and jacobians)")
         return True
 
-    compute_error = None
-    compute_jacobian = None
+    def compute_error(self, robot) -> np.ndarray:
+        """The error e = x_d − x on ``robot`` as a user reads it ((dim,) for one robot):
+        a user's task defines it; a built-in task measures its rows on its own robot (a copy).
+
+        Raises:
+            InvalidInput: a robot other than the task's.
+        """
+        self._update_on(robot)
+        return self.error.copy()
+
+    def compute_jacobian(self, robot) -> np.ndarray:
+        """The Jacobian J = ∂x/∂q on ``robot`` as a user reads it ((dim, nv) for one robot):
+        a user's task defines it; a built-in task measures its rows on its own robot (a copy).
+
+        Raises:
+            InvalidInput: a robot other than the task's.
+        """
+        self._update_on(robot)
+        return np.array(self.jacobian, dtype=float)
+
+    def _update_on(self, robot) -> None:
+        if robot is not self.robot:
+            raise InvalidInput(f"{self.name} evaluates its error and Jacobian on the robot it was built with")
+        robot.ensure_kinematics()
+        self.update()
+
+    def measured(self, robot=None) -> np.ndarray:
+        """The tracked x = x_d − e (a copy, as a user reads it) on the bound robot or, for a
+        user's task, another robot of the same model (after its kinematics update): what a
+        rollout's reference records.
+
+        Raises:
+            InvalidInput: the task has no target (``set_target``) to measure from.
+        """
+        if self.target is None:
+            raise InvalidInput(f"{self.name} has no target to measure against: set_target(...) first, "
+                               "or define measured(robot)")
+        robot = robot or self.robot
+        if robot is self.robot and robot.batched and not self.vectorized:
+            self.measure_rows()  # world by world
+            return self.target - self.error
+        return self.target - self.compute_error(robot)
 
     # -- gains and the controller's period ------------------------------------------------
     def set_gain(self, gain: np.ndarray) -> None:
-        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`)."""
-        self.gain = gain
+        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`);
+        ``gain`` is world 0's row of ``gains`` (a view: the dead-beat K shows in it)."""
         self.gains = np.tile(gain, (self.robot.n, 1))
+        self.gain = self.gains[0]
 
     def feedback_gains(self) -> np.ndarray | None:
         """K (1/s) of each row, or None for a task without feedback (a damping)."""
@@ -162,7 +209,6 @@ class Task:
             return
         if self.needs_period:
             self.gains[np.isnan(self.gains)] = 1.0 / dt
-            self.gain = self.gains[0].copy()
         worst = float(np.max(self.gains)) * dt * (1.0 - 1e-12)  # 1/Δt·Δt may round to 1 + 1 ulp
         largest = float(np.max(self.gains))
         if worst > 2.0:
@@ -261,26 +307,72 @@ class JointSpaceTask(Task):
     """A task whose Jacobian is the selection ``I[dofs]`` (posture, damping, gradients):
     a controller adds its weights to the Hessian's diagonal without reading J.
 
+    ``jacobian`` is read-only. A subclass with its own J (a matrix assigned to
+    ``jacobian`` before the task is given to a controller, or a ``jacobian`` property of
+    its class) is a general task: ``joint_space`` is then False and every controller reads
+    that J, so nothing silently assumes J = I.
+
     Args:
         robot: the robot.
         joints: joint names whose dofs the task covers (default: every hinge and slide
             joint; name a free or ball joint to include its dofs).
         weight: cost weight (scalar or one per covered dof).
+
+    Raises:
+        InvalidInput: no joint to act on; a J of the wrong shape, or assigned once a
+            controller has the task.
     """
 
-    joint_space = True
+    _own_jacobian = False  # a J assigned to ``jacobian``
+    _attached = False  # given to a controller (which reads whether J = I once)
 
     def __init__(self, robot, joints=None, weight=1.0, **options):
         self.dofs = joint_dofs(robot, joints)
         if len(self.dofs) == 0:
             raise InvalidInput(f"{self.name}: the model has no joint to act on (give joints=...)")
         super().__init__(robot, len(self.dofs), weight, **options)
+        if type(self).jacobian is not JointSpaceTask.jacobian:  # the class's own J, read every update
+            self.jacobians = np.zeros((robot.n, self.dim, robot.nv))
+            self.update = self._update_reading_jacobian
 
     def _allocate_jacobians(self) -> None:
         selection = np.zeros((self.dim, self.robot.nv))
         selection[np.arange(self.dim), self.dofs] = 1.0
         # Read-only and shared by every world: the identity's rows cost no memory per world.
         self.jacobians = np.broadcast_to(selection, (self.robot.n, self.dim, self.robot.nv))
+
+    def _present_jacobians(self) -> None:
+        self._jacobian = self.robot.present(self.jacobians)
+
+    @property
+    def joint_space(self) -> bool:
+        """Whether J is the selection ``I[dofs]`` (False once a subclass gives its own)."""
+        return not self._own_jacobian and type(self).jacobian is JointSpaceTask.jacobian
+
+    @property
+    def jacobian(self) -> np.ndarray:
+        """J as a user reads it: ``I[dofs]`` (read-only) unless a subclass gave its own."""
+        return self._jacobian
+
+    @jacobian.setter
+    def jacobian(self, value) -> None:
+        if self._attached:  # a controller put this task on its Hessian's diagonal
+            raise InvalidInput(f"{self.name}: its Jacobian cannot change after the task was given to a "
+                               "controller (which reads whether a task's J = I once); set it before")
+        own = world_values(self.robot, value, (self.dim, self.robot.nv), f"{self.name} jacobian")
+        self.jacobians = np.array(own)  # (N, dim, nv), the task's own
+        self._own_jacobian = True
+        self._present_jacobians()
+
+    def attach(self, dt: float | None) -> None:
+        self._attached = True
+        super().attach(dt)
+
+    def _update_reading_jacobian(self) -> None:
+        """The class's update, ``jacobians`` first copied from its own ``jacobian`` (checked)."""
+        np.copyto(self.jacobians, world_values(self.robot, self.jacobian, (self.dim, self.robot.nv),
+                                               f"{self.name} jacobian"))
+        type(self).update(self)
 
     def measure_rows(self) -> None:
         """``errors`` only (J is constant)."""
