@@ -37,9 +37,10 @@ SINGULAR_RATIO = 1e6
 EQUALITY_TOLERANCE = 1e-10
 # Closed forms a step may try with held bounds before the solver takes the world.
 HELD_TRIES = 3
-# Steps of iterative refinement a closed form may take where its residual is above
-# EQUALITY_TOLERANCE (a tiny ε on dofs the rows constrain loses digits in x = D⁻¹(...)).
-REFINEMENTS = 2
+# Steps of iterative refinement a closed form may take while its residual is above
+# REFINE_TOLERANCE (relative to 1 + |rhs|; a few roundings): a tiny ε on dofs the rows
+# constrain loses digits in x = D⁻¹(...), which the residual shows.
+REFINEMENTS, REFINE_TOLERANCE = 2, 1e-13
 # A bound is active at a solver's answer within this (relative to 1 + |bound|).
 ACTIVE_TOLERANCE = 1e-9
 
@@ -93,24 +94,26 @@ class DampedLeastSquares:
         x *= dinv
         if fixed is not None:
             x += values
-        met = self._fits(R, rhs)
+        met = self._fits(R, rhs, REFINE_TOLERANCE)
         for _ in range(REFINEMENTS):
             if met is everywhere(len(x)) or met.all():
                 break
             correction, _ = cholesky_solve(K, self._fit, SINGULAR_RATIO)  # K δz = −residual
             z -= correction
             x -= vecmat(correction, scaled, self._Rz)
-            met = self._fits(R, rhs)
+            met = self._fits(R, rhs, REFINE_TOLERANCE)
+        if not (met is everywhere(len(x)) or met.all()):
+            met = self._fits(R, rhs, EQUALITY_TOLERANCE)
         finite = everywhere(len(x)) if all_finite(x) else np.isfinite(x).all(axis=1)
         return x, z, both(solved, finite, met)
 
-    def _fits(self, R, rhs) -> np.ndarray:
-        """(N,) whether R x + [z₁; 0] meets rhs to ``EQUALITY_TOLERANCE`` (the system's
-        residual; the hard rows' miss is its second part), leaving the miss in ``_fit``."""
+    def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
+        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual; the
+        hard rows' miss is its second part), leaving the miss in ``_fit``."""
         fit = matvec(R, self.x, self._fit)
         if self.soft_rows:
             fit[:, :self.soft_rows] += self.z[:, :self.soft_rows]
-        return rows_met(fit, rhs, EQUALITY_TOLERANCE)
+        return rows_met(fit, rhs, tolerance)
 
     def gradient(self, damping, R, c) -> np.ndarray:
         """Dx + c − Rᵀz of the last solve (D = ``damping``, c None for zero): zero on the
