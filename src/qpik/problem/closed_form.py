@@ -55,7 +55,7 @@ class DampedLeastSquares:
         self.soft_rows, self.rows = soft_rows, rows
         self.scaled, self.K = np.empty((n, m, nv)), np.empty((n, m, m))  # R D⁻¹, R D⁻¹ Rᵀ + diag(I, 0)
         self._soft_diagonal = np.einsum("nii->ni", self.K)[:, :soft_rows]  # a writable view
-        self.z, self._Dc, self._Rv, self._fit = np.empty((n, m)), np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
+        self.z, self._Rv, self._fit = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
         self.x, self._held_inverse = np.empty((n, nv)), np.empty((n, nv))
         self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
@@ -83,10 +83,12 @@ class DampedLeastSquares:
             right = np.subtract(rhs, matvec(R, values, self._Rv), self._Rv)
         np.multiply(R, dinv[:, None, :], scaled)
         outer_product(scaled, R, K)
-        self._soft_diagonal += 1.0
-        if c is not None:
-            right = np.add(right, matvec(scaled, c, self._Dc), self._Dc)
-        np.copyto(z, right)
+        if self.soft_rows:
+            self._soft_diagonal += 1.0
+        if c is None:
+            np.copyto(z, right)
+        else:
+            np.add(right, matvec(scaled, c, z), z)
         _, solved = cholesky_solve(K, z, SINGULAR_RATIO, in_place=True)
         vecmat(z, R, x)
         if c is not None:
@@ -104,8 +106,9 @@ class DampedLeastSquares:
             met = self._fits(R, rhs, REFINE_TOLERANCE)
         if not (met is everywhere(len(x)) or met.all()):
             met = self._fits(R, rhs, EQUALITY_TOLERANCE)
-        finite = everywhere(len(x)) if all_finite(x) else np.isfinite(x).all(axis=1)
-        return x, z, both(solved, finite, met)
+        if R.shape[1]:  # a non-finite x leaves a non-finite residual (NaN even where R is 0)
+            return x, z, both(solved, met)
+        return x, z, everywhere(len(x)) if all_finite(x) else np.isfinite(x).all(axis=1)
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
         """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual; the
