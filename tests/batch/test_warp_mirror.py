@@ -20,7 +20,7 @@ wp = pytest.importorskip("warp", reason="the warp back-end needs the gpu extra (
 
 from qpik.batch.backends import warp_mirror as mirror  # noqa: E402
 from qpik import numerics  # noqa: E402
-from qpik.problem.closed_form import EQUALITY_TOLERANCE, EqualityQP, inside, rows_met  # noqa: E402
+from qpik.problem.closed_form import EQUALITY_TOLERANCE, inside, rows_met  # noqa: E402
 
 DEVICE = "cpu"
 N = 64
@@ -178,19 +178,6 @@ def test_cholesky_solve_refuses_what_the_engine_refuses():
     assert ok.all() and X.shape == (3, 0, 1)
 
 
-def test_weighted_gram_equals_the_engines():
-    rng = np.random.default_rng(5)
-    J, weight = rng.normal(size=(N, 5, 7)), rng.uniform(0.1, 2.0, 5)
-    out = _output(N, wp.float64, (7, 7))
-    for w in (weight, None):
-        ones = np.ones(5) if w is None else w  # the engine's None: unit weights
-        _run(mirror.weighted_gram_worlds, N, _device(J), _device(ones), out)
-        expected = numerics.weighted_gram(J, w, np.empty((N, 7, 7)))
-        # two orders of a sum of 5 products: 2·5·ε times the sum of their magnitudes
-        magnitudes = np.abs(J).transpose(0, 2, 1) @ (np.abs(J) * ones[:, None])
-        assert np.linalg.norm(out.numpy() - expected) <= 2 * 5 * EPS * np.linalg.norm(magnitudes)
-
-
 def test_products_equal_the_engines():
     rng = np.random.default_rng(7)
     A, x, y = rng.normal(size=(N, 3, 7)), rng.normal(size=(N, 7)), rng.normal(size=(N, 3))
@@ -258,76 +245,3 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
             expected = inside(x, box, *(rows or ()))
         assert flags.numpy().astype(bool).tolist() == expected.tolist() == [True, True, True, False, False, False,
                                                                              False, rows is None]
-
-
-# -- the closed form -----------------------------------------------------------------------------
-NV, MEQ = 7, 3
-
-
-def _problems(rng, n: int, meq: int, dense: bool, held: bool):
-    """n worlds of EqualityQP.solve's arguments, the last ones refused: a NaN in c, held
-    dofs leaving fewer free columns than rows (S singular) or dependent rows, and for a
-    dense H an indefinite one."""
-    H = _spd(rng, n, NV) + np.eye(NV)
-    inverse_diagonal = 1.0 / rng.uniform(0.1, 2.0, (n, NV))
-    c, A, b = rng.normal(size=(n, NV)), rng.normal(size=(n, meq, NV)), rng.normal(size=(n, meq))
-    fixed = np.zeros((n, NV), dtype=bool)
-    values = np.zeros((n, NV))
-    if held:
-        for w in range(n - 4):
-            fixed[w, rng.choice(NV, size=w % 3, replace=False)] = True  # 0, 1 or 2 dofs held
-        values[fixed] = rng.uniform(-1.0, 1.0, fixed.sum())
-    c[-1, 2] = np.nan
-    if meq:
-        fixed[-2, : NV - meq + 1] = held  # meq − 1 free columns: S singular
-        A[-3, 1] = A[-3, 0]  # dependent rows
-    if dense:
-        H[-4] -= 5.0 * np.linalg.eigvalsh(H[-4]).max() * np.eye(NV) / 2  # indefinite
-    return inverse_diagonal, H, c, A, b, fixed, values
-
-
-def _device_solve(inverse_diagonal, H, c, A, b, fixed, values, dense: bool, held: bool):
-    n, meq = len(c), A.shape[1]
-    arrays = mirror.equality_qp_arrays(n, NV, meq, DEVICE)
-    g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
-    _run(mirror.equality_qp_worlds, n, _device(inverse_diagonal), _device(H), _device(c), _device(A), _device(b),
-         _device(fixed.astype(np.int32), wp.int32), _device(values), int(dense), int(held), arrays, g, ok)
-    return arrays.x.numpy(), arrays.y.numpy(), g.numpy(), ok.numpy().astype(bool)
-
-
-def _kkt_condition(H, A, fixed) -> float:
-    """κ of the KKT matrix [[H̃, Ãᵀ], [Ã, 0]] of one world (held dofs as the closed form
-    holds them)."""
-    free = ~fixed
-    Ht = np.where(free[:, None] & free[None, :], H, 0.0) + np.diag(fixed.astype(float))
-    At = A * free
-    K = np.block([[Ht, At.T], [At, np.zeros((len(A), len(A)))]])
-    return np.linalg.cond(K)
-
-
-@pytest.mark.parametrize("meq", [0, MEQ])
-@pytest.mark.parametrize("dense", [False, True])
-@pytest.mark.parametrize("held", [False, True])
-def test_equality_qp_solve_and_gradient_equal_the_engines(meq, dense, held):
-    rng = np.random.default_rng(100 * meq + 10 * dense + held)
-    n = 24
-    inverse_diagonal, H, c, A, b, fixed, values = _problems(rng, n, meq, dense, held)
-    x, y, g, ok = _device_solve(inverse_diagonal, H, c, A, b, fixed, values, dense, held)
-    qp = EqualityQP(n, NV, meq)
-    arguments = (None, H) if dense else (inverse_diagonal, None)
-    expected_x, expected_y, expected_ok = qp.solve(*arguments, c, A, b, *((fixed, values) if held else ()))
-    expected_x, expected_y = expected_x.copy(), expected_y.copy()
-    expected_g = qp.gradient(*arguments, c, A, expected_y)
-    refused = [n - 1] + ([n - 3] if meq else []) + ([n - 2] if meq and held else []) + ([n - 4] if dense else [])
-    assert np.flatnonzero(~ok).tolist() == np.flatnonzero(~np.asarray(expected_ok)).tolist() == sorted(refused)
-    hessians = H if dense else np.stack([np.diag(1.0 / d) for d in inverse_diagonal])
-    for w in np.flatnonzero(ok):
-        # Two summation orders of the same solve: 10 (nv + meq) ε κ(KKT) relative to the answer.
-        bound = 10 * (NV + meq) * EPS * _kkt_condition(hessians[w], A[w], fixed[w] if held else np.zeros(NV, bool))
-        assert np.linalg.norm(x[w] - expected_x[w]) <= bound * np.linalg.norm(expected_x[w])
-        assert np.linalg.norm(y[w] - expected_y[w]) <= bound * np.linalg.norm(expected_y[w])
-        scale = np.linalg.norm(hessians[w], 2) * np.linalg.norm(x[w]) + np.linalg.norm(c[w]) + \
-            (np.linalg.norm(A[w], 2) * np.linalg.norm(y[w]) if meq else 0.0)
-        assert np.linalg.norm(g[w] - expected_g[w]) <= bound * scale
-        if held:
-            np.testing.assert_array_equal(x[w][fixed[w]], values[w][fixed[w]])  # x = v on the held dofs

@@ -15,7 +15,6 @@ engine primitive                               device function
 ``numerics.RotationError``                     :func:`rotation_error`
 ``numerics.ConfigurationDifference``           :func:`configuration_difference`
 ``numerics.cholesky_solve``                    :func:`cholesky_solve`
-``numerics.weighted_gram``                     :func:`weighted_gram`
 ``numerics.all_finite``                        :func:`all_finite`
 ``numerics.matvec``                            :func:`matvec`
 ``numerics.vecmat``                            :func:`vecmat`
@@ -23,8 +22,6 @@ engine primitive                               device function
 ``numerics.skew``                              :func:`skew`
 ``closed_form.rows_met``                       :func:`rows_met`
 ``closed_form.inside``                         :func:`inside`
-``closed_form.EqualityQP.solve``               :func:`equality_qp_solve`
-``closed_form.EqualityQP.gradient``            :func:`equality_qp_gradient`
 =============================================  ================================================
 
 Each function is mapped over N worlds by a thin kernel (``*_worlds``), one thread per
@@ -53,10 +50,9 @@ from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
-__all__ = ["EqualityQPArrays", "all_finite", "cholesky_solve", "configuration_difference", "equality_qp_arrays",
-           "equality_qp_gradient", "equality_qp_solve", "inside", "mat2quat", "matvec", "normalize4", "outer_product",
-           "quat2mat", "quat2vel", "quat_integrate", "quat_mul", "rotation_error", "rows_met", "skew", "vecmat",
-           "weighted_gram"]
+__all__ = ["all_finite", "cholesky_solve", "configuration_difference", "inside", "mat2quat", "matvec", "normalize4",
+           "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul", "rotation_error", "rows_met", "skew",
+           "vecmat"]
 
 # Forward code only: nothing here is differentiated, and the adjoints would double the compile.
 wp.set_module_options({"enable_backward": False})
@@ -64,7 +60,6 @@ wp.set_module_options({"enable_backward": False})
 F64 = wp.float64
 MINVAL = wp.constant(F64(_MINVAL))  # mjMINVAL, as numerics.MINVAL
 PI = wp.constant(F64(math.pi))
-INF = wp.constant(F64(math.inf))
 # The closed form's thresholds: the engine's own values.
 EQUALITY_TOLERANCE = wp.constant(F64(_EQUALITY_TOLERANCE))
 SINGULAR_RATIO = wp.constant(F64(_SINGULAR_RATIO))
@@ -284,18 +279,6 @@ def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, r
 
 
 @wp.func
-def weighted_gram(J: wp.array3d(dtype=F64), weight: wp.array(dtype=F64), w: int, out: wp.array3d(dtype=F64)):
-    """``numerics.weighted_gram``: out[w] = J[w]ᵀ diag(weight) J[w] (ones for the engine's
-    ``weight=None``), as (J ∘ weight)ᵀ J."""
-    for a in range(J.shape[2]):
-        for b in range(J.shape[2]):
-            s = F64(0.0)
-            for r in range(J.shape[1]):
-                s = s + J[w, r, a] * weight[r] * J[w, r, b]
-            out[w, a, b] = s
-
-
-@wp.func
 def all_finite(a: wp.array2d(dtype=F64), w: int) -> int:
     """``numerics.all_finite`` of world w's row a[w]: 1 where every entry is finite."""
     for i in range(a.shape[1]):
@@ -375,162 +358,6 @@ def inside(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.array3d(d
     return 1
 
 
-# -- the closed form -------------------------------------------------------------------------
-@wp.struct
-class EqualityQPArrays:
-    """The buffers of :func:`equality_qp_solve` (an ``EqualityQP``'s, N worlds of nv
-    dofs and meq rows): :func:`equality_qp_arrays` allocates them."""
-
-    scaled: wp.array3d(dtype=F64)  # (N, meq, nv): Ã H̃⁻¹
-    S: wp.array3d(dtype=F64)  # (N, meq, meq): Ã H̃⁻¹ Ãᵀ
-    S_factor: wp.array3d(dtype=F64)  # (N, meq, meq): its Cholesky factor
-    y: wp.array2d(dtype=F64)  # (N, meq): b + A s, then the multipliers y
-    y_column: wp.array3d(dtype=F64)  # (N, meq, 1): a view of y (the Cholesky solve's right-hand side)
-    residual: wp.array2d(dtype=F64)  # (N, meq): A x
-    shift: wp.array2d(dtype=F64)  # (N, nv): s = H̃⁻¹ c̃ (−v on held dofs)
-    x: wp.array2d(dtype=F64)  # (N, nv)
-    multiplied: wp.array2d(dtype=F64)  # (N, nv): H v (held dofs, dense H), Aᵀ y (the gradient)
-    held_H: wp.array3d(dtype=F64)  # (N, nv, nv): H̃ (a dense H)
-    H_factor: wp.array3d(dtype=F64)  # (N, nv, nv): its Cholesky factor
-    columns: wp.array3d(dtype=F64)  # (N, nv, meq + 1): [Ãᵀ | c̃], then H̃⁻¹ [Ãᵀ | c̃]
-
-
-def equality_qp_arrays(n: int, nv: int, meq: int, device) -> EqualityQPArrays:
-    """:class:`EqualityQPArrays` for n worlds on ``device`` (the dense-H ones included)."""
-    arrays = EqualityQPArrays()
-    for name, shape in (("scaled", (n, meq, nv)), ("S", (n, meq, meq)), ("S_factor", (n, meq, meq)),
-                        ("y", (n, meq)), ("residual", (n, meq)), ("shift", (n, nv)), ("x", (n, nv)),
-                        ("multiplied", (n, nv)), ("held_H", (n, nv, nv)), ("H_factor", (n, nv, nv)),
-                        ("columns", (n, nv, meq + 1))):
-        setattr(arrays, name, wp.zeros(shape, dtype=F64, device=device))
-    arrays.y_column = arrays.y.reshape((n, meq, 1))
-    return arrays
-
-
-@wp.func
-def _factor_diagonal(inverse_diagonal: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
-                     A: wp.array3d(dtype=F64), fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64),
-                     held: int, w: int, arrays: EqualityQPArrays):
-    """``scaled`` = A diag(H̃⁻¹) and ``shift`` = H̃⁻¹ c − v of a diagonal H (H̃⁻¹ zero on the
-    held dofs), as ``EqualityQP.solve``."""
-    for j in range(c.shape[1]):
-        inverse = inverse_diagonal[w, j]
-        if held != 0 and fixed[w, j] != 0:
-            inverse = F64(0.0)
-        for i in range(A.shape[1]):
-            arrays.scaled[w, i, j] = A[w, i, j] * inverse
-        arrays.shift[w, j] = inverse * c[w, j]
-        if held != 0:
-            arrays.shift[w, j] = arrays.shift[w, j] - values[w, j]
-
-
-@wp.func
-def _factor_dense(H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64),
-                  fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), held: int, w: int,
-                  arrays: EqualityQPArrays) -> int:
-    """``EqualityQP._factor_dense``: ``scaled`` = (H̃⁻¹ Ãᵀ)ᵀ and ``shift`` = H̃⁻¹ c̃ from one
-    Cholesky solve of H̃ [Ãᵀ | c̃]; held dofs: c̃ = −v there and c + H v elsewhere, H̃ the
-    identity's rows and columns there, Ã without their columns. Whether H̃ is positive
-    definite."""
-    nv = c.shape[1]
-    meq = A.shape[1]
-    if held != 0:
-        matvec(H, values, w, arrays.multiplied)
-    for i in range(nv):
-        free_i = held == 0 or fixed[w, i] == 0
-        target = c[w, i]
-        if held != 0:
-            target = c[w, i] + arrays.multiplied[w, i]
-            if not free_i:
-                target = -values[w, i]
-        for j in range(nv):
-            entry = F64(0.0)
-            if free_i and (held == 0 or fixed[w, j] == 0):
-                entry = H[w, i, j]
-            if i == j and not free_i:
-                entry = entry + F64(1.0)
-            arrays.held_H[w, i, j] = entry
-        keep = F64(1.0)
-        if not free_i:
-            keep = F64(0.0)
-        for r in range(meq):
-            arrays.columns[w, i, r] = A[w, r, i] * keep
-        arrays.columns[w, i, meq] = target
-    ok = cholesky_solve(arrays.held_H, arrays.columns, w, INF, arrays.H_factor)
-    for j in range(nv):
-        for r in range(meq):
-            arrays.scaled[w, r, j] = arrays.columns[w, j, r]
-        arrays.shift[w, j] = arrays.columns[w, j, meq]
-    return ok
-
-
-@wp.func
-def _minimiser(A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), w: int, arrays: EqualityQPArrays) -> int:
-    """From ``scaled`` and ``shift``: S = scaled Aᵀ, S y = b + A s, x = scaledᵀ y − s and
-    the rows' check (``EqualityQP.solve`` after the factorisation). Whether S is solved
-    (pivots spanning at most ``SINGULAR_RATIO``) and A x meets b to
-    ``EQUALITY_TOLERANCE``."""
-    outer_product(arrays.scaled, A, w, arrays.S)
-    matvec(A, arrays.shift, w, arrays.y)
-    for i in range(A.shape[1]):
-        arrays.y[w, i] = arrays.y[w, i] + b[w, i]
-    solved = cholesky_solve(arrays.S, arrays.y_column, w, SINGULAR_RATIO, arrays.S_factor)
-    vecmat(arrays.y, arrays.scaled, w, arrays.x)
-    for j in range(A.shape[2]):
-        arrays.x[w, j] = arrays.x[w, j] - arrays.shift[w, j]
-    matvec(A, arrays.x, w, arrays.residual)
-    if solved != 0 and rows_met(arrays.residual, b, w, EQUALITY_TOLERANCE) != 0:
-        return 1
-    return 0
-
-
-@wp.func
-def equality_qp_solve(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64),
-                      A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int),
-                      values: wp.array2d(dtype=F64), dense: int, held: int, w: int,
-                      arrays: EqualityQPArrays) -> int:
-    """``closed_form.EqualityQP.solve`` of world w: the minimiser x of ½xᵀHx + cᵀx s.t.
-    Ax = b into ``arrays.x[w]``, its multipliers into ``arrays.y[w]``, with the dofs
-    ``fixed`` held at ``values`` where ``held`` (the engine's ``fixed=None`` otherwise).
-    H is diagonal (``inverse_diagonal``: H⁻¹) unless ``dense`` (``H``). Returns 1 where H
-    is positive definite, S is not singular and x is finite (no rows) or meets the rows
-    to ``EQUALITY_TOLERANCE``, else 0."""
-    ok = int(1)
-    if dense != 0:
-        ok = _factor_dense(H, c, A, fixed, values, held, w, arrays)
-    else:
-        _factor_diagonal(inverse_diagonal, c, A, fixed, values, held, w, arrays)
-    if A.shape[1] == 0:
-        for j in range(c.shape[1]):
-            arrays.x[w, j] = -arrays.shift[w, j]
-        if ok != 0 and all_finite(arrays.x, w) != 0:
-            return 1
-        return 0
-    met = _minimiser(A, b, w, arrays)
-    if ok != 0 and met != 0:
-        return 1
-    return 0
-
-
-@wp.func
-def equality_qp_gradient(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64),
-                         c: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), dense: int, w: int,
-                         arrays: EqualityQPArrays, g: wp.array2d(dtype=F64)):
-    """``closed_form.EqualityQP.gradient``: g[w] = Hx + c − Aᵀy of the last solve (the
-    original H, c, A): on a held dof, its bound's multiplier."""
-    if dense != 0:
-        matvec(H, arrays.x, w, g)
-    else:
-        for j in range(c.shape[1]):
-            g[w, j] = arrays.x[w, j] / inverse_diagonal[w, j]
-    for j in range(c.shape[1]):
-        g[w, j] = g[w, j] + c[w, j]
-    if A.shape[1] > 0:
-        vecmat(arrays.y, A, w, arrays.multiplied)
-        for j in range(c.shape[1]):
-            g[w, j] = g[w, j] - arrays.multiplied[w, j]
-
-
 # -- one thread per world ----------------------------------------------------------------------
 @wp.kernel
 def normalize4_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
@@ -592,12 +419,6 @@ def cholesky_solve_worlds(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), ra
 
 
 @wp.kernel
-def weighted_gram_worlds(J: wp.array3d(dtype=F64), weight: wp.array(dtype=F64), out: wp.array3d(dtype=F64)):
-    w = wp.tid()
-    weighted_gram(J, weight, w, out)
-
-
-@wp.kernel
 def matvec_worlds(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), out: wp.array2d(dtype=F64)):
     w = wp.tid()
     matvec(A, x, w, out)
@@ -638,14 +459,3 @@ def inside_worlds(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.ar
                   h: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
     w = wp.tid()
     ok[w] = inside(x, box, G, h, w)
-
-
-@wp.kernel
-def equality_qp_worlds(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64),
-                       A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int),
-                       values: wp.array2d(dtype=F64), dense: int, held: int, arrays: EqualityQPArrays,
-                       g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
-    """:func:`equality_qp_solve` then :func:`equality_qp_gradient` in every world."""
-    w = wp.tid()
-    ok[w] = equality_qp_solve(inverse_diagonal, H, c, A, b, fixed, values, dense, held, w, arrays)
-    equality_qp_gradient(inverse_diagonal, H, c, A, dense, w, arrays, g)
