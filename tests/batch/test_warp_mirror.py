@@ -164,16 +164,23 @@ def test_cholesky_solve_equals_the_engines(k, columns):
 
 
 def test_cholesky_solve_refuses_what_the_engine_refuses():
+    rng = np.random.default_rng(8)
+    Q = np.linalg.qr(rng.normal(size=(5, 5)))[0][:3]  # three orthonormal rows of 5
+    rows = np.diag([1e-6, 1.0, 1e5]) @ Q  # orthogonal, of wildly different scales: solved (scale-free)
+    close = Q.copy()
+    close[2] = Q[1] + 1e-8 * Q[2]  # nearly dependent rows: √M_22 / L_22 = 1e8 > 1e6, refused
     good = np.eye(3)
-    refused = [np.diag([1.0, -1.0, 1.0]), np.zeros((3, 3)), np.diag([1.0, 1.0, 1e-14]),  # indefinite, singular,
-               np.diag([1.0, np.nan, 1.0]), np.diag([1.0, 1.0, np.inf])]  # pivots spanning 1e7; NaN; inf
-    M = np.stack([good, *refused, 2.0 * good])
+    M = np.stack([good, rows @ rows.T, np.diag([1.0, 1.0, np.inf]),  # inf: √inf <= ratio · inf, as the engine
+                  np.diag([1.0, -1.0, 1.0]), np.zeros((3, 3)), close @ close.T, np.diag([1.0, np.nan, 1.0]),
+                  2.0 * good])  # indefinite, singular, nearly dependent, NaN
     B = np.ones((len(M), 3, 1))
     X, ok = _cholesky(M, B, 1e6)
-    with np.errstate(invalid="ignore"):  # the NaN and inf worlds
+    with np.errstate(invalid="ignore"):  # the NaN world
         expected_X, expected = numerics.cholesky_solve(M, B, ratio=1e6)
-    assert ok.tolist() == expected.tolist() == [True] + [False] * len(refused) + [True]
+    assert ok.tolist() == expected.tolist() == [True] * 3 + [False] * 4 + [True]
     np.testing.assert_allclose(X[[0, -1]], expected_X[[0, -1]], rtol=0, atol=2 * EPS)  # √2 · √2 rounded
+    # The scaled rows' M is diagonal but for roundings: each X_i = 1 / M_ii to a few ε, relative.
+    np.testing.assert_allclose(X[1], expected_X[1], rtol=8 * EPS, atol=0)
     X, ok = _cholesky(np.zeros((3, 0, 0)), np.zeros((3, 0, 1)), 1e6)  # no rows: solved
     assert ok.all() and X.shape == (3, 0, 1)
 

@@ -223,33 +223,28 @@ def configuration_difference(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dty
 def _cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64), ratio: F64) -> int:
     """L (lower) with L Lᵀ = M[w] (its lower triangle read), a pivot of 1 where the
     Schur complement is not positive (as ``numerics._cholesky_solve_last``); whether
-    every pivot is positive and they span at most ``ratio``."""
+    every pivot L_jj is positive with √M_jj <= ``ratio`` L_jj."""
     k = M.shape[1]
-    low = F64(0.0)
-    high = F64(0.0)
+    ok = int(1)
     for j in range(k):
         s = F64(0.0)
         for i in range(j):
             s = s + L[w, j, i] * L[w, j, i]
         d = M[w, j, j] - s
         root = F64(1.0)
-        pivot = F64(0.0)
         if d > F64(0.0):
             root = wp.sqrt(d)
-            pivot = root
-        if j == 0 or pivot < low:
-            low = pivot
-        if j == 0 or pivot > high:
-            high = pivot
+            if not (wp.sqrt(M[w, j, j]) <= ratio * root):
+                ok = 0
+        else:
+            ok = 0
         L[w, j, j] = root
         for r in range(j + 1, k):
             t = F64(0.0)
             for i in range(j):
                 t = t + L[w, r, i] * L[w, j, i]
             L[w, r, j] = (M[w, r, j] - t) / root
-    if low > F64(0.0) and high <= ratio * low:
-        return 1
-    return 0
+    return ok
 
 
 @wp.func
@@ -257,8 +252,8 @@ def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, r
                    L: wp.array3d(dtype=F64)) -> int:
     """``numerics.cholesky_solve(M, B, ratio, in_place=True)`` of world w: B[w] (k, m)
     overwritten with X, M[w] X = B[w], by L Y = B then Lᵀ X = Y (L in ``L[w]``).
-    Returns 1 where M[w] is numerically positive definite (every pivot > 0) and its
-    pivots span at most ``ratio``, else 0 (X then means nothing); 1 for k = 0."""
+    Returns 1 where M[w] is numerically positive definite (every pivot > 0) within
+    ``ratio`` (√M_jj <= ratio L_jj for every j), else 0 (X then means nothing); 1 for k = 0."""
     k = M.shape[1]
     if k == 0:
         return 1
