@@ -20,7 +20,9 @@ wp = pytest.importorskip("warp", reason="the warp back-end needs the gpu extra (
 
 from qpik.batch.backends import warp_mirror as mirror  # noqa: E402
 from qpik import numerics  # noqa: E402
-from qpik.problem.closed_form import EQUALITY_TOLERANCE, inside, rows_met  # noqa: E402
+from qpik.problem import closed_form  # noqa: E402
+from qpik.problem.closed_form import (EQUALITY_TOLERANCE, REFINE_TOLERANCE, DampedLeastSquares, inside,  # noqa: E402
+                                      rows_met)
 
 DEVICE = "cpu"
 N = 64
@@ -252,3 +254,76 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
             expected = inside(x, box, *(rows or ()))
         assert flags.numpy().astype(bool).tolist() == expected.tolist() == [True, True, True, False, False, False,
                                                                              False, rows is None]
+
+
+# -- the closed form -----------------------------------------------------------------------------
+NV, BASE = 9, 6  # a floating base's 6 dofs and 3 joints
+
+
+def _problems(rng, n: int, soft_rows: int, rows: int, held: bool):
+    """n worlds of DampedLeastSquares.solve's and .gradient's arguments: random ones
+    (0, 1 or 2 dofs held where ``held``), then a floating base's world (D = 1e-12 on the
+    base, a posture's 1e-4 on the joints: solved only by refining where there are more rows
+    than base dofs), one with dependent hard rows (singular) and one with a NaN in D⁻¹."""
+    m = soft_rows + rows
+    damping = rng.uniform(0.1, 2.0, (n, NV))
+    damping[-3] = np.r_[np.full(BASE, 1e-12), np.full(NV - BASE, 1e-4)]
+    dinv = 1.0 / damping
+    dinv[-1, 2] = np.nan
+    R, rhs, c = rng.normal(size=(n, m, NV)), rng.normal(size=(n, m)), rng.normal(size=(n, NV))
+    c[-3] *= damping[-3]  # a posture's c: D (q − q_ref)
+    if rows >= 2:
+        R[-2, -1] = R[-2, -2]
+    fixed, values = np.zeros((n, NV), dtype=bool), np.zeros((n, NV))
+    if held:
+        for w in range(n - 1):  # never dof 2 (the NaN world's)
+            fixed[w, rng.choice([0, 4, 8], size=w % 3, replace=False)] = True
+        values[fixed] = rng.uniform(-1.0, 1.0, fixed.sum())
+    return dinv, damping, R, rhs, c, fixed, values
+
+
+def _augmented(damping, R, soft_rows, fixed):
+    """One world's solve as one system in (x, z): D x − Rᵀz = −c on the free dofs, x = v on
+    the held ones, R x + [z₁; 0] = rhs."""
+    m = len(R)
+    top = np.hstack([np.diag(np.where(fixed, 1.0, damping)), -R.T * ~fixed[:, None]])
+    return np.vstack([top, np.hstack([R, np.diag(np.arange(m) < soft_rows).astype(float)])])
+
+
+@pytest.mark.parametrize("soft_rows, rows", [(8, 0), (0, 3), (6, 2), (0, 0)])
+@pytest.mark.parametrize("linear", [False, True])
+@pytest.mark.parametrize("held", [False, True])
+def test_damped_least_squares_equals_the_engines(soft_rows, rows, linear, held, monkeypatch):
+    n, m = 12, soft_rows + rows
+    dinv, damping, R, rhs, c, fixed, values = _problems(np.random.default_rng(20), n, soft_rows, rows, held)
+    arrays = mirror.damped_least_squares_arrays(n, NV, soft_rows, rows, DEVICE)
+    g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
+    _run(mirror.damped_least_squares_worlds, n, _device(dinv), _device(damping), _device(R), _device(rhs),
+         _device(c), _device(fixed.astype(np.int32), wp.int32), _device(values), int(linear), int(held), arrays, g, ok)
+    x, z, g, ok = arrays.x.numpy(), arrays.z.numpy(), g.numpy(), ok.numpy().astype(bool)
+    form, held_arguments = DampedLeastSquares(n, NV, soft_rows, rows), (fixed, values) if held else ()
+    with np.errstate(invalid="ignore"):  # the NaN world
+        expected_x, expected_z, expected_ok = (np.array(a) for a in form.solve(dinv, R, rhs, c if linear else None,
+                                                                                 *held_arguments))
+        expected_g = form.gradient(damping, R, c if linear else None).copy()
+    refused = [n - 2] * (rows >= 2) + [n - 1]
+    assert np.flatnonzero(~ok).tolist() == np.flatnonzero(~expected_ok).tolist() == refused
+    if m > BASE:  # the floating-base world is solved only by refining
+        monkeypatch.setattr(closed_form, "REFINEMENTS", 0)
+        assert not form.solve(dinv, R, rhs, c if linear else None, *held_arguments)[2][n - 3]
+    for w in np.flatnonzero(ok):
+        # Each answer solves the augmented system A (x, z) = (−c, v, rhs) to within its
+        # residual: REFINE_TOLERANCE (1 + |rhs|) on the rows (refinement's stop; every world
+        # here reaches it), and a few roundings, 10 (nv + m) ε times the terms' magnitudes,
+        # everywhere. So the two differ by at most twice that over A's least singular value;
+        # the gradient [D, −Rᵀ] (x, z) + c by ‖[D, −Rᵀ]‖ times that, plus its own roundings.
+        A = _augmented(damping[w], R[w], soft_rows, fixed[w])
+        rounding = 10 * (NV + m) * EPS * (np.linalg.norm(R[w], 2) * (np.linalg.norm(expected_x[w]) +
+                   np.linalg.norm(expected_z[w])) + damping[w].max() * np.linalg.norm(expected_x[w]) +
+                   np.linalg.norm(c[w]) + np.linalg.norm(rhs[w]))
+        miss = REFINE_TOLERANCE * (1.0 + np.linalg.norm(rhs[w])) + rounding
+        bound = 2 * miss / np.linalg.svd(A, compute_uv=False)[-1]
+        assert np.linalg.norm(x[w] - expected_x[w]) + np.linalg.norm(z[w] - expected_z[w]) <= bound
+        gradient_bound = np.linalg.norm(np.hstack([np.diag(damping[w]), -R[w].T]), 2) * bound + rounding
+        assert np.linalg.norm(g[w] - expected_g[w]) <= gradient_bound
+        np.testing.assert_array_equal(x[w][fixed[w]], values[w][fixed[w]])  # x = v on the held dofs

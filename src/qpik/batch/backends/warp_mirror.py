@@ -22,6 +22,8 @@ engine primitive                               device function
 ``numerics.skew``                              :func:`skew`
 ``closed_form.rows_met``                       :func:`rows_met`
 ``closed_form.inside``                         :func:`inside`
+``closed_form.DampedLeastSquares.solve``       :func:`damped_least_squares_solve`
+``closed_form.DampedLeastSquares.gradient``    :func:`damped_least_squares_gradient`
 =============================================  ================================================
 
 Each function is mapped over N worlds by a thin kernel (``*_worlds``), one thread per
@@ -44,15 +46,15 @@ import math
 import mujoco
 
 from ...numerics import MINVAL as _MINVAL
-from ...problem.closed_form import EQUALITY_TOLERANCE as _EQUALITY_TOLERANCE
-from ...problem.closed_form import SINGULAR_RATIO as _SINGULAR_RATIO
+from ...problem import closed_form as _closed_form
 from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
-__all__ = ["all_finite", "cholesky_solve", "configuration_difference", "inside", "mat2quat", "matvec", "normalize4",
-           "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul", "rotation_error", "rows_met", "skew",
-           "vecmat"]
+__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_solve", "configuration_difference",
+           "damped_least_squares_arrays", "damped_least_squares_gradient", "damped_least_squares_solve", "inside",
+           "mat2quat", "matvec", "normalize4", "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul",
+           "rotation_error", "rows_met", "skew", "vecmat"]
 
 # Forward code only: nothing here is differentiated, and the adjoints would double the compile.
 wp.set_module_options({"enable_backward": False})
@@ -61,8 +63,10 @@ F64 = wp.float64
 MINVAL = wp.constant(F64(_MINVAL))  # mjMINVAL, as numerics.MINVAL
 PI = wp.constant(F64(math.pi))
 # The closed form's thresholds: the engine's own values.
-EQUALITY_TOLERANCE = wp.constant(F64(_EQUALITY_TOLERANCE))
-SINGULAR_RATIO = wp.constant(F64(_SINGULAR_RATIO))
+EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EQUALITY_TOLERANCE))
+REFINE_TOLERANCE = wp.constant(F64(_closed_form.REFINE_TOLERANCE))
+SINGULAR_RATIO = wp.constant(F64(_closed_form.SINGULAR_RATIO))
+REFINEMENTS = wp.constant(_closed_form.REFINEMENTS)
 JOINT_FREE = wp.constant(int(mujoco.mjtJoint.mjJNT_FREE))
 JOINT_BALL = wp.constant(int(mujoco.mjtJoint.mjJNT_BALL))
 
@@ -353,6 +357,123 @@ def inside(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.array3d(d
     return 1
 
 
+# -- the closed form -------------------------------------------------------------------------
+@wp.struct
+class DampedLeastSquaresArrays:
+    """The buffers of :func:`damped_least_squares_solve` (a ``DampedLeastSquares``'s: N
+    worlds of nv dofs, soft_rows rows R₁ then the hard rows R₂, m in all):
+    :func:`damped_least_squares_arrays` allocates them."""
+
+    soft_rows: int
+    dinv: wp.array2d(dtype=F64)  # (N, nv): D⁻¹, zero on the held dofs
+    scaled: wp.array3d(dtype=F64)  # (N, m, nv): R D⁻¹
+    K: wp.array3d(dtype=F64)  # (N, m, m): R D⁻¹ Rᵀ + diag(I, 0)
+    factor: wp.array3d(dtype=F64)  # (N, m, m): its Cholesky factor
+    z: wp.array2d(dtype=F64)  # (N, m): the right-hand side, then z
+    fit: wp.array2d(dtype=F64)  # (N, m): R v, R D⁻¹ c, the residual R x + [z₁; 0] − rhs, δz
+    z_column: wp.array3d(dtype=F64)  # (N, m, 1): views of z and fit (Cholesky right-hand sides)
+    fit_column: wp.array3d(dtype=F64)
+    x: wp.array2d(dtype=F64)  # (N, nv)
+    Rz: wp.array2d(dtype=F64)  # (N, nv): (R D⁻¹)ᵀ δz, Rᵀ z
+
+
+def damped_least_squares_arrays(n: int, nv: int, soft_rows: int, rows: int, device) -> DampedLeastSquaresArrays:
+    """:class:`DampedLeastSquaresArrays` for n worlds on ``device``."""
+    m = soft_rows + rows
+    arrays = DampedLeastSquaresArrays()
+    arrays.soft_rows = soft_rows
+    for name, shape in (("dinv", (n, nv)), ("scaled", (n, m, nv)), ("K", (n, m, m)), ("factor", (n, m, m)),
+                        ("z", (n, m)), ("fit", (n, m)), ("x", (n, nv)), ("Rz", (n, nv))):
+        setattr(arrays, name, wp.zeros(shape, dtype=F64, device=device))
+    arrays.z_column, arrays.fit_column = arrays.z.reshape((n, m, 1)), arrays.fit.reshape((n, m, 1))
+    return arrays
+
+
+@wp.func
+def _add(y: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64), w: int, sign: F64):
+    """y[w] += x[w] (``sign`` 1) or y[w] −= x[w] (−1: the same rounding)."""
+    for i in range(y.shape[1]):
+        y[w, i] = y[w, i] + sign * x[w, i]
+
+
+@wp.func
+def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, tolerance: F64,
+          arrays: DampedLeastSquaresArrays) -> int:
+    """``DampedLeastSquares._fits``: whether R x + [z₁; 0] meets rhs to ``tolerance``
+    (:func:`rows_met`), the miss left in ``fit``."""
+    matvec(R, arrays.x, w, arrays.fit)
+    for i in range(arrays.soft_rows):
+        arrays.fit[w, i] = arrays.fit[w, i] + arrays.z[w, i]
+    met = rows_met(arrays.fit, rhs, w, tolerance)
+    _add(arrays.fit, rhs, w, F64(-1.0))
+    return met
+
+
+@wp.func
+def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64),
+                               c: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64),
+                               linear: int, held: int, w: int, arrays: DampedLeastSquaresArrays) -> int:
+    """``closed_form.DampedLeastSquares.solve`` of world w: x = D⁻¹(Rᵀz − c) into
+    ``arrays.x[w]`` and z, (R D⁻¹ Rᵀ + diag(I, 0)) z = rhs + R D⁻¹ c, into ``arrays.z[w]``,
+    c read where ``linear`` (else zero), the dofs ``fixed`` held at ``values`` where
+    ``held`` (D⁻¹ = 0 there, rhs − R values); then iterative refinement, ``REFINEMENTS``
+    steps at most while the residual misses ``REFINE_TOLERANCE``. Returns 1 where the
+    system is solved (within ``SINGULAR_RATIO``), x is finite and the residual is within
+    ``EQUALITY_TOLERANCE``, else 0."""
+    for j in range(dinv.shape[1]):
+        arrays.dinv[w, j] = dinv[w, j]
+        if held != 0 and fixed[w, j] != 0:
+            arrays.dinv[w, j] = F64(0.0)
+        for i in range(R.shape[1]):
+            arrays.scaled[w, i, j] = R[w, i, j] * arrays.dinv[w, j]
+    outer_product(arrays.scaled, R, w, arrays.K)
+    for i in range(arrays.soft_rows):
+        arrays.K[w, i, i] = arrays.K[w, i, i] + F64(1.0)
+    for i in range(R.shape[1]):
+        arrays.z[w, i] = rhs[w, i]
+    if held != 0:
+        matvec(R, values, w, arrays.fit)
+        _add(arrays.z, arrays.fit, w, F64(-1.0))
+    if linear != 0:
+        matvec(arrays.scaled, c, w, arrays.fit)
+        _add(arrays.z, arrays.fit, w, F64(1.0))
+    solved = cholesky_solve(arrays.K, arrays.z_column, w, SINGULAR_RATIO, arrays.factor)
+    vecmat(arrays.z, R, w, arrays.x)
+    if linear != 0:
+        _add(arrays.x, c, w, F64(-1.0))
+    for j in range(dinv.shape[1]):
+        arrays.x[w, j] = arrays.x[w, j] * arrays.dinv[w, j]
+    if held != 0:
+        _add(arrays.x, values, w, F64(1.0))
+    met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
+    for _ in range(REFINEMENTS):
+        if met == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
+            cholesky_solve(arrays.K, arrays.fit_column, w, SINGULAR_RATIO, arrays.factor)
+            _add(arrays.z, arrays.fit, w, F64(-1.0))
+            vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
+            _add(arrays.x, arrays.Rz, w, F64(-1.0))
+            met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
+    if met == 0:
+        met = _fits(R, rhs, w, EQUALITY_TOLERANCE, arrays)
+    if solved != 0 and all_finite(arrays.x, w) != 0 and met != 0:
+        return 1
+    return 0
+
+
+@wp.func
+def damped_least_squares_gradient(damping: wp.array2d(dtype=F64), R: wp.array3d(dtype=F64),
+                                  c: wp.array2d(dtype=F64), linear: int, w: int, arrays: DampedLeastSquaresArrays,
+                                  g: wp.array2d(dtype=F64)):
+    """``closed_form.DampedLeastSquares.gradient``: g[w] = D x + c − Rᵀz of the last solve
+    (D = ``damping``, c zero unless ``linear``): on a held dof, its bound's multiplier."""
+    for j in range(damping.shape[1]):
+        g[w, j] = damping[w, j] * arrays.x[w, j]
+    if linear != 0:
+        _add(g, c, w, F64(1.0))
+    vecmat(arrays.z, R, w, arrays.Rz)
+    _add(g, arrays.Rz, w, F64(-1.0))
+
+
 # -- one thread per world ----------------------------------------------------------------------
 @wp.kernel
 def normalize4_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
@@ -454,3 +575,14 @@ def inside_worlds(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.ar
                   h: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
     w = wp.tid()
     ok[w] = inside(x, box, G, h, w)
+
+
+@wp.kernel
+def damped_least_squares_worlds(dinv: wp.array2d(dtype=F64), damping: wp.array2d(dtype=F64),
+                                R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
+                                fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), linear: int, held: int,
+                                arrays: DampedLeastSquaresArrays, g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
+    """:func:`damped_least_squares_solve` then :func:`damped_least_squares_gradient` in every world."""
+    w = wp.tid()
+    ok[w] = damped_least_squares_solve(dinv, R, rhs, c, fixed, values, linear, held, w, arrays)
+    damped_least_squares_gradient(damping, R, c, linear, w, arrays, g)
