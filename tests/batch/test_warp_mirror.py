@@ -20,7 +20,9 @@ wp = pytest.importorskip("warp", reason="the warp back-end needs the gpu extra (
 
 from qpik.batch.backends import warp_mirror as mirror  # noqa: E402
 from qpik import numerics  # noqa: E402
-from qpik.problem.closed_form import EQUALITY_TOLERANCE, EqualityQP, inside, rows_met  # noqa: E402
+from qpik.problem import closed_form  # noqa: E402
+from qpik.problem.closed_form import (EQUALITY_TOLERANCE, REFINE_TOLERANCE, DampedLeastSquares, inside,  # noqa: E402
+                                      rows_met)
 
 DEVICE = "cpu"
 N = 64
@@ -164,31 +166,25 @@ def test_cholesky_solve_equals_the_engines(k, columns):
 
 
 def test_cholesky_solve_refuses_what_the_engine_refuses():
+    rng = np.random.default_rng(8)
+    Q = np.linalg.qr(rng.normal(size=(5, 5)))[0][:3]  # three orthonormal rows of 5
+    rows = np.diag([1e-6, 1.0, 1e5]) @ Q  # orthogonal, of wildly different scales: solved (scale-free)
+    close = Q.copy()
+    close[2] = Q[1] + 1e-8 * Q[2]  # nearly dependent rows: √M_22 / L_22 = 1e8 > 1e6, refused
     good = np.eye(3)
-    refused = [np.diag([1.0, -1.0, 1.0]), np.zeros((3, 3)), np.diag([1.0, 1.0, 1e-14]),  # indefinite, singular,
-               np.diag([1.0, np.nan, 1.0]), np.diag([1.0, 1.0, np.inf])]  # pivots spanning 1e7; NaN; inf
-    M = np.stack([good, *refused, 2.0 * good])
+    M = np.stack([good, rows @ rows.T, np.diag([1.0, 1.0, np.inf]),  # inf: √inf <= ratio · inf, as the engine
+                  np.diag([1.0, -1.0, 1.0]), np.zeros((3, 3)), close @ close.T, np.diag([1.0, np.nan, 1.0]),
+                  2.0 * good])  # indefinite, singular, nearly dependent, NaN
     B = np.ones((len(M), 3, 1))
     X, ok = _cholesky(M, B, 1e6)
-    with np.errstate(invalid="ignore"):  # the NaN and inf worlds
+    with np.errstate(invalid="ignore"):  # the NaN world
         expected_X, expected = numerics.cholesky_solve(M, B, ratio=1e6)
-    assert ok.tolist() == expected.tolist() == [True] + [False] * len(refused) + [True]
+    assert ok.tolist() == expected.tolist() == [True] * 3 + [False] * 4 + [True]
     np.testing.assert_allclose(X[[0, -1]], expected_X[[0, -1]], rtol=0, atol=2 * EPS)  # √2 · √2 rounded
+    # The scaled rows' M is diagonal but for roundings: each X_i = 1 / M_ii to a few ε, relative.
+    np.testing.assert_allclose(X[1], expected_X[1], rtol=8 * EPS, atol=0)
     X, ok = _cholesky(np.zeros((3, 0, 0)), np.zeros((3, 0, 1)), 1e6)  # no rows: solved
     assert ok.all() and X.shape == (3, 0, 1)
-
-
-def test_weighted_gram_equals_the_engines():
-    rng = np.random.default_rng(5)
-    J, weight = rng.normal(size=(N, 5, 7)), rng.uniform(0.1, 2.0, 5)
-    out = _output(N, wp.float64, (7, 7))
-    for w in (weight, None):
-        ones = np.ones(5) if w is None else w  # the engine's None: unit weights
-        _run(mirror.weighted_gram_worlds, N, _device(J), _device(ones), out)
-        expected = numerics.weighted_gram(J, w, np.empty((N, 7, 7)))
-        # two orders of a sum of 5 products: 2·5·ε times the sum of their magnitudes
-        magnitudes = np.abs(J).transpose(0, 2, 1) @ (np.abs(J) * ones[:, None])
-        assert np.linalg.norm(out.numpy() - expected) <= 2 * 5 * EPS * np.linalg.norm(magnitudes)
 
 
 def test_products_equal_the_engines():
@@ -261,73 +257,73 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
 
 
 # -- the closed form -----------------------------------------------------------------------------
-NV, MEQ = 7, 3
+NV, BASE = 9, 6  # a floating base's 6 dofs and 3 joints
 
 
-def _problems(rng, n: int, meq: int, dense: bool, held: bool):
-    """n worlds of EqualityQP.solve's arguments, the last ones refused: a NaN in c, held
-    dofs leaving fewer free columns than rows (S singular) or dependent rows, and for a
-    dense H an indefinite one."""
-    H = _spd(rng, n, NV) + np.eye(NV)
-    inverse_diagonal = 1.0 / rng.uniform(0.1, 2.0, (n, NV))
-    c, A, b = rng.normal(size=(n, NV)), rng.normal(size=(n, meq, NV)), rng.normal(size=(n, meq))
-    fixed = np.zeros((n, NV), dtype=bool)
-    values = np.zeros((n, NV))
+def _problems(rng, n: int, soft_rows: int, rows: int, held: bool):
+    """n worlds of DampedLeastSquares.solve's and .gradient's arguments: random ones
+    (0, 1 or 2 dofs held where ``held``), then a floating base's world (D = 1e-12 on the
+    base, a posture's 1e-4 on the joints: solved only by refining where there are more rows
+    than base dofs), one with dependent hard rows (singular) and one with a NaN in D⁻¹."""
+    m = soft_rows + rows
+    damping = rng.uniform(0.1, 2.0, (n, NV))
+    damping[-3] = np.r_[np.full(BASE, 1e-12), np.full(NV - BASE, 1e-4)]
+    dinv = 1.0 / damping
+    dinv[-1, 2] = np.nan
+    R, rhs, c = rng.normal(size=(n, m, NV)), rng.normal(size=(n, m)), rng.normal(size=(n, NV))
+    c[-3] *= damping[-3]  # a posture's c: D (q − q_ref)
+    if rows >= 2:
+        R[-2, -1] = R[-2, -2]
+    fixed, values = np.zeros((n, NV), dtype=bool), np.zeros((n, NV))
     if held:
-        for w in range(n - 4):
-            fixed[w, rng.choice(NV, size=w % 3, replace=False)] = True  # 0, 1 or 2 dofs held
+        for w in range(n - 1):  # never dof 2 (the NaN world's)
+            fixed[w, rng.choice([0, 4, 8], size=w % 3, replace=False)] = True
         values[fixed] = rng.uniform(-1.0, 1.0, fixed.sum())
-    c[-1, 2] = np.nan
-    if meq:
-        fixed[-2, : NV - meq + 1] = held  # meq − 1 free columns: S singular
-        A[-3, 1] = A[-3, 0]  # dependent rows
-    if dense:
-        H[-4] -= 5.0 * np.linalg.eigvalsh(H[-4]).max() * np.eye(NV) / 2  # indefinite
-    return inverse_diagonal, H, c, A, b, fixed, values
+    return dinv, damping, R, rhs, c, fixed, values
 
 
-def _device_solve(inverse_diagonal, H, c, A, b, fixed, values, dense: bool, held: bool):
-    n, meq = len(c), A.shape[1]
-    arrays = mirror.equality_qp_arrays(n, NV, meq, DEVICE)
-    g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
-    _run(mirror.equality_qp_worlds, n, _device(inverse_diagonal), _device(H), _device(c), _device(A), _device(b),
-         _device(fixed.astype(np.int32), wp.int32), _device(values), int(dense), int(held), arrays, g, ok)
-    return arrays.x.numpy(), arrays.y.numpy(), g.numpy(), ok.numpy().astype(bool)
+def _augmented(damping, R, soft_rows, fixed):
+    """One world's solve as one system in (x, z): D x − Rᵀz = −c on the free dofs, x = v on
+    the held ones, R x + [z₁; 0] = rhs."""
+    m = len(R)
+    top = np.hstack([np.diag(np.where(fixed, 1.0, damping)), -R.T * ~fixed[:, None]])
+    return np.vstack([top, np.hstack([R, np.diag(np.arange(m) < soft_rows).astype(float)])])
 
 
-def _kkt_condition(H, A, fixed) -> float:
-    """κ of the KKT matrix [[H̃, Ãᵀ], [Ã, 0]] of one world (held dofs as the closed form
-    holds them)."""
-    free = ~fixed
-    Ht = np.where(free[:, None] & free[None, :], H, 0.0) + np.diag(fixed.astype(float))
-    At = A * free
-    K = np.block([[Ht, At.T], [At, np.zeros((len(A), len(A)))]])
-    return np.linalg.cond(K)
-
-
-@pytest.mark.parametrize("meq", [0, MEQ])
-@pytest.mark.parametrize("dense", [False, True])
+@pytest.mark.parametrize("soft_rows, rows", [(8, 0), (0, 3), (6, 2), (0, 0)])
+@pytest.mark.parametrize("linear", [False, True])
 @pytest.mark.parametrize("held", [False, True])
-def test_equality_qp_solve_and_gradient_equal_the_engines(meq, dense, held):
-    rng = np.random.default_rng(100 * meq + 10 * dense + held)
-    n = 24
-    inverse_diagonal, H, c, A, b, fixed, values = _problems(rng, n, meq, dense, held)
-    x, y, g, ok = _device_solve(inverse_diagonal, H, c, A, b, fixed, values, dense, held)
-    qp = EqualityQP(n, NV, meq)
-    arguments = (None, H) if dense else (inverse_diagonal, None)
-    expected_x, expected_y, expected_ok = qp.solve(*arguments, c, A, b, *((fixed, values) if held else ()))
-    expected_x, expected_y = expected_x.copy(), expected_y.copy()
-    expected_g = qp.gradient(*arguments, c, A, expected_y)
-    refused = [n - 1] + ([n - 3] if meq else []) + ([n - 2] if meq and held else []) + ([n - 4] if dense else [])
-    assert np.flatnonzero(~ok).tolist() == np.flatnonzero(~np.asarray(expected_ok)).tolist() == sorted(refused)
-    hessians = H if dense else np.stack([np.diag(1.0 / d) for d in inverse_diagonal])
+def test_damped_least_squares_equals_the_engines(soft_rows, rows, linear, held, monkeypatch):
+    n, m = 12, soft_rows + rows
+    dinv, damping, R, rhs, c, fixed, values = _problems(np.random.default_rng(20), n, soft_rows, rows, held)
+    arrays = mirror.damped_least_squares_arrays(n, NV, soft_rows, rows, DEVICE)
+    g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
+    _run(mirror.damped_least_squares_worlds, n, _device(dinv), _device(damping), _device(R), _device(rhs),
+         _device(c), _device(fixed.astype(np.int32), wp.int32), _device(values), int(linear), int(held), arrays, g, ok)
+    x, z, g, ok = arrays.x.numpy(), arrays.z.numpy(), g.numpy(), ok.numpy().astype(bool)
+    form, held_arguments = DampedLeastSquares(n, NV, soft_rows, rows), (fixed, values) if held else ()
+    with np.errstate(invalid="ignore"):  # the NaN world
+        expected_x, expected_z, expected_ok = (np.array(a) for a in form.solve(dinv, R, rhs, c if linear else None,
+                                                                                 *held_arguments))
+        expected_g = form.gradient(damping, R, c if linear else None).copy()
+    refused = [n - 2] * (rows >= 2) + [n - 1]
+    assert np.flatnonzero(~ok).tolist() == np.flatnonzero(~expected_ok).tolist() == refused
+    if m > BASE:  # the floating-base world is solved only by refining
+        monkeypatch.setattr(closed_form, "REFINEMENTS", 0)
+        assert not form.solve(dinv, R, rhs, c if linear else None, *held_arguments)[2][n - 3]
     for w in np.flatnonzero(ok):
-        # Two summation orders of the same solve: 10 (nv + meq) ε κ(KKT) relative to the answer.
-        bound = 10 * (NV + meq) * EPS * _kkt_condition(hessians[w], A[w], fixed[w] if held else np.zeros(NV, bool))
-        assert np.linalg.norm(x[w] - expected_x[w]) <= bound * np.linalg.norm(expected_x[w])
-        assert np.linalg.norm(y[w] - expected_y[w]) <= bound * np.linalg.norm(expected_y[w])
-        scale = np.linalg.norm(hessians[w], 2) * np.linalg.norm(x[w]) + np.linalg.norm(c[w]) + \
-            (np.linalg.norm(A[w], 2) * np.linalg.norm(y[w]) if meq else 0.0)
-        assert np.linalg.norm(g[w] - expected_g[w]) <= bound * scale
-        if held:
-            np.testing.assert_array_equal(x[w][fixed[w]], values[w][fixed[w]])  # x = v on the held dofs
+        # Each answer solves the augmented system A (x, z) = (−c, v, rhs) to within its
+        # residual: REFINE_TOLERANCE (1 + |rhs|) on the rows (refinement's stop; every world
+        # here reaches it), and a few roundings, 10 (nv + m) ε times the terms' magnitudes,
+        # everywhere. So the two differ by at most twice that over A's least singular value;
+        # the gradient [D, −Rᵀ] (x, z) + c by ‖[D, −Rᵀ]‖ times that, plus its own roundings.
+        A = _augmented(damping[w], R[w], soft_rows, fixed[w])
+        rounding = 10 * (NV + m) * EPS * (np.linalg.norm(R[w], 2) * (np.linalg.norm(expected_x[w]) +
+                   np.linalg.norm(expected_z[w])) + damping[w].max() * np.linalg.norm(expected_x[w]) +
+                   np.linalg.norm(c[w]) + np.linalg.norm(rhs[w]))
+        miss = REFINE_TOLERANCE * (1.0 + np.linalg.norm(rhs[w])) + rounding
+        bound = 2 * miss / np.linalg.svd(A, compute_uv=False)[-1]
+        assert np.linalg.norm(x[w] - expected_x[w]) + np.linalg.norm(z[w] - expected_z[w]) <= bound
+        gradient_bound = np.linalg.norm(np.hstack([np.diag(damping[w]), -R[w].T]), 2) * bound + rounding
+        assert np.linalg.norm(g[w] - expected_g[w]) <= gradient_bound
+        np.testing.assert_array_equal(x[w][fixed[w]], values[w][fixed[w]])  # x = v on the held dofs

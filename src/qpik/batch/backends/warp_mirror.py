@@ -15,7 +15,6 @@ engine primitive                               device function
 ``numerics.RotationError``                     :func:`rotation_error`
 ``numerics.ConfigurationDifference``           :func:`configuration_difference`
 ``numerics.cholesky_solve``                    :func:`cholesky_solve`
-``numerics.weighted_gram``                     :func:`weighted_gram`
 ``numerics.all_finite``                        :func:`all_finite`
 ``numerics.matvec``                            :func:`matvec`
 ``numerics.vecmat``                            :func:`vecmat`
@@ -23,8 +22,8 @@ engine primitive                               device function
 ``numerics.skew``                              :func:`skew`
 ``closed_form.rows_met``                       :func:`rows_met`
 ``closed_form.inside``                         :func:`inside`
-``closed_form.EqualityQP.solve``               :func:`equality_qp_solve`
-``closed_form.EqualityQP.gradient``            :func:`equality_qp_gradient`
+``closed_form.DampedLeastSquares.solve``       :func:`damped_least_squares_solve`
+``closed_form.DampedLeastSquares.gradient``    :func:`damped_least_squares_gradient`
 =============================================  ================================================
 
 Each function is mapped over N worlds by a thin kernel (``*_worlds``), one thread per
@@ -47,16 +46,15 @@ import math
 import mujoco
 
 from ...numerics import MINVAL as _MINVAL
-from ...problem.closed_form import EQUALITY_TOLERANCE as _EQUALITY_TOLERANCE
-from ...problem.closed_form import SINGULAR_RATIO as _SINGULAR_RATIO
+from ...problem import closed_form as _closed_form
 from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
-__all__ = ["EqualityQPArrays", "all_finite", "cholesky_solve", "configuration_difference", "equality_qp_arrays",
-           "equality_qp_gradient", "equality_qp_solve", "inside", "mat2quat", "matvec", "normalize4", "outer_product",
-           "quat2mat", "quat2vel", "quat_integrate", "quat_mul", "rotation_error", "rows_met", "skew", "vecmat",
-           "weighted_gram"]
+__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_solve", "configuration_difference",
+           "damped_least_squares_arrays", "damped_least_squares_gradient", "damped_least_squares_solve", "inside",
+           "mat2quat", "matvec", "normalize4", "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul",
+           "rotation_error", "rows_met", "skew", "vecmat"]
 
 # Forward code only: nothing here is differentiated, and the adjoints would double the compile.
 wp.set_module_options({"enable_backward": False})
@@ -64,10 +62,11 @@ wp.set_module_options({"enable_backward": False})
 F64 = wp.float64
 MINVAL = wp.constant(F64(_MINVAL))  # mjMINVAL, as numerics.MINVAL
 PI = wp.constant(F64(math.pi))
-INF = wp.constant(F64(math.inf))
 # The closed form's thresholds: the engine's own values.
-EQUALITY_TOLERANCE = wp.constant(F64(_EQUALITY_TOLERANCE))
-SINGULAR_RATIO = wp.constant(F64(_SINGULAR_RATIO))
+EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EQUALITY_TOLERANCE))
+REFINE_TOLERANCE = wp.constant(F64(_closed_form.REFINE_TOLERANCE))
+SINGULAR_RATIO = wp.constant(F64(_closed_form.SINGULAR_RATIO))
+REFINEMENTS = wp.constant(_closed_form.REFINEMENTS)
 JOINT_FREE = wp.constant(int(mujoco.mjtJoint.mjJNT_FREE))
 JOINT_BALL = wp.constant(int(mujoco.mjtJoint.mjJNT_BALL))
 
@@ -228,33 +227,28 @@ def configuration_difference(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dty
 def _cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64), ratio: F64) -> int:
     """L (lower) with L Lᵀ = M[w] (its lower triangle read), a pivot of 1 where the
     Schur complement is not positive (as ``numerics._cholesky_solve_last``); whether
-    every pivot is positive and they span at most ``ratio``."""
+    every pivot L_jj is positive with √M_jj <= ``ratio`` L_jj."""
     k = M.shape[1]
-    low = F64(0.0)
-    high = F64(0.0)
+    ok = int(1)
     for j in range(k):
         s = F64(0.0)
         for i in range(j):
             s = s + L[w, j, i] * L[w, j, i]
         d = M[w, j, j] - s
         root = F64(1.0)
-        pivot = F64(0.0)
         if d > F64(0.0):
             root = wp.sqrt(d)
-            pivot = root
-        if j == 0 or pivot < low:
-            low = pivot
-        if j == 0 or pivot > high:
-            high = pivot
+            if not (wp.sqrt(M[w, j, j]) <= ratio * root):
+                ok = 0
+        else:
+            ok = 0
         L[w, j, j] = root
         for r in range(j + 1, k):
             t = F64(0.0)
             for i in range(j):
                 t = t + L[w, r, i] * L[w, j, i]
             L[w, r, j] = (M[w, r, j] - t) / root
-    if low > F64(0.0) and high <= ratio * low:
-        return 1
-    return 0
+    return ok
 
 
 @wp.func
@@ -262,8 +256,8 @@ def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, r
                    L: wp.array3d(dtype=F64)) -> int:
     """``numerics.cholesky_solve(M, B, ratio, in_place=True)`` of world w: B[w] (k, m)
     overwritten with X, M[w] X = B[w], by L Y = B then Lᵀ X = Y (L in ``L[w]``).
-    Returns 1 where M[w] is numerically positive definite (every pivot > 0) and its
-    pivots span at most ``ratio``, else 0 (X then means nothing); 1 for k = 0."""
+    Returns 1 where M[w] is numerically positive definite (every pivot > 0) within
+    ``ratio`` (√M_jj <= ratio L_jj for every j), else 0 (X then means nothing); 1 for k = 0."""
     k = M.shape[1]
     if k == 0:
         return 1
@@ -281,18 +275,6 @@ def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, r
                 s = s + L[w, i, j] * B[w, i, c]
             B[w, j, c] = (B[w, j, c] - s) / L[w, j, j]
     return ok
-
-
-@wp.func
-def weighted_gram(J: wp.array3d(dtype=F64), weight: wp.array(dtype=F64), w: int, out: wp.array3d(dtype=F64)):
-    """``numerics.weighted_gram``: out[w] = J[w]ᵀ diag(weight) J[w] (ones for the engine's
-    ``weight=None``), as (J ∘ weight)ᵀ J."""
-    for a in range(J.shape[2]):
-        for b in range(J.shape[2]):
-            s = F64(0.0)
-            for r in range(J.shape[1]):
-                s = s + J[w, r, a] * weight[r] * J[w, r, b]
-            out[w, a, b] = s
 
 
 @wp.func
@@ -377,158 +359,119 @@ def inside(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.array3d(d
 
 # -- the closed form -------------------------------------------------------------------------
 @wp.struct
-class EqualityQPArrays:
-    """The buffers of :func:`equality_qp_solve` (an ``EqualityQP``'s, N worlds of nv
-    dofs and meq rows): :func:`equality_qp_arrays` allocates them."""
+class DampedLeastSquaresArrays:
+    """The buffers of :func:`damped_least_squares_solve` (a ``DampedLeastSquares``'s: N
+    worlds of nv dofs, soft_rows rows R₁ then the hard rows R₂, m in all):
+    :func:`damped_least_squares_arrays` allocates them."""
 
-    scaled: wp.array3d(dtype=F64)  # (N, meq, nv): Ã H̃⁻¹
-    S: wp.array3d(dtype=F64)  # (N, meq, meq): Ã H̃⁻¹ Ãᵀ
-    S_factor: wp.array3d(dtype=F64)  # (N, meq, meq): its Cholesky factor
-    y: wp.array2d(dtype=F64)  # (N, meq): b + A s, then the multipliers y
-    y_column: wp.array3d(dtype=F64)  # (N, meq, 1): a view of y (the Cholesky solve's right-hand side)
-    residual: wp.array2d(dtype=F64)  # (N, meq): A x
-    shift: wp.array2d(dtype=F64)  # (N, nv): s = H̃⁻¹ c̃ (−v on held dofs)
+    soft_rows: int
+    dinv: wp.array2d(dtype=F64)  # (N, nv): D⁻¹, zero on the held dofs
+    scaled: wp.array3d(dtype=F64)  # (N, m, nv): R D⁻¹
+    K: wp.array3d(dtype=F64)  # (N, m, m): R D⁻¹ Rᵀ + diag(I, 0)
+    factor: wp.array3d(dtype=F64)  # (N, m, m): its Cholesky factor
+    z: wp.array2d(dtype=F64)  # (N, m): the right-hand side, then z
+    fit: wp.array2d(dtype=F64)  # (N, m): R v, R D⁻¹ c, the residual R x + [z₁; 0] − rhs, δz
+    z_column: wp.array3d(dtype=F64)  # (N, m, 1): views of z and fit (Cholesky right-hand sides)
+    fit_column: wp.array3d(dtype=F64)
     x: wp.array2d(dtype=F64)  # (N, nv)
-    multiplied: wp.array2d(dtype=F64)  # (N, nv): H v (held dofs, dense H), Aᵀ y (the gradient)
-    held_H: wp.array3d(dtype=F64)  # (N, nv, nv): H̃ (a dense H)
-    H_factor: wp.array3d(dtype=F64)  # (N, nv, nv): its Cholesky factor
-    columns: wp.array3d(dtype=F64)  # (N, nv, meq + 1): [Ãᵀ | c̃], then H̃⁻¹ [Ãᵀ | c̃]
+    Rz: wp.array2d(dtype=F64)  # (N, nv): (R D⁻¹)ᵀ δz, Rᵀ z
 
 
-def equality_qp_arrays(n: int, nv: int, meq: int, device) -> EqualityQPArrays:
-    """:class:`EqualityQPArrays` for n worlds on ``device`` (the dense-H ones included)."""
-    arrays = EqualityQPArrays()
-    for name, shape in (("scaled", (n, meq, nv)), ("S", (n, meq, meq)), ("S_factor", (n, meq, meq)),
-                        ("y", (n, meq)), ("residual", (n, meq)), ("shift", (n, nv)), ("x", (n, nv)),
-                        ("multiplied", (n, nv)), ("held_H", (n, nv, nv)), ("H_factor", (n, nv, nv)),
-                        ("columns", (n, nv, meq + 1))):
+def damped_least_squares_arrays(n: int, nv: int, soft_rows: int, rows: int, device) -> DampedLeastSquaresArrays:
+    """:class:`DampedLeastSquaresArrays` for n worlds on ``device``."""
+    m = soft_rows + rows
+    arrays = DampedLeastSquaresArrays()
+    arrays.soft_rows = soft_rows
+    for name, shape in (("dinv", (n, nv)), ("scaled", (n, m, nv)), ("K", (n, m, m)), ("factor", (n, m, m)),
+                        ("z", (n, m)), ("fit", (n, m)), ("x", (n, nv)), ("Rz", (n, nv))):
         setattr(arrays, name, wp.zeros(shape, dtype=F64, device=device))
-    arrays.y_column = arrays.y.reshape((n, meq, 1))
+    arrays.z_column, arrays.fit_column = arrays.z.reshape((n, m, 1)), arrays.fit.reshape((n, m, 1))
     return arrays
 
 
 @wp.func
-def _factor_diagonal(inverse_diagonal: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
-                     A: wp.array3d(dtype=F64), fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64),
-                     held: int, w: int, arrays: EqualityQPArrays):
-    """``scaled`` = A diag(H̃⁻¹) and ``shift`` = H̃⁻¹ c − v of a diagonal H (H̃⁻¹ zero on the
-    held dofs), as ``EqualityQP.solve``."""
-    for j in range(c.shape[1]):
-        inverse = inverse_diagonal[w, j]
+def _add(y: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64), w: int, sign: F64):
+    """y[w] += x[w] (``sign`` 1) or y[w] −= x[w] (−1: the same rounding)."""
+    for i in range(y.shape[1]):
+        y[w, i] = y[w, i] + sign * x[w, i]
+
+
+@wp.func
+def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, tolerance: F64,
+          arrays: DampedLeastSquaresArrays) -> int:
+    """``DampedLeastSquares._fits``: whether R x + [z₁; 0] meets rhs to ``tolerance``
+    (:func:`rows_met`), the miss left in ``fit``."""
+    matvec(R, arrays.x, w, arrays.fit)
+    for i in range(arrays.soft_rows):
+        arrays.fit[w, i] = arrays.fit[w, i] + arrays.z[w, i]
+    met = rows_met(arrays.fit, rhs, w, tolerance)
+    _add(arrays.fit, rhs, w, F64(-1.0))
+    return met
+
+
+@wp.func
+def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64),
+                               c: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64),
+                               linear: int, held: int, w: int, arrays: DampedLeastSquaresArrays) -> int:
+    """``closed_form.DampedLeastSquares.solve`` of world w: x = D⁻¹(Rᵀz − c) into
+    ``arrays.x[w]`` and z, (R D⁻¹ Rᵀ + diag(I, 0)) z = rhs + R D⁻¹ c, into ``arrays.z[w]``,
+    c read where ``linear`` (else zero), the dofs ``fixed`` held at ``values`` where
+    ``held`` (D⁻¹ = 0 there, rhs − R values); then iterative refinement, ``REFINEMENTS``
+    steps at most while the residual misses ``REFINE_TOLERANCE``. Returns 1 where the
+    system is solved (within ``SINGULAR_RATIO``), x is finite and the residual is within
+    ``EQUALITY_TOLERANCE``, else 0."""
+    for j in range(dinv.shape[1]):
+        arrays.dinv[w, j] = dinv[w, j]
         if held != 0 and fixed[w, j] != 0:
-            inverse = F64(0.0)
-        for i in range(A.shape[1]):
-            arrays.scaled[w, i, j] = A[w, i, j] * inverse
-        arrays.shift[w, j] = inverse * c[w, j]
-        if held != 0:
-            arrays.shift[w, j] = arrays.shift[w, j] - values[w, j]
-
-
-@wp.func
-def _factor_dense(H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64),
-                  fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), held: int, w: int,
-                  arrays: EqualityQPArrays) -> int:
-    """``EqualityQP._factor_dense``: ``scaled`` = (H̃⁻¹ Ãᵀ)ᵀ and ``shift`` = H̃⁻¹ c̃ from one
-    Cholesky solve of H̃ [Ãᵀ | c̃]; held dofs: c̃ = −v there and c + H v elsewhere, H̃ the
-    identity's rows and columns there, Ã without their columns. Whether H̃ is positive
-    definite."""
-    nv = c.shape[1]
-    meq = A.shape[1]
+            arrays.dinv[w, j] = F64(0.0)
+        for i in range(R.shape[1]):
+            arrays.scaled[w, i, j] = R[w, i, j] * arrays.dinv[w, j]
+    outer_product(arrays.scaled, R, w, arrays.K)
+    for i in range(arrays.soft_rows):
+        arrays.K[w, i, i] = arrays.K[w, i, i] + F64(1.0)
+    for i in range(R.shape[1]):
+        arrays.z[w, i] = rhs[w, i]
     if held != 0:
-        matvec(H, values, w, arrays.multiplied)
-    for i in range(nv):
-        free_i = held == 0 or fixed[w, i] == 0
-        target = c[w, i]
-        if held != 0:
-            target = c[w, i] + arrays.multiplied[w, i]
-            if not free_i:
-                target = -values[w, i]
-        for j in range(nv):
-            entry = F64(0.0)
-            if free_i and (held == 0 or fixed[w, j] == 0):
-                entry = H[w, i, j]
-            if i == j and not free_i:
-                entry = entry + F64(1.0)
-            arrays.held_H[w, i, j] = entry
-        keep = F64(1.0)
-        if not free_i:
-            keep = F64(0.0)
-        for r in range(meq):
-            arrays.columns[w, i, r] = A[w, r, i] * keep
-        arrays.columns[w, i, meq] = target
-    ok = cholesky_solve(arrays.held_H, arrays.columns, w, INF, arrays.H_factor)
-    for j in range(nv):
-        for r in range(meq):
-            arrays.scaled[w, r, j] = arrays.columns[w, j, r]
-        arrays.shift[w, j] = arrays.columns[w, j, meq]
-    return ok
-
-
-@wp.func
-def _minimiser(A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), w: int, arrays: EqualityQPArrays) -> int:
-    """From ``scaled`` and ``shift``: S = scaled Aᵀ, S y = b + A s, x = scaledᵀ y − s and
-    the rows' check (``EqualityQP.solve`` after the factorisation). Whether S is solved
-    (pivots spanning at most ``SINGULAR_RATIO``) and A x meets b to
-    ``EQUALITY_TOLERANCE``."""
-    outer_product(arrays.scaled, A, w, arrays.S)
-    matvec(A, arrays.shift, w, arrays.y)
-    for i in range(A.shape[1]):
-        arrays.y[w, i] = arrays.y[w, i] + b[w, i]
-    solved = cholesky_solve(arrays.S, arrays.y_column, w, SINGULAR_RATIO, arrays.S_factor)
-    vecmat(arrays.y, arrays.scaled, w, arrays.x)
-    for j in range(A.shape[2]):
-        arrays.x[w, j] = arrays.x[w, j] - arrays.shift[w, j]
-    matvec(A, arrays.x, w, arrays.residual)
-    if solved != 0 and rows_met(arrays.residual, b, w, EQUALITY_TOLERANCE) != 0:
+        matvec(R, values, w, arrays.fit)
+        _add(arrays.z, arrays.fit, w, F64(-1.0))
+    if linear != 0:
+        matvec(arrays.scaled, c, w, arrays.fit)
+        _add(arrays.z, arrays.fit, w, F64(1.0))
+    solved = cholesky_solve(arrays.K, arrays.z_column, w, SINGULAR_RATIO, arrays.factor)
+    vecmat(arrays.z, R, w, arrays.x)
+    if linear != 0:
+        _add(arrays.x, c, w, F64(-1.0))
+    for j in range(dinv.shape[1]):
+        arrays.x[w, j] = arrays.x[w, j] * arrays.dinv[w, j]
+    if held != 0:
+        _add(arrays.x, values, w, F64(1.0))
+    met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
+    for _ in range(REFINEMENTS):
+        if met == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
+            cholesky_solve(arrays.K, arrays.fit_column, w, SINGULAR_RATIO, arrays.factor)
+            _add(arrays.z, arrays.fit, w, F64(-1.0))
+            vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
+            _add(arrays.x, arrays.Rz, w, F64(-1.0))
+            met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
+    if met == 0:
+        met = _fits(R, rhs, w, EQUALITY_TOLERANCE, arrays)
+    if solved != 0 and all_finite(arrays.x, w) != 0 and met != 0:
         return 1
     return 0
 
 
 @wp.func
-def equality_qp_solve(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64),
-                      A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int),
-                      values: wp.array2d(dtype=F64), dense: int, held: int, w: int,
-                      arrays: EqualityQPArrays) -> int:
-    """``closed_form.EqualityQP.solve`` of world w: the minimiser x of ½xᵀHx + cᵀx s.t.
-    Ax = b into ``arrays.x[w]``, its multipliers into ``arrays.y[w]``, with the dofs
-    ``fixed`` held at ``values`` where ``held`` (the engine's ``fixed=None`` otherwise).
-    H is diagonal (``inverse_diagonal``: H⁻¹) unless ``dense`` (``H``). Returns 1 where H
-    is positive definite, S is not singular and x is finite (no rows) or meets the rows
-    to ``EQUALITY_TOLERANCE``, else 0."""
-    ok = int(1)
-    if dense != 0:
-        ok = _factor_dense(H, c, A, fixed, values, held, w, arrays)
-    else:
-        _factor_diagonal(inverse_diagonal, c, A, fixed, values, held, w, arrays)
-    if A.shape[1] == 0:
-        for j in range(c.shape[1]):
-            arrays.x[w, j] = -arrays.shift[w, j]
-        if ok != 0 and all_finite(arrays.x, w) != 0:
-            return 1
-        return 0
-    met = _minimiser(A, b, w, arrays)
-    if ok != 0 and met != 0:
-        return 1
-    return 0
-
-
-@wp.func
-def equality_qp_gradient(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64),
-                         c: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), dense: int, w: int,
-                         arrays: EqualityQPArrays, g: wp.array2d(dtype=F64)):
-    """``closed_form.EqualityQP.gradient``: g[w] = Hx + c − Aᵀy of the last solve (the
-    original H, c, A): on a held dof, its bound's multiplier."""
-    if dense != 0:
-        matvec(H, arrays.x, w, g)
-    else:
-        for j in range(c.shape[1]):
-            g[w, j] = arrays.x[w, j] / inverse_diagonal[w, j]
-    for j in range(c.shape[1]):
-        g[w, j] = g[w, j] + c[w, j]
-    if A.shape[1] > 0:
-        vecmat(arrays.y, A, w, arrays.multiplied)
-        for j in range(c.shape[1]):
-            g[w, j] = g[w, j] - arrays.multiplied[w, j]
+def damped_least_squares_gradient(damping: wp.array2d(dtype=F64), R: wp.array3d(dtype=F64),
+                                  c: wp.array2d(dtype=F64), linear: int, w: int, arrays: DampedLeastSquaresArrays,
+                                  g: wp.array2d(dtype=F64)):
+    """``closed_form.DampedLeastSquares.gradient``: g[w] = D x + c − Rᵀz of the last solve
+    (D = ``damping``, c zero unless ``linear``): on a held dof, its bound's multiplier."""
+    for j in range(damping.shape[1]):
+        g[w, j] = damping[w, j] * arrays.x[w, j]
+    if linear != 0:
+        _add(g, c, w, F64(1.0))
+    vecmat(arrays.z, R, w, arrays.Rz)
+    _add(g, arrays.Rz, w, F64(-1.0))
 
 
 # -- one thread per world ----------------------------------------------------------------------
@@ -592,12 +535,6 @@ def cholesky_solve_worlds(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), ra
 
 
 @wp.kernel
-def weighted_gram_worlds(J: wp.array3d(dtype=F64), weight: wp.array(dtype=F64), out: wp.array3d(dtype=F64)):
-    w = wp.tid()
-    weighted_gram(J, weight, w, out)
-
-
-@wp.kernel
 def matvec_worlds(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), out: wp.array2d(dtype=F64)):
     w = wp.tid()
     matvec(A, x, w, out)
@@ -641,11 +578,11 @@ def inside_worlds(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.ar
 
 
 @wp.kernel
-def equality_qp_worlds(inverse_diagonal: wp.array2d(dtype=F64), H: wp.array3d(dtype=F64), c: wp.array2d(dtype=F64),
-                       A: wp.array3d(dtype=F64), b: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int),
-                       values: wp.array2d(dtype=F64), dense: int, held: int, arrays: EqualityQPArrays,
-                       g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
-    """:func:`equality_qp_solve` then :func:`equality_qp_gradient` in every world."""
+def damped_least_squares_worlds(dinv: wp.array2d(dtype=F64), damping: wp.array2d(dtype=F64),
+                                R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
+                                fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), linear: int, held: int,
+                                arrays: DampedLeastSquaresArrays, g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
+    """:func:`damped_least_squares_solve` then :func:`damped_least_squares_gradient` in every world."""
     w = wp.tid()
-    ok[w] = equality_qp_solve(inverse_diagonal, H, c, A, b, fixed, values, dense, held, w, arrays)
-    equality_qp_gradient(inverse_diagonal, H, c, A, dense, w, arrays, g)
+    ok[w] = damped_least_squares_solve(dinv, R, rhs, c, fixed, values, linear, held, w, arrays)
+    damped_least_squares_gradient(damping, R, c, linear, w, arrays, g)
