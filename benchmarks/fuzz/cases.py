@@ -3,7 +3,7 @@
 A case draws a model (:mod:`.models`), a start inside, on or outside the joint
 ranges, 1–4 tasks of every kind (soft or hard, gains up to K·Δt just below 2, reachable,
 far, huge or malformed targets), the limits, and a controller (QPController with each
-solver and the fast path on or off, HierarchicalController with 2–3 levels,
+solver (the closed form always tried first), HierarchicalController with 2–3 levels,
 SNSController, PseudoinverseController). One case in six injects one invalid parameter,
 which must be refused with a typed error. :func:`run_case` returns the case's failure
 classes (:data:`CLASSES`) with the details that reproduce it.
@@ -329,10 +329,11 @@ class Case:
         kind = self.kind
         dt = self.bad("dt", DT) if kind != "pinv" else DT
         if kind == "qp":
-            solver, fast = self.bad("solver", str(rng.choice(solvers()))), bool(rng.random() < 0.5)
-            params.update(solver=solver, fast_path=fast)
+            solver = self.bad("solver", str(rng.choice(solvers())))
+            rng.random()  # drew the removed fast_path option: kept, so that a seed draws the case it drew before
+            params.update(solver=solver)
             self.levels = [self.tasks]
-            return QPController(robot, self.tasks, self.limits, solver=solver, dt=dt, fast_path=fast)
+            return QPController(robot, self.tasks, self.limits, solver=solver, dt=dt)
         if kind == "pinv":
             primary = [t for t in self.tasks if not t.joint_space]
             secondary = next((t for t in self.tasks if t.joint_space), None)

@@ -165,8 +165,7 @@ def summarise(results: dict[int, dict]) -> dict:
         params, details = result.get("params", {}), result["details"]
         solver = params.get("solver")
         solver = solver if isinstance(solver, str) and solver in ALL_SOLVERS else "invalid" if "solver" in params else None
-        label = params.get("controller", "?") + (f"/{solver}" if solver else "") \
-            + ("" if params.get("fast_path") is None else f"/fast={params['fast_path']}")
+        label = params.get("controller", "?") + (f"/{solver}" if solver else "")
         model = "generated" if params.get("model") == "generated" else "third-party" if params else "?"
         counts["cases"] += 1
         by_controller[label]["cases"] += 1
@@ -191,7 +190,7 @@ def summarise(results: dict[int, dict]) -> dict:
 
 def _example(result: dict) -> dict:
     params = result.get("params", {})
-    keep = ("model", "controller", "solver", "fast_path", "tasks", "limits", "levels", "invalid", "invalid_value",
+    keep = ("model", "controller", "solver", "tasks", "limits", "levels", "invalid", "invalid_value",
             "targets", "start")
     details = result["details"]
     return {"case": result["case"], "classes": result["classes"], "error": details.get("error", "")[:200],
@@ -213,7 +212,7 @@ def to_markdown(summary: dict, meta: dict) -> str:
     shown = ["cases", "ok", "typed", "rejected", *DEFECTS]
     short = {"nondeterministic": "nondet", "stray_warning": "warning", "typed_on_feasible": "typed on feasible",
              "invalid_accepted": "invalid accepted", "hard_missed": "hard missed"}
-    for title, table in (("Per controller (and solver, fast path)", summary["by_controller"]),
+    for title, table in (("Per controller (and solver)", summary["by_controller"]),
                          ("Per model source", summary["by_model"])):
         lines += ["", title + ":", "", "| | " + " | ".join(short.get(k, k) for k in shown) + " |",
                   "|---|" + "---:|" * len(shown)]

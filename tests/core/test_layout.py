@@ -55,11 +55,11 @@ def _imports(path: Path, top_level_only: bool, run_time: bool = False) -> set[st
     return {m for m in found if m in modules}
 
 
-# The core: the robot, tasks, limits, the step's problem, controllers, solvers, the batched
-# engine and what they stand on. Above it: the bundled robots, the rollouts, the app.
-CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.linalg", "qpik.extras", "qpik.io", "qpik.scenes",
+# The core: the robot, the engine (tasks, limits, the step's problem, controllers and
+# their numerics primitives), solvers, the batched robot and what they stand on. Above it: the bundled robots, the rollouts, the app.
+CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.numerics", "qpik.extras", "qpik.io", "qpik.scenes",
         "qpik.equalities", "qpik.tasks", "qpik.limits", "qpik.problem", "qpik.controllers", "qpik.solvers",
-        "qpik.engine", "qpik.batch")
+        "qpik.batch")
 ABOVE_THE_CORE = ("qpik.robots", "qpik.rollout", "qpik.app", "qpik.scenario")
 
 

@@ -77,7 +77,7 @@ class FrameTask(Task):
         super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
         self.set_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
                                       feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
-        self.position_gain, self.orientation_gain = self.gain[:n_position], self.gain[n_position:]
+        self.position_gain, self.orientation_gain = self.gain[..., :n_position], self.gain[..., n_position:]
         self.target_positions = np.array(self.frame.positions)  # (N, 3)
         self.target_rotations = np.array(self.frame.rotations)  # (N, 3, 3)
         self._twist = np.zeros((robot.n, 6))  # the feed-forward, world axes

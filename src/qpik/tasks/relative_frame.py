@@ -57,7 +57,7 @@ class RelativeFrameTask(Task):
             raise InvalidInput(f"{self.name}: frame and root are the same {frame_type} {frame!r}")
         self.set_gain(np.concatenate([feedback_gain(position_gain, 3, "position gain"),
                                       feedback_gain(orientation_gain, 3, "orientation gain")]))
-        self.position_gain, self.orientation_gain = self.gain[:3], self.gain[3:]
+        self.position_gain, self.orientation_gain = self.gain[..., :3], self.gain[..., 3:]
         n, nv = robot.n, robot.nv
         self._jac_frame, self._jac_root = np.zeros((n, 6, nv)), np.zeros((n, 6, nv))
         self._moved = np.zeros((n, 3, nv))

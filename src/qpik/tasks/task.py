@@ -92,6 +92,7 @@ class Task:
     vectorized = False  # a user's task that returns (N, ...) arrays itself (N = 1 for one robot)
     joint_space = False  # J is the fixed selection I[dofs] (a controller may use its diagonal)
     target: np.ndarray | None = None  # x_d, for a task that tracks one (set_target)
+    _own_gain = None  # ``gain`` of a task without feedback (``gains`` None)
     _priority = 0
 
     def __init__(self, robot, dim: int | None = None, weight=1.0, hard: bool = False, *, gain=None,
@@ -181,10 +182,25 @@ class Task:
 
     # -- gains and the controller's period ------------------------------------------------
     def set_gain(self, gain: np.ndarray) -> None:
-        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`);
-        ``gain`` is world 0's row of ``gains`` (a view: the dead-beat K shows in it)."""
+        """The gains K (dim,) of v = ẋ_d + K e (NaN rows: dead-beat, set by :meth:`attach`)."""
         self.gains = np.tile(gain, (self.robot.n, 1))
-        self.gain = self.gains[0]
+        self._gain_view = self.robot.present(self.gains)
+
+    @property
+    def gain(self):
+        """K (1/s) of each row as the step uses it: a view of ``gains``, world 0's (dim,)
+        for one robot, (N, dim) for a batch, so that a gain written in place
+        (``task.gain[:] = 20.0``, a frame task's ``position_gain``) or set whole
+        (``task.gain = 20.0``, checked) is the next step's. A task without feedback keeps
+        what it sets here as its own (e.g. a gradient's k0; None if nothing)."""
+        return self._own_gain if self.gains is None else self._gain_view
+
+    @gain.setter
+    def gain(self, value) -> None:
+        if self.gains is None:
+            self._own_gain = value
+        else:
+            self.gains[...] = feedback_gain(value, self.dim, f"{self.name} gain")
 
     def feedback_gains(self) -> np.ndarray | None:
         """K (1/s) of each row, or None for a task without feedback (a damping)."""
@@ -208,7 +224,7 @@ class Task:
         if dt is None or self.gains is None:
             return
         if self.needs_period:
-            self.gains[np.isnan(self.gains)] = 1.0 / dt
+            self.gains[np.isnan(self.gains)] = 1.0 / dt  # in place: ``gain`` and its views see it
         worst = float(np.max(self.gains)) * dt * (1.0 - 1e-12)  # 1/Δt·Δt may round to 1 + 1 ulp
         largest = float(np.max(self.gains))
         if worst > 2.0:
