@@ -148,7 +148,7 @@ def test_the_default_gain_is_dead_beat_in_every_world():
     assert task.needs_period and np.isnan(task.position_gain).all()
     QPController(robots, [task], dt=0.01)
     np.testing.assert_array_equal(task.gains, np.full((4, 6), 100.0))
-    np.testing.assert_array_equal(task.position_gain, [100.0] * 3)
+    np.testing.assert_array_equal(task.position_gain, np.full((4, 3), 100.0))
     np.testing.assert_array_equal(task.orientation_gain, [100.0] * 3)
 
 
