@@ -1,0 +1,253 @@
+"""Independent references for the engine's tests (loaded by each test file from its own
+folder): what a task, a limit or a controller must give, computed here from MuJoCo's own
+functions, SciPy's rotations, NumPy's linear algebra and DAQP called directly, never from
+the engine's code (the tasks' measured rows are read where a controller is checked: a
+controller is checked on the problem its tasks gave it; the rows themselves are checked
+against MuJoCo in the task tests).
+
+- Kinematics: a fresh ``MjData`` at q, ``mj_kinematics`` and ``mj_comPos``, then
+  ``mj_jacSite``/``mj_jacBody``/``mj_jacGeom``/``mj_jacSubtreeCom`` and the poses.
+- Rotations: SciPy's rotation vectors (``Rotation.as_rotvec``), MuJoCo's ``mju_quat2Mat``.
+- QPs: ``min ½‖Rx − r‖² s.t. Ax = b, lb ≤ x ≤ ub, Gx ≤ h`` with the cost's rows R, r
+  written out from the tasks (H = RᵀR, c = −Rᵀr), solved by DAQP through ``daqp.solve``
+  at tight settings for its active set, then made exact on that active set by a
+  null-space least-squares solve (NumPy's SVD and ``lstsq``: no normal equations), its
+  KKT conditions checked.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import daqp
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+# -- kinematics ---------------------------------------------------------------------------
+_FRAMES = {
+    "site": (mujoco.mjtObj.mjOBJ_SITE, "site_xpos", "site_xmat", mujoco.mj_jacSite),
+    "body": (mujoco.mjtObj.mjOBJ_BODY, "xpos", "xmat", mujoco.mj_jacBody),
+    "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_xpos", "geom_xmat", mujoco.mj_jacGeom),
+}
+
+
+def mujoco_data(model: mujoco.MjModel, q: np.ndarray) -> mujoco.MjData:
+    """A fresh MjData at q, its kinematics and CoM quantities computed by MuJoCo."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = q
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    return data
+
+
+def frame_state(model: mujoco.MjModel, q: np.ndarray, name: str, kind: str = "site"):
+    """(p (3,), R (3, 3), J_p (3, nv), J_ω (3, nv)) of a site, body or geom at q, MuJoCo's."""
+    obj, position, rotation, jacobian = _FRAMES[kind]
+    data = mujoco_data(model, q)
+    index = mujoco.mj_name2id(model, obj, name)
+    assert index >= 0, name
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    jacobian(model, data, jacp, jacr, index)
+    return (getattr(data, position)[index].copy(), getattr(data, rotation)[index].reshape(3, 3).copy(), jacp, jacr)
+
+
+def quaternion_matrix(quaternion) -> np.ndarray:
+    """MuJoCo's rotation matrix of a w-x-y-z quaternion (normalised first)."""
+    q = np.asarray(quaternion, dtype=float)
+    matrix = np.zeros(9)
+    mujoco.mju_quat2Mat(matrix, q / np.linalg.norm(q))
+    return matrix.reshape(3, 3)
+
+
+def rotation_vector(desired: np.ndarray, current: np.ndarray, local: bool = False) -> np.ndarray:
+    """e with exp([e]) R = R_d (world axes), or R exp([e]) = R_d (the frame's axes): SciPy's."""
+    relative = current.T @ desired if local else desired @ current.T
+    return Rotation.from_matrix(relative).as_rotvec()
+
+
+def axis_rows(axes: str) -> list[int]:
+    return ["xyz".index(a) for a in axes]
+
+
+def pose_rows(model, q, frame, gains, *, position=None, rotation=None, position_axes="xyz", orientation_axes="xyz",
+              local=False, linear=None, angular=None):
+    """(e, J, v) of a frame's pose task written out: position rows e = p_d − p, J = J_p,
+    feed-forward ṗ_d; orientation rows e = rotation vector of R_d Rᵀ, J = J_ω, ω_d; in
+    the frame's axes (``local``) each block rotated by Rᵀ; the masked rows kept;
+    v = K e + feed-forward. ``position``/``rotation`` None: no such block."""
+    p, R, Jp, Jr = frame_state(model, q, *frame)
+    errors, jacobians, feedforward = [], [], []
+    blocks = []
+    if position is not None:
+        blocks.append((np.asarray(position) - p, Jp, np.zeros(3) if linear is None else np.asarray(linear),
+                       axis_rows(position_axes)))
+    if rotation is not None:
+        blocks.append((rotation_vector(rotation, R), Jr, np.zeros(3) if angular is None else np.asarray(angular),
+                       axis_rows(orientation_axes)))
+    for e, J, f, rows in blocks:
+        if local:
+            e, J, f = R.T @ e, R.T @ J, R.T @ f
+        errors.append(e[rows])
+        jacobians.append(J[rows])
+        feedforward.append(f[rows])
+    e, J, f = np.concatenate(errors), np.vstack(jacobians), np.concatenate(feedforward)
+    return e, J, np.asarray(gains) * e + f
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+# -- QPs ----------------------------------------------------------------------------------
+# DAQP's tightest sensible settings: constraints met to 1e-12 before it stops, no
+# proximal iterations (H is positive definite here), a generous iteration cap.
+DAQP_TIGHT = dict(primal_tol=1e-12, dual_tol=1e-12, eps_prox=0.0, iter_limit=100000)
+# A constraint counts as active at DAQP's answer within this (relative to 1 + |bound|).
+ACTIVE = 1e-9
+
+
+class LeastSquaresQP:
+    """min ½‖Rx − r‖² s.t. Ax = b, lb ≤ x ≤ ub, Gx ≤ h (any of them absent)."""
+
+    def __init__(self, R, r, A=None, b=None, lb=None, ub=None, G=None, h=None):
+        self.R, self.r = np.asarray(R, dtype=float), np.asarray(r, dtype=float)
+        nv = self.R.shape[1]
+        self.nv = nv
+        self.A = np.zeros((0, nv)) if A is None else np.asarray(A, dtype=float).reshape(-1, nv)
+        self.b = np.zeros(0) if b is None else np.asarray(b, dtype=float).reshape(-1)
+        self.lb = np.full(nv, -np.inf) if lb is None else np.asarray(lb, dtype=float)
+        self.ub = np.full(nv, np.inf) if ub is None else np.asarray(ub, dtype=float)
+        self.G = np.zeros((0, nv)) if G is None else np.asarray(G, dtype=float).reshape(-1, nv)
+        self.h = np.zeros(0) if h is None else np.asarray(h, dtype=float).reshape(-1)
+
+    @property
+    def H(self) -> np.ndarray:
+        return self.R.T @ self.R
+
+    @property
+    def c(self) -> np.ndarray:
+        return -self.R.T @ self.r
+
+    def daqp(self) -> np.ndarray:
+        """DAQP's answer, called directly: bounds as simple bounds, Ax = b by its sense."""
+        nv, meq = self.nv, len(self.b)
+        rows = np.vstack([self.A, self.G])
+        upper = np.concatenate([self.ub, self.b, self.h])
+        lower = np.concatenate([self.lb, self.b, np.full(len(self.h), -np.inf)])
+        sense = np.zeros(nv + len(rows), dtype=np.intc)
+        sense[nv:nv + meq] = 5
+        x, _, exitflag, _ = daqp.solve(self.H, self.c, rows, upper, lower, sense, **DAQP_TIGHT)
+        assert exitflag == 1, f"DAQP: exit flag {exitflag}"
+        return np.asarray(x)
+
+    def solve(self) -> np.ndarray:
+        """The minimiser: DAQP's active set, solved exactly (see the module); its KKT
+        conditions checked."""
+        x0 = self.daqp()
+        lower = np.isfinite(self.lb) & (x0 - self.lb <= ACTIVE * (1.0 + np.abs(self.lb)))
+        upper = np.isfinite(self.ub) & ~lower & (self.ub - x0 <= ACTIVE * (1.0 + np.abs(self.ub)))
+        rows = self.h - self.G @ x0 <= ACTIVE * (1.0 + np.abs(self.h))
+        eye = np.eye(self.nv)
+        E = np.vstack([self.A, eye[lower], eye[upper], self.G[rows]])
+        e = np.concatenate([self.b, self.lb[lower], self.ub[upper], self.h[rows]])
+        x = _equality_least_squares(self.R, self.r, E, e)
+        self._check(x, E, len(self.b), lower.sum(), upper.sum())
+        return x
+
+    def _check(self, x, E, meq: int, n_lower: int, n_upper: int) -> None:
+        """Feasible, and the multipliers of the active inequalities of the right sign."""
+        scale = 1.0 + np.abs(x).max()
+        assert np.all(x >= self.lb - 1e-12 * scale) and np.all(x <= self.ub + 1e-12 * scale), "outside the box"
+        assert np.all(self.G @ x <= self.h + 1e-12 * (1.0 + np.abs(self.h))), "a row crossed"
+        if len(self.b):
+            assert np.linalg.norm(self.A @ x - self.b) <= 1e-10 * (1.0 + np.linalg.norm(self.b)), "rows missed"
+        gradient = self.R.T @ (self.R @ x - self.r)  # Hx + c
+        if not len(E):
+            return
+        multipliers = np.linalg.lstsq(E.T, -gradient, rcond=None)[0]  # Hx + c + Eᵀλ = 0
+        residual = np.linalg.norm(E.T @ multipliers + gradient)
+        assert residual <= 1e-7 * (1.0 + np.linalg.norm(gradient)), f"not stationary: {residual:.1e}"
+        tolerance = 1e-7 * (1.0 + np.abs(multipliers).max())
+        lower = multipliers[meq:meq + n_lower]
+        upper = multipliers[meq + n_lower:meq + n_lower + n_upper]
+        rows = multipliers[meq + n_lower + n_upper:]
+        # λ of −x ≤ −lb is ≥ 0: written as Eᵀλ with the row +e_i, λ_i <= 0 at a lower bound.
+        assert np.all(lower <= tolerance) and np.all(upper >= -tolerance) and np.all(rows >= -tolerance), \
+            "a multiplier of the wrong sign: not the minimiser"
+
+
+def _equality_least_squares(R, r, E, e) -> np.ndarray:
+    """min ‖Rx − r‖ s.t. Ex = e (consistent rows, possibly dependent): x = x_p + Z y with
+    x_p E's minimum-norm solution and Z a basis of its null space (SVD), y by ``lstsq``."""
+    nv = R.shape[1]
+    if not len(E):
+        return np.linalg.lstsq(R, r, rcond=None)[0]
+    _, singular, vt = np.linalg.svd(E)
+    rank = int(np.sum(singular > 1e-12 * singular[0])) if singular.size and singular[0] > 0 else 0
+    particular = np.linalg.lstsq(E, e, rcond=1e-12)[0]
+    Z = vt[rank:].T
+    if Z.shape[1] == 0:
+        return particular
+    y = np.linalg.lstsq(R @ Z, r - R @ particular, rcond=None)[0]
+    return particular + Z @ y
+
+
+def cost_rows(tasks: Sequence, world: int, nv: int, regularization: float):
+    """(R, r) of the QP's cost in world ``world``, written out from the soft tasks' rows:
+    √w_i (J_i, v_i) per row, √(ε + Σ μ eᵀWe) I (the regulariser and the
+    Levenberg–Marquardt damping). Joint-space tasks are rows like any other."""
+    blocks, rhs = [], []
+    damping = float(regularization)
+    for task in tasks:
+        if task.hard:
+            continue
+        root = np.sqrt(np.asarray(task.weight, dtype=float))
+        J = np.asarray(task.jacobians[world], dtype=float)
+        blocks.append(root[:, None] * J)
+        rhs.append(root * task.target_velocities[world])
+        e = task.errors[world]
+        damping += task.lm_damping * float(np.sum(task.weight * e * e))
+    blocks.append(np.sqrt(damping) * np.eye(nv))
+    rhs.append(np.zeros(nv))
+    return np.vstack(blocks), np.concatenate(rhs)
+
+
+def hard_rows(tasks: Sequence, world: int, nv: int):
+    """(A, b): the hard tasks' rows J q̇ = v in world ``world``."""
+    rows = [(np.asarray(t.jacobians[world]), np.asarray(t.target_velocities[world])) for t in tasks if t.hard]
+    if not rows:
+        return np.zeros((0, nv)), np.zeros(0)
+    return np.vstack([J for J, _ in rows]), np.concatenate([v for _, v in rows])
+
+
+def qp_answer(tasks: Sequence, world: int, nv: int, box, rows=(None, None), regularization: float = 1e-12):
+    """The QP controller's minimiser in world ``world`` on the tasks' current rows, the
+    box (lb, ub) and general rows (G, h) of that world."""
+    R, r = cost_rows(tasks, world, nv, regularization)
+    A, b = hard_rows(tasks, world, nv)
+    return LeastSquaresQP(R, r, A, b, box[0], box[1], *rows).solve()
+
+
+def limits_box(limits: Sequence, dt: float, n: int, nv: int):
+    """(lower, upper, G, h) of the limits applied into fresh arrays: the constant ones
+    first (the speed box a position limit clips into), then the others in order. For
+    limits whose box depends on q alone (not an AccelerationLimit, which remembers)."""
+    lower, upper = np.full((n, nv), -np.inf), np.full((n, nv), np.inf)
+    count = sum(limit.inequality_rows for limit in limits)
+    G, h = np.zeros((n, count, nv)), np.zeros((n, count))
+    start = 0
+    for limit in [lim for lim in limits if lim.constant] + [lim for lim in limits if not lim.constant]:
+        rows = limit.inequality_rows
+        if rows:
+            limit.apply(dt, lower, upper, G[:, start:start + rows], h[:, start:start + rows])
+        else:
+            limit.apply(dt, lower, upper)
+        start += rows
+    return lower, upper, G, h
+
+
+def close(actual, expected, tolerance: float, floor: float = 1e-3) -> bool:
+    """‖actual − expected‖ <= tolerance · max(‖expected‖, floor) (floor: an answer at rest)."""
+    actual, expected = np.asarray(actual, dtype=float), np.asarray(expected, dtype=float)
+    return float(np.linalg.norm(actual - expected)) <= tolerance * max(float(np.linalg.norm(expected)), floor)
