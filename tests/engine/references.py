@@ -147,7 +147,7 @@ class LeastSquaresQP:
         x0 = self.daqp()
         lower = np.isfinite(self.lb) & (x0 - self.lb <= ACTIVE * (1.0 + np.abs(self.lb)))
         upper = np.isfinite(self.ub) & ~lower & (self.ub - x0 <= ACTIVE * (1.0 + np.abs(self.ub)))
-        rows = self.h - self.G @ x0 <= ACTIVE * (1.0 + np.abs(self.h))
+        rows = np.isfinite(self.h) & (self.h - self.G @ x0 <= ACTIVE * (1.0 + np.abs(self.h)))
         eye = np.eye(self.nv)
         E = np.vstack([self.A, eye[lower], eye[upper], self.G[rows]])
         e = np.concatenate([self.b, self.lb[lower], self.ub[upper], self.h[rows]])
@@ -251,3 +251,65 @@ def close(actual, expected, tolerance: float, floor: float = 1e-3) -> bool:
     """‖actual − expected‖ <= tolerance · max(‖expected‖, floor) (floor: an answer at rest)."""
     actual, expected = np.asarray(actual, dtype=float), np.asarray(expected, dtype=float)
     return float(np.linalg.norm(actual - expected)) <= tolerance * max(float(np.linalg.norm(expected)), floor)
+
+
+# -- limits' rules, written out -----------------------------------------------------------
+def position_limit_box(limit, q: np.ndarray, dt: float, lower: np.ndarray, upper: np.ndarray):
+    """A JointPositionLimit's rule joint by joint (its parameters read from the limit): the
+    step q + q̇Δt inside the range pulled in by the margin, covering a fraction ``gain`` of
+    the distance per step; within ``influence`` of a bound the damper's rate
+    min(ξ/influence, gain/Δt); a joint outside brought back no faster than the incoming
+    box allows. Returns new (lower, upper) (nv,)."""
+    lower, upper = np.array(lower, dtype=float), np.array(upper, dtype=float)
+    step_rate = limit.gain / dt
+    damped = min(limit.damper_rate / limit.influence, step_rate) if limit.influence > 0 else step_rate
+    ranges = limit.limits
+    for qi, di, low_end, high_end in zip(ranges.qpos_index, ranges.dof_index, ranges.lower, ranges.upper):
+        low, high = low_end + limit.margin - q[qi], high_end - limit.margin - q[qi]
+        low *= damped if abs(low) < limit.influence else step_rate
+        high *= damped if abs(high) < limit.influence else step_rate
+        low, high = min(low, upper[di]), max(high, lower[di])
+        lower[di], upper[di] = max(lower[di], low), min(upper[di], high)
+    return lower, upper
+
+
+def collision_rows(model, q, pairs, dt: float, minimum_distance: float, detection_distance: float,
+                   gain: float = 0.85, damper_rate: float | None = 0.5, bound_relaxation: float = 0.0,
+                   search: float = 10.0):
+    """A CollisionAvoidanceLimit's rows written out, pair by pair, on MuJoCo's own distance
+    (``mj_geomDistance`` with native convex collision, on a copy of the model) and point
+    Jacobians (``mj_jac`` at the closest points): d, the row −ḋ/q̇ = −n̂ᵀ(J₂ − J₁) with n̂
+    from p₁ to p₂ (+ once the geoms penetrate: the points then run the other way) and its
+    bound γ(d − d_s)/Δt, the damper's ξ(d − d_s)/(d_i − d_s) below d_i if tighter, at
+    least 0, plus the relaxation. Returns (d (P,), G (P, nv), h (P,)) for every pair
+    (whether the limit keeps a pair's row depends on its reach: the test decides)."""
+    model = native_collision(model)
+    data = mujoco_data(model, q)
+    distances, G, h = np.zeros(len(pairs)), np.zeros((len(pairs), model.nv)), np.zeros(len(pairs))
+    for p, (g1, g2) in enumerate(pairs):
+        fromto = np.zeros(6)
+        d = mujoco.mj_geomDistance(model, data, g1, g2, search, fromto)
+        jacobians = []
+        for body, point in ((model.geom_bodyid[g1], fromto[:3]), (model.geom_bodyid[g2], fromto[3:])):
+            jacp = np.zeros((3, model.nv))
+            mujoco.mj_jac(model, data, jacp, None, point, body)
+            jacobians.append(jacp)
+        normal = (fromto[3:] - fromto[:3]) / np.linalg.norm(fromto[3:] - fromto[:3])
+        G[p] = (-1.0 if d >= 0 else 1.0) * normal @ (jacobians[1] - jacobians[0])
+        bound = gain * (d - minimum_distance) / dt
+        if damper_rate is not None and d < detection_distance:
+            bound = min(bound, damper_rate * (d - minimum_distance) / (detection_distance - minimum_distance))
+        distances[p], h[p] = d, max(bound, 0.0) + bound_relaxation
+    return distances, G, h
+
+
+def native_collision(model: mujoco.MjModel) -> mujoco.MjModel:
+    """The model itself, or a copy with MuJoCo's native convex collision turned on."""
+    off = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+    if not model.opt.disableflags & off:
+        return model
+    import copy
+
+    copied = copy.deepcopy(model)
+    copied.opt.disableflags &= ~off
+    return copied
