@@ -57,7 +57,7 @@ def assert_same():
 @pytest.fixture(scope="session")
 def lockstep():
     """``lockstep(robot, controller, steps, dt, before=None, after=None, box=None, rel=1e-9,
-    regularization=1e-12)``: the QP controller of one robot rolls out (integrating its own
+    regularization=1e-12, every=1)``: the QP controller of one robot rolls out (integrating its own
     answers); at every step its answer must equal the minimiser of the same QP solved
     independently (:mod:`references`: the cost and hard rows written out from the tasks'
     rows, DAQP called directly, the active set solved exactly) to ``rel`` of its norm, or
@@ -65,19 +65,26 @@ def lockstep():
     box and general rows are the limits' own, applied into fresh arrays
     (:func:`references.limits_box`), or ``box(k)`` -> (lower, upper) given by the test
     (a limit with memory). ``before(k)`` sets the step's targets, ``after(k, qdot)`` checks
-    what the step did (after integrating).
+    what the step did (after integrating). ``every``: check every so many steps (a long
+    rollout whose steps are all alike).
 
     Returns:
         The answers, (steps, nv).
     """
 
     def run(robot, controller, steps: int, dt: float, before=None, after=None, box=None, rel: float = 1e-9,
-            regularization: float = 1e-12) -> np.ndarray:
+            regularization: float = 1e-12, every: int = 1) -> np.ndarray:
         answers = []
         for k in range(steps):
             if before is not None:
                 before(k)
             actual = np.array(controller.compute_velocity())
+            if k % every:
+                answers.append(actual)
+                robot.integrate(actual, dt)
+                if after is not None:
+                    after(k, actual)
+                continue
             if box is None:
                 lower, upper, G, h = references.limits_box(controller.limits, dt, 1, robot.nv)
                 bounds, rows = (lower[0], upper[0]), (G[0], h[0])
