@@ -180,7 +180,6 @@ class LeastSquaresQP:
 def _equality_least_squares(R, r, E, e) -> np.ndarray:
     """min ‖Rx − r‖ s.t. Ex = e (consistent rows, possibly dependent): x = x_p + Z y with
     x_p E's minimum-norm solution and Z a basis of its null space (SVD), y by ``lstsq``."""
-    nv = R.shape[1]
     if not len(E):
         return np.linalg.lstsq(R, r, rcond=None)[0]
     _, singular, vt = np.linalg.svd(E)
