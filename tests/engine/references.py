@@ -22,6 +22,7 @@ from typing import Sequence
 import daqp
 import mujoco
 import numpy as np
+from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation
 
 # -- kinematics ---------------------------------------------------------------------------
@@ -156,7 +157,10 @@ class LeastSquaresQP:
         return x
 
     def _check(self, x, E, meq: int, n_lower: int, n_upper: int) -> None:
-        """Feasible, and the multipliers of the active inequalities of the right sign."""
+        """Feasible, and stationary with multipliers of the right sign on the active
+        inequalities: Hx + c + Aᵀλ − Σ μ_l e_i + Σ μ_u e_i + G_aᵀμ_g = 0, μ >= 0, found by
+        SciPy's non-negative least squares (λ = λ⁺ − λ⁻), so that a degenerate vertex
+        (more active constraints than dofs) is judged by some valid multipliers."""
         scale = 1.0 + np.abs(x).max()
         assert np.all(x >= self.lb - 1e-12 * scale) and np.all(x <= self.ub + 1e-12 * scale), "outside the box"
         assert np.all(self.G @ x <= self.h + 1e-12 * (1.0 + np.abs(self.h))), "a row crossed"
@@ -164,17 +168,13 @@ class LeastSquaresQP:
             assert np.linalg.norm(self.A @ x - self.b) <= 1e-10 * (1.0 + np.linalg.norm(self.b)), "rows missed"
         gradient = self.R.T @ (self.R @ x - self.r)  # Hx + c
         if not len(E):
+            assert np.linalg.norm(gradient) <= 1e-7 * (1.0 + np.linalg.norm(self.R.T @ self.r)), "not stationary"
             return
-        multipliers = np.linalg.lstsq(E.T, -gradient, rcond=None)[0]  # Hx + c + Eᵀλ = 0
-        residual = np.linalg.norm(E.T @ multipliers + gradient)
-        assert residual <= 1e-7 * (1.0 + np.linalg.norm(gradient)), f"not stationary: {residual:.1e}"
-        tolerance = 1e-7 * (1.0 + np.abs(multipliers).max())
-        lower = multipliers[meq:meq + n_lower]
-        upper = multipliers[meq + n_lower:meq + n_lower + n_upper]
-        rows = multipliers[meq + n_lower + n_upper:]
-        # λ of −x ≤ −lb is ≥ 0: written as Eᵀλ with the row +e_i, λ_i <= 0 at a lower bound.
-        assert np.all(lower <= tolerance) and np.all(upper >= -tolerance) and np.all(rows >= -tolerance), \
-            "a multiplier of the wrong sign: not the minimiser"
+        equalities, lower = E[:meq], E[meq:meq + n_lower]
+        upper, rows = E[meq + n_lower:meq + n_lower + n_upper], E[meq + n_lower + n_upper:]
+        columns = np.vstack([equalities, -equalities, -lower, upper, rows]).T
+        _, residual = nnls(columns, -gradient, maxiter=100 * columns.shape[1])
+        assert residual <= 1e-7 * (1.0 + np.linalg.norm(gradient)), f"no multipliers of the right sign: {residual:.1e}"
 
 
 def _equality_least_squares(R, r, E, e) -> np.ndarray:
@@ -312,3 +312,56 @@ def native_collision(model: mujoco.MjModel) -> mujoco.MjModel:
     copied = copy.deepcopy(model)
     copied.opt.disableflags &= ~off
     return copied
+
+
+# -- the hierarchy, level by level ----------------------------------------------------------
+def row_basis(rows: np.ndarray, tolerance: float = 1e-10) -> np.ndarray:
+    """An orthonormal basis of the row space of ``rows`` (NumPy's SVD; singular values
+    below ``tolerance`` of the largest dropped)."""
+    if not len(rows):
+        return rows
+    _, singular, vt = np.linalg.svd(rows, full_matrices=False)
+    rank = int(np.sum(singular > tolerance * singular[0])) if singular[0] > 0 else 0
+    return vt[:rank]
+
+
+def level_regularization(soft: Sequence, nv: int, regularization: float) -> float:
+    """The ε of a level's cost (the hierarchy's documented choice): 1 for hard tasks alone
+    (the minimum-norm point), 0 where joint-space soft tasks weigh every dof, else ε."""
+    if not soft:
+        return 1.0
+    covered = np.zeros(nv, dtype=bool)
+    for task in soft:
+        if task.joint_space:
+            covered[np.asarray(task.dofs)[np.asarray(task.weight) > 0]] = True
+    return 0.0 if covered.all() else regularization
+
+
+def level_rows(level: Sequence, world: int):
+    """(J, v) of a level's rows: every row of a hard task, the rows of positive weight of a
+    soft one (a zero weight masks a row)."""
+    blocks = []
+    for task in level:
+        keep = np.arange(task.dim) if task.hard else np.flatnonzero(np.asarray(task.weight) > 0)
+        blocks.append((np.asarray(task.jacobians[world])[keep], np.asarray(task.target_velocities[world])[keep]))
+    return np.vstack([J for J, _ in blocks]), np.concatenate([v for _, v in blocks])
+
+
+def hierarchy_answers(levels: Sequence[Sequence], world: int, nv: int, box, rows=(None, None),
+                      regularization: float = 1e-10) -> list[np.ndarray]:
+    """Each level's minimiser in turn (Kanoun et al. 2011), solved independently: level k
+    minimises its soft tasks' cost (ε of :func:`level_regularization`, the tasks'
+    Levenberg–Marquardt damping) s.t. the rows of every level above keep the velocity
+    they had at q̇*_{k−1} (an orthonormal basis of their row space, so dependent rows
+    above are one constraint each), its hard rows, the box and the general rows."""
+    above, answers, previous = np.zeros((0, nv)), [], np.zeros(nv)
+    for level in levels:
+        soft = [task for task in level if not task.hard]
+        R, r = cost_rows(soft, world, nv, level_regularization(soft, nv, regularization))
+        A, b = hard_rows(level, world, nv)
+        basis = row_basis(above)
+        A, b = np.vstack([basis, A]), np.concatenate([basis @ previous, b])
+        previous = LeastSquaresQP(R, r, A, b, box[0], box[1], *rows).solve()
+        answers.append(previous)
+        above = np.vstack([above, level_rows(level, world)[0]])
+    return answers
