@@ -16,7 +16,7 @@ Tolerances, said once:
   equal ``mj_jac`` to rounding, ~1e-16).
 - ``AGREEMENT``: central differences at h = 1e-6 agree with an exact Jacobian to ~1e-9
   relative to its largest entry here (rounding ε|e|/h, curvature h²): 1e-7 allowed, as
-  the serial tests allow.
+  the core tests allow.
 """
 
 from __future__ import annotations
