@@ -29,6 +29,7 @@ DT = 0.002  # s
 TOLERANCE = 1e-10
 # A world of N equals its own one-world run to this, relative.
 WORLD_TOLERANCE = 1e-10
+_ARM_MODEL = qpik.Robot.load("arm").model  # the laws' reference kinematics (read only)
 
 
 def _configurations(count: int, seed: int = 0) -> np.ndarray:
@@ -71,8 +72,7 @@ def _law(q, target, rate, kind: str, damping: float):
     v = K (x_d − x) + ẋ_d; pinv: J†v + (I − J†J) q̇0 with J† = V diag(s/(s² + λ²)) Uᵀ
     (NumPy's SVD; λ = 0: np.linalg.pinv) and q̇0 = k0 ∂σ/∂q = 5 sin θ cos θ on θ2, θ3
     (zero without σ); jt: α Jᵀ v."""
-    model = qpik.Robot.load("arm").model
-    p, _, Jp, _ = references.frame_state(model, q, "end_effector")
+    p, _, Jp, _ = references.frame_state(_ARM_MODEL, q, "end_effector")
     J = Jp[:2]
     v = 500.0 * (np.asarray(target) - p[:2]) + np.asarray(rate)
     if kind == "jt":
