@@ -1,11 +1,15 @@
 """qpik.batch, the engine's N-world front end: every world of a batched controller equals
-its own one-world run of the same engine classes (on a qpik.Robot) and the serial
-QPController (src/qpik/controllers, an independent implementation) on the same problem,
-step after step of a closed loop in which the limits bind — on the bundled arm and a
-third-party 7-DoF arm. A failing world is named while the others are solved; bad input
-is a typed error; the rollouts run; the exports are the engine's classes."""
+its own one-world run of the same classes (on a qpik.Robot) and the minimiser of its own
+QP solved independently (the QP written out from the world's task rows and limits, DAQP
+called directly: tests/engine/references.py), step after step of a closed loop in which
+the limits bind — on the bundled arm and a third-party 7-DoF arm. A failing world is
+named while the others are solved; bad input is a typed error; the rollouts run; the
+exports are the engine's classes."""
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +18,10 @@ import qpik
 from qpik import batch
 from qpik.errors import InvalidInput, QpikError
 
+_spec = importlib.util.spec_from_file_location("references", Path(__file__).parents[1] / "engine" / "references.py")
+references = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(references)
+
 DT = 0.002
 STEPS = 300
 N = 4
@@ -21,11 +29,12 @@ PUSHER_START = np.array([0.2, 0.3, -0.2, -1.0, 0.3, -0.5, 0.2])
 PUSHER_SPEED = 2.0  # rad/s on every joint (its MJCF declares none)
 # Norm-wise, relative to max(|q̇|, 1 rad/s), after up to STEPS closed-loop steps whose
 # roundings feed back through q: a world against its own one-world run (the same
-# formulas, the engine's N = 1 primitives in C against its N > 1 NumPy ones) and against
-# the serial controller (other code, the same mathematics). Measured: 3e-13 (arm),
-# 8e-14 (pusher), both.
+# formulas, the engine's N = 1 primitives in C against its N > 1 NumPy ones; measured
+# 3e-13 on the arm, 8e-14 on the pusher).
 SAME_ENGINE = 1e-10
-SERIAL = 1e-10
+# Each world's answer against the minimiser of its own QP at the batch's state, solved
+# independently (the issue's figure), relative to max(|q̇|, 1e-3 rad/s).
+INDEPENDENT = 1e-9
 
 
 def _arm(lib, robot, targets, start):
@@ -56,26 +65,29 @@ def _relative(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _compare_closed_loops(make, robots, one_world, inputs, starts):
-    """Step the batch, each world's one-world engine run and its serial run in closed
-    loop; the worst relative differences, and on how many steps a bound was active."""
+    """Step the batch and each world's one-world run in closed loop; at every step each
+    world's answer is also checked against the minimiser of its QP solved independently.
+    The worst relative difference from the one-world runs, and on how many steps a bound
+    was active."""
     controller = make(batch, robots, inputs, starts)
     ones = [(r, make(batch, r, inputs[w], starts[w])) for w, r in enumerate(one_world())]
-    serials = [(r, make(qpik, r, inputs[w], starts[w])) for w, r in enumerate(one_world())]
-    worst_one = worst_serial = 0.0
+    worst_one = 0.0
     bound_steps = 0
     for _ in range(STEPS):
         qdot = controller.compute_velocity()
+        lower, upper, _, _ = references.limits_box(controller.limits, DT, robots.n, robots.nv)
+        for w in range(robots.n):
+            expected = references.qp_answer(controller.tasks, w, robots.nv, (lower[w], upper[w]))
+            assert references.close(qdot[w], expected, INDEPENDENT), (w, qdot[w], expected)
         at_bound = np.isclose(qdot, controller.lb, rtol=0, atol=1e-12) | np.isclose(qdot, controller.ub, rtol=0,
                                                                                       atol=1e-12)
         bound_steps += bool(at_bound.any())
         robots.integrate(qdot, DT)
-        for w, ((one, c1), (serial, cs)) in enumerate(zip(ones, serials)):
-            v1, vs = c1.compute_velocity(), cs.compute_velocity()
+        for w, (one, c1) in enumerate(ones):
+            v1 = c1.compute_velocity()
             worst_one = max(worst_one, _relative(qdot[w], v1))
-            worst_serial = max(worst_serial, _relative(qdot[w], vs))
             one.integrate(v1, DT)
-            serial.integrate(vs, DT)
-    return worst_one, worst_serial, bound_steps
+    return worst_one, bound_steps
 
 
 def _starts(robots, rng, spread):
@@ -87,28 +99,26 @@ def _starts(robots, rng, spread):
     return q
 
 
-def test_arm_worlds_equal_their_one_world_runs_and_the_serial_controller_with_limits_binding():
+def test_arm_worlds_equal_their_one_world_runs_and_their_qps_minimisers_with_limits_binding():
     rng = np.random.default_rng(1)
     robots = batch.Robot.load("arm", N)
     starts = _starts(robots, rng, 0.2)
     targets = rng.uniform(-2.2, 2.2, (N, 2))  # far: the speed and range limits bind
-    worst_one, worst_serial, bound = _compare_closed_loops(_arm, robots, lambda: [qpik.Robot.load("arm")
-                                                                                  for _ in range(N)], targets, starts)
+    worst_one, bound = _compare_closed_loops(_arm, robots, lambda: [qpik.Robot.load("arm") for _ in range(N)],
+                                             targets, starts)
     assert worst_one <= SAME_ENGINE, worst_one
-    assert worst_serial <= SERIAL, worst_serial
     assert bound > STEPS // 4  # the limits bound on many steps
 
 
-def test_pusher_worlds_equal_their_one_world_runs_and_the_serial_controller_with_limits_binding(pusher_model):
+def test_pusher_worlds_equal_their_one_world_runs_and_their_qps_minimisers_with_limits_binding(pusher_model):
     rng = np.random.default_rng(3)
     robots = batch.Robot(pusher_model, N, name="pusher_arm")
     robots.set_q(PUSHER_START)
     starts = _starts(robots, rng, 0.05)
     offsets = rng.uniform(-0.3, 0.3, (N, 3))
-    worst_one, worst_serial, bound = _compare_closed_loops(
+    worst_one, bound = _compare_closed_loops(
         _pusher, robots, lambda: [qpik.Robot(pusher_model, name="pusher_arm") for _ in range(N)], offsets, starts)
     assert worst_one <= SAME_ENGINE, worst_one
-    assert worst_serial <= SERIAL, worst_serial
     assert bound > STEPS // 4
 
 

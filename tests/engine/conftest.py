@@ -1,11 +1,18 @@
-"""Fixtures of the engine's tests: small generated models and the comparisons every
-engine class makes against the serial class it replaces."""
+"""Fixtures of the engine's tests: small generated models, norm-wise comparisons, and a
+controller's rollout checked step by step against an independent solve of its QP."""
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+
+_spec = importlib.util.spec_from_file_location("references", Path(__file__).with_name("references.py"))
+references = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(references)
 
 
 @pytest.fixture(scope="session")
@@ -49,31 +56,46 @@ def assert_same():
 
 @pytest.fixture(scope="session")
 def lockstep():
-    """``lockstep(serial, engine, steps, dt, before=None, rel=1e-10)``: the serial
-    controller rolls out (integrating its answers); at every step the engine's one-world
-    robot is put at the serial robot's configuration and its controller answers the same
-    problem, which must equal the serial answer to ``rel`` of its norm, or of 1e-3 (a
-    slow joint's speed) for an answer at rest (a rollout of its
-    own could part from the serial one by more: a bound that switches, the damper's
-    influence, turns a rounding difference in q into a different step). ``serial`` and
-    ``engine`` are (robot, controller); ``before(k)`` sets the step's targets.
+    """``lockstep(robot, controller, steps, dt, before=None, after=None, box=None, rel=1e-9,
+    regularization=1e-12, every=1)``: the QP controller of one robot rolls out (integrating its own
+    answers); at every step its answer must equal the minimiser of the same QP solved
+    independently (:mod:`references`: the cost and hard rows written out from the tasks'
+    rows, DAQP called directly, the active set solved exactly) to ``rel`` of its norm, or
+    of 1e-3 (a slow joint's speed) for an answer at rest (the issue's figure: 1e-9). The
+    box and general rows are the limits' own, applied into fresh arrays
+    (:func:`references.limits_box`), or ``box(k)`` -> (lower, upper) given by the test
+    (a limit with memory). ``before(k)`` sets the step's targets, ``after(k, qdot)`` checks
+    what the step did (after integrating). ``every``: check every so many steps (a long
+    rollout whose steps are all alike).
 
     Returns:
-        The serial answers, (steps, nv).
+        The answers, (steps, nv).
     """
 
-    def run(serial, engine, steps: int, dt: float, before=None, rel: float = 1e-10) -> np.ndarray:
-        (serial_robot, serial_controller), (engine_robot, engine_controller) = serial, engine
+    def run(robot, controller, steps: int, dt: float, before=None, after=None, box=None, rel: float = 1e-9,
+            regularization: float = 1e-12, every: int = 1) -> np.ndarray:
         answers = []
         for k in range(steps):
             if before is not None:
                 before(k)
-            engine_robot.q[:] = serial_robot.q
-            expected = np.array(serial_controller.compute_velocity())
-            actual = np.array(engine_controller.compute_velocity())
-            assert np.linalg.norm(actual - expected) <= rel * max(np.linalg.norm(expected), 1e-3), (k, actual, expected)
-            answers.append(expected)
-            serial_robot.integrate(expected, dt)
+            actual = np.array(controller.compute_velocity())
+            if k % every:
+                answers.append(actual)
+                robot.integrate(actual, dt)
+                if after is not None:
+                    after(k, actual)
+                continue
+            if box is None:
+                lower, upper, G, h = references.limits_box(controller.limits, dt, 1, robot.nv)
+                bounds, rows = (lower[0], upper[0]), (G[0], h[0])
+            else:
+                bounds, rows = box(k), (None, None)
+            expected = references.qp_answer(controller.tasks, 0, robot.nv, bounds, rows, regularization)
+            assert references.close(actual, expected, rel), (k, actual, expected)
+            answers.append(actual)
+            robot.integrate(actual, dt)
+            if after is not None:
+                after(k, actual)
         return np.array(answers)
 
     return run

@@ -1,20 +1,22 @@
 """What the engine's task tests share (loaded by each test file from its own folder):
-robots at given states, the three references (the serial class, each world's own
-one-world run, finite differences of the error) and norm-wise comparisons.
+robots at given states, the three references (the task's rows written out from MuJoCo's
+own functions in the test, each world's own one-world run, finite differences of the
+error) and norm-wise comparisons.
 
 Tolerances, said once:
 
-- ``SERIAL``: the engine's task on one :class:`qpik.Robot` against the serial class on
-  the same state and target. The same MuJoCo calls give the same Jacobians and poses; the
-  formulas on top are the same but evaluated in another order (stacked ``matmul`` for
-  ``dot``, a (1, 3, 3) product for a 3 x 3 one): a few roundings of O(1) values, so
-  1e-12 relative is a wide margin over the ~1e-16 seen.
+- ``REFERENCE``: the engine's task on one :class:`qpik.Robot` against its formula written
+  out in the test on MuJoCo's own poses and Jacobians (a fresh MjData at the same q) and
+  SciPy's rotation vectors. The same MuJoCo calls give the same Jacobians and poses; the
+  formulas on top are evaluated in another order (stacked ``matmul`` for ``dot``, a
+  quaternion difference for SciPy's rotation vector of a matrix): a few roundings of O(1)
+  values, so 1e-12 relative is a wide margin over the ~1e-16 seen.
 - ``WORLDS`` = 1e-10 relative: each of N worlds against its own one-world run (the
   brief's figure; the CPU back-end's Jacobians are formed from ``cdof`` in NumPy and
   equal ``mj_jac`` to rounding, ~1e-16).
 - ``AGREEMENT``: central differences at h = 1e-6 agree with an exact Jacobian to ~1e-9
   relative to its largest entry here (rounding ε|e|/h, curvature h²): 1e-7 allowed, as
-  the serial tests allow.
+  the core tests allow.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import numpy as np
 import qpik
 from qpik import batch
 
-SERIAL = 1e-12
+REFERENCE = 1e-12
 WORLDS = 1e-10
 AGREEMENT = 1e-7
 STEP = 1e-6
@@ -90,10 +92,13 @@ def measured(task, dt: float | None = DT) -> tuple[np.ndarray, np.ndarray, np.nd
     return rows(task)
 
 
-def assert_same_rows(engine_task, serial_task, tolerance: float = SERIAL, dt: float | None = DT) -> None:
-    """The engine's e, J, v on one robot against the serial class's (see ``SERIAL``)."""
-    engine, serial = measured(engine_task, dt), measured(serial_task, dt)
-    for what, a, b in zip("eJv", engine, serial):
+def assert_rows(task, expected, tolerance: float = REFERENCE, dt: float | None = DT) -> None:
+    """The task's e, J, v on one robot (after attaching ``dt``) against ``expected``, the
+    three written out in the test (see ``REFERENCE``); ``expected`` may be a function of
+    no argument, called after the task is measured (dead-beat gains are then set)."""
+    engine = measured(task, dt)
+    expected = expected() if callable(expected) else expected
+    for what, a, b in zip("eJv", engine, expected):
         assert relative(a, b) <= tolerance, f"{what}: {relative(a, b):.2e}"
 
 

@@ -1,33 +1,39 @@
-"""The engine's SNSController: one robot equals the serial SNS (steps and rollouts with
-joints saturated, tasks scaled and braking bounds), each of N = 4 worlds equals its own
-one-world run, bad input is a typed error and a diverging world is named."""
+"""The engine's SNSController: one robot equals an independent SNS (tests/core/
+sns_reference.py: the algorithm as it was written before the engine, on the same tasks'
+rows and limits) on steps and at every state of rollouts with joints saturated, tasks
+scaled and braking bounds; each of N = 4 worlds equals its own one-world run; bad input
+is a typed error and a diverging world is named."""
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
 import qpik
-import qpik.controllers as serial
-import qpik.controllers as engine
 import qpik.limits as engine_limits
 import qpik.tasks as engine_tasks
-import qpik.limits as serial_limits
-import qpik.tasks as serial_tasks
 from qpik.controllers import SNSController
 from qpik.errors import DivergenceError, InvalidInput, WorldsFailed
 from qpik.robots.arm.scenarios import ARM_START, SEED_PATH, TOO_FAST_SPEEDS, three_tasks_start
 from qpik.trajectories import Segment
 
+_spec = importlib.util.spec_from_file_location("sns_reference", Path(__file__).parents[1] / "core" / "sns_reference.py")
+_reference = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_reference)
+ReferenceSNSController = _reference.ReferenceSNSController
+
 DT = 0.002  # s
-# One robot's q̇ equals the serial SNS's to this relative to 1 + ‖q̇‖ (rad/s): the same
-# passes on the same numbers (the tasks' rows differ by rounding at most).
+# One robot's q̇ equals the reference SNS's to this relative to 1 + ‖q̇‖ (rad/s): the same
+# passes on the same task rows, written by other code (the reference's SVDs from LAPACK's
+# dgesvd, the engine's over worlds).
 TOLERANCE = 1e-10
 # A world of N equals its own one-world run to this, relative.
 WORLD_TOLERANCE = 1e-10
 NARROW = {"theta2": (-0.55, 0.55), "theta3": (-0.55, 0.55)}  # σ saturates θ2, θ3 from three_tasks_start()
-MODULES = {"engine": (engine, engine_tasks, engine_limits), "serial": (serial, serial_tasks, serial_limits)}
 
 
 def _arm(q=ARM_START) -> qpik.Robot:
@@ -42,11 +48,12 @@ def _configurations(count: int, seed: int = 0) -> np.ndarray:
     return np.column_stack([rng.uniform(-2.0, 2.0, (count, 3)), rng.uniform(0.2, 0.8, count)])
 
 
-def _sns(which: str, robot, *, speeds=None, ranges=None, max_acceleration=None, split: bool = False,
-         weight=1.0, target=None, rate=(0.1, -0.05)):
+def _sns(robot, *, speeds=None, ranges=None, max_acceleration=None, split: bool = False, weight=1.0, target=None,
+         rate=(0.1, -0.05), reference: bool = False):
     """SNS on the arm: the path (x, y; or x over y, ``split``) over σ, with joint position
-    limits (``ranges`` tightened) and speed limits (``speeds`` lowered)."""
-    controllers, tasks, limits = MODULES[which]
+    limits (``ranges`` tightened) and speed limits (``speeds`` lowered); with
+    ``reference``, the independent SNS on the same levels and limits as well (one robot)."""
+    tasks = engine_tasks
     position = tasks.PositionTask(robot, "end_effector", axes="xy", gain=500.0, weight=weight)
     if target is None:
         robot.ensure_kinematics()
@@ -63,11 +70,14 @@ def _sns(which: str, robot, *, speeds=None, ranges=None, max_acceleration=None, 
     vmax = robot.velocity_limits.copy()
     for joint, speed in (speeds or {}).items():
         vmax[robot.joint_dof_index(joint)] = speed
-    bounds = [limits.JointPositionLimit(robot, robot.joint_limits.tightened(ranges or {}), influence=0.8,
-                                        damper_rate=2.0), limits.JointVelocityLimit(robot, vmax)]
-    controller = controllers.SNSController(robot, levels=levels, limits=bounds, dt=DT,
-                                           max_acceleration=max_acceleration)
-    return controller, (position if not split else levels[0][0], levels[1][0] if split else None)
+    bounds = [engine_limits.JointPositionLimit(robot, robot.joint_limits.tightened(ranges or {}), influence=0.8,
+                                               damper_rate=2.0), engine_limits.JointVelocityLimit(robot, vmax)]
+    controller = SNSController(robot, levels=levels, limits=bounds, dt=DT, max_acceleration=max_acceleration)
+    tracked = (position if not split else levels[0][0], levels[1][0] if split else None)
+    if reference:
+        return controller, tracked, ReferenceSNSController(robot, levels=levels, limits=bounds, dt=DT,
+                                                           max_acceleration=max_acceleration)
+    return controller, tracked
 
 
 def _close(a: np.ndarray, b: np.ndarray, tolerance: float = TOLERANCE) -> bool:
@@ -85,8 +95,26 @@ SETUPS = {
 }
 
 
+def _assert_as_the_reference(ours, theirs, qdot) -> bool:
+    """The answer, task scales, saturation counts and box of a step against the reference's
+    on the same state (the reference answers after the engine: the same rows). Returns
+    whether the scales were a tie: once the levels above leave q̇ at a vertex of the box
+    (every joint at a bound) a level below can move no joint, and its scale's window is a
+    point that rounding puts inside or just outside, in either code: the answer is that
+    vertex either way, the scale undetermined (reported 0 or the point)."""
+    assert _close(qdot, theirs.compute_velocity())
+    np.testing.assert_array_equal(ours.saturated, theirs.saturated)
+    np.testing.assert_array_equal(ours.lb, theirs.lb)
+    np.testing.assert_array_equal(ours.ub, theirs.ub)
+    if np.abs(ours.task_scale - theirs.task_scale).max() <= 1e-10:
+        return False
+    vertex = np.isclose(qdot, ours.lb, rtol=0, atol=1e-12) | np.isclose(qdot, ours.ub, rtol=0, atol=1e-12)
+    assert vertex.all(), (ours.task_scale, theirs.task_scale, qdot)
+    return True
+
+
 @pytest.mark.parametrize("setup", SETUPS)
-def test_one_robot_equals_the_serial_sns(setup):
+def test_one_robot_equals_the_reference_sns(setup):
     options = SETUPS[setup]
     q = _configurations(8)
     q[0] = three_tasks_start()
@@ -94,62 +122,58 @@ def test_one_robot_equals_the_serial_sns(setup):
         robot = _arm(qi)
         if "ranges" in options:  # inside the narrow ranges
             robot.set_q(np.clip(qi, -0.5, 0.5) + [0.0, 0.0, 0.0, 0.2])
-        ours, _ = _sns("engine", robot, rate=(1.0, -0.5), **options)
-        theirs, _ = _sns("serial", robot, rate=(1.0, -0.5), **options)
-        qdot = ours.compute_velocity()
+        ours, _, theirs = _sns(robot, rate=(1.0, -0.5), reference=True, **options)
+        qdot = np.array(ours.compute_velocity())
         assert qdot.shape == (4,) and ours.task_scale.shape == (theirs.level_count,)
-        assert _close(qdot, theirs.compute_velocity())
-        np.testing.assert_allclose(ours.task_scale, theirs.task_scale, rtol=0, atol=1e-10)
-        np.testing.assert_array_equal(ours.saturated, theirs.saturated)
-        np.testing.assert_array_equal(ours.lb, theirs.lb)
-        np.testing.assert_array_equal(ours.ub, theirs.ub)
+        assert not _assert_as_the_reference(ours, theirs, qdot)
         np.testing.assert_array_equal(ours.report()["task_scale"], ours.task_scale)
 
 
-ROLLOUTS = {
+ROLLOUTS = {  # (options, start, duration, the most steps whose scales may tie at a vertex)
     # σ drives θ2 and θ3 into ±0.55: level 1 saturates them.
-    "saturated sigma": ({"ranges": NARROW}, three_tasks_start(), 5.0),
+    "saturated sigma": ({"ranges": NARROW}, three_tasks_start(), 5.0, 0),
     # The path in 0.5 s with 1 rad/s joints: level 0 saturates joints, then is scaled.
-    "scaled path": ({"speeds": TOO_FAST_SPEEDS}, ARM_START, 0.5),
-    # x over y over σ, joints slow: saturation inside a null space.
-    "three levels": ({"speeds": TOO_FAST_SPEEDS, "split": True}, ARM_START, 0.5),
+    "scaled path": ({"speeds": TOO_FAST_SPEEDS}, ARM_START, 0.5, 0),
+    # x over y over σ, joints slow: saturation inside a null space; from step 128 x alone
+    # drives every joint to a bound on some steps, and y's scale is a tie there (23 steps
+    # measured; which of them rounding tips either way is not a promise).
+    "three levels": ({"speeds": TOO_FAST_SPEEDS, "split": True}, ARM_START, 0.5, 40),
     # Braking bounds before the narrow ranges.
-    "braking": ({"ranges": NARROW, "max_acceleration": 2.0}, three_tasks_start(), 5.0),
+    "braking": ({"ranges": NARROW, "max_acceleration": 2.0}, three_tasks_start(), 5.0, 0),
 }
 
 
 @pytest.mark.parametrize("rollout", ROLLOUTS)
-def test_a_rollout_equals_the_serial_rollout(rollout):
-    """200 steps of the seed path from the scenario's start, joints saturating."""
-    options, start, duration = ROLLOUTS[rollout]
+def test_every_state_of_a_rollout_is_answered_as_the_reference(rollout):
+    """200 steps of the seed path from the scenario's start, joints saturating: at every
+    state of the engine's rollout the reference SNS gives the same answer, scales and
+    saturations (the scales of a level below a vertex of the box excepted: a tie)."""
+    options, start, duration, most_ties = ROLLOUTS[rollout]
     segment = Segment(SEED_PATH[0], SEED_PATH[1], duration, time_law="cubic")
-    runs = []
-    for which in ("engine", "serial"):
-        robot = _arm(start)
-        controller, (first, second) = _sns(which, robot, target=SEED_PATH[0], rate=None, **options)
-        path, scales = [], []
-        for k in range(200):
-            x, dx = segment.sample(k * DT)
-            if second is None:
-                first.set_target(x, dx)
-            else:
-                first.set_target(x[:1], dx[:1])
-                second.set_target(x[1:], dx[1:])
-            robot.integrate(controller.compute_velocity(), DT)
-            path.append(robot.q.copy())
-            scales.append(np.concatenate([controller.task_scale, controller.saturated]))
-        runs.append((np.array(path), np.array(scales)))
-    (ours, our_scales), (theirs, their_scales) = runs
-    assert np.abs(ours - theirs).max() <= TOLERANCE * (1.0 + np.abs(theirs).max())
-    np.testing.assert_allclose(our_scales, their_scales, rtol=0, atol=1e-9)
-    assert (our_scales[:, -1] > 0).any() or (our_scales[:, :-1] < 1).any()  # something saturated
+    robot = _arm(start)
+    controller, (first, second), reference = _sns(robot, target=SEED_PATH[0], rate=None, reference=True, **options)
+    scales, ties = [], 0
+    for k in range(200):
+        x, dx = segment.sample(k * DT)
+        if second is None:
+            first.set_target(x, dx)
+        else:
+            first.set_target(x[:1], dx[:1])
+            second.set_target(x[1:], dx[1:])
+        qdot = np.array(controller.compute_velocity())
+        ties += _assert_as_the_reference(controller, reference, qdot)
+        robot.integrate(qdot, DT)
+        scales.append(np.concatenate([controller.task_scale, controller.saturated]))
+    scales = np.array(scales)
+    assert (scales[:, -1] > 0).any() or (scales[:, :-1] < 1).any()  # something saturated
+    assert ties <= most_ties
 
 
 def _worlds(count: int = 4, offset: float = 1e-3, seed: int = 1):
     q = _configurations(count, seed)
     q[0], q[1] = three_tasks_start(), three_tasks_start(0.54)
     rng = np.random.default_rng(seed + 10)
-    targets = [_sns("engine", _arm(qi))[1][0].measured() + rng.uniform(-offset, offset, 2) for qi in q]
+    targets = [_sns(_arm(qi))[1][0].measured() + rng.uniform(-offset, offset, 2) for qi in q]
     return q, np.array(targets)
 
 
@@ -171,8 +195,8 @@ def test_each_of_four_worlds_equals_its_own_one_world_run(setup):
     options, offset = WORLD_SETUPS[setup]
     q, targets = _worlds(offset=offset)
     robots = _batch(q)
-    batch, _ = _sns("engine", robots, target=targets, **options)
-    singles = [(robot, _sns("engine", robot, target=target, **options)[0])
+    batch, _ = _sns(robots, target=targets, **options)
+    singles = [(robot, _sns(robot, target=target, **options)[0])
                for robot, target in ((_arm(qi), ti) for qi, ti in zip(q, targets))]
     saturated = 0
     for _ in range(20):
@@ -217,35 +241,28 @@ def test_bad_input_is_typed():
         SNSController(jointless, [tip], dt=DT)
 
 
-def _spike_task(tasks):
-    class Spike(tasks.Task):
-        """A 1-row task whose Jacobian is 1e200 on θ1 where d4 > 0.7 m: its ‖J‖² overflows."""
+class Spike(engine_tasks.Task):
+    """A 1-row task whose Jacobian is 1e200 on θ1 where d4 > 0.7 m: its ‖J‖² overflows."""
 
-        dim = 1
+    dim = 1
 
-        def compute_error(self, robot):
-            return np.array([1e-3])
+    def compute_error(self, robot):
+        return np.array([1e-3])
 
-        def compute_jacobian(self, robot):
-            return np.array([[1e200 if robot.q[3] > 0.7 else 1.0, 1.0, 0.0, 0.0]])
-
-    return Spike
+    def compute_jacobian(self, robot):
+        return np.array([[1e200 if robot.q[3] > 0.7 else 1.0, 1.0, 0.0, 0.0]])
 
 
 def test_a_diverging_world_is_named_and_the_others_are_solved():
     q, targets = _worlds()
     q[2, 3] = 0.75  # world 2: the spike
-    spike = _spike_task(engine_tasks)
     robot = _arm(q[2])
-    for which, tasks in (("engine", engine_tasks), ("serial", serial_tasks)):
-        controllers = MODULES[which][0]
-        task = _spike_task(tasks)(robot, gain=10.0)
-        with pytest.raises(DivergenceError, match="not finite"), np.errstate(over="ignore"):  # the serial warns
-            controllers.SNSController(robot, [task], dt=DT).compute_velocity()
+    with pytest.raises(DivergenceError, match="not finite"):
+        SNSController(robot, [Spike(robot, gain=10.0)], dt=DT).compute_velocity()
     robots = _batch(q)
     position = engine_tasks.PositionTask(robots, "end_effector", axes="xy", gain=500.0)
     position.set_target(targets)
-    batch = SNSController(robots, levels=[[position], [spike(robots, gain=10.0)]], dt=DT)
+    batch = SNSController(robots, levels=[[position], [Spike(robots, gain=10.0)]], dt=DT)
     with pytest.raises(WorldsFailed) as failed:
         batch.compute_velocity()
     assert failed.value.worlds.tolist() == [2] and "DivergenceError" in failed.value.reasons[2]
@@ -254,5 +271,5 @@ def test_a_diverging_world_is_named_and_the_others_are_solved():
         one = _arm(q[w])
         single_position = engine_tasks.PositionTask(one, "end_effector", axes="xy", gain=500.0)
         single_position.set_target(targets[w])
-        single = SNSController(one, levels=[[single_position], [spike(one, gain=10.0)]], dt=DT)
+        single = SNSController(one, levels=[[single_position], [Spike(one, gain=10.0)]], dt=DT)
         assert _close(failed.value.qdot[w], single.compute_velocity(), WORLD_TOLERANCE)

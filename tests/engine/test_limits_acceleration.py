@@ -1,20 +1,21 @@
-"""The engine's AccelerationLimit: the serial limit's box at N = 1 (the previous velocity
-differentiated from the configurations it sees, through ball and free joints too), each
-of N worlds its own, reset per world, typed errors, and a QP rollout that keeps it."""
+"""The engine's AccelerationLimit: its box at N = 1 against the rule written out (the
+previous velocity mj_differentiatePos of the configurations it saw, over Δt, through ball
+and free joints too; a reset's velocity instead), each of N worlds its own, reset per
+world, typed errors, and a QP rollout that keeps it, each step the minimiser of its QP
+solved independently."""
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
 import qpik
 from qpik import batch
-from qpik.controllers import QPController as EngineQP
-from qpik.limits import AccelerationLimit
-from qpik.tasks import DampingTask as EngineDamping
-from qpik.tasks import PositionTask as EnginePosition
+from qpik.controllers import QPController
 from qpik.errors import InvalidInput, InvalidWorlds
-from qpik.limits import AccelerationLimit as SerialAccelerationLimit
+from qpik.limits import AccelerationLimit
+from qpik.tasks import DampingTask, PositionTask
 
 DT = 0.002
 AMAX = 20.0
@@ -28,29 +29,35 @@ def unbounded(n: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
     return np.full((n, nv), -np.inf), np.full((n, nv), np.inf)
 
 
-def test_box_equals_the_serial_limits_along_a_motion(chain_model, assert_same):
+def test_box_follows_the_rule_along_a_motion(chain_model, assert_same):
     """A free-floating chain (the free joint's quaternion differentiated too) moved by
-    random velocities; reset with a velocity halfway. The serial limit differentiates
-    with mj_differentiatePos(dt), the engine with its dt = 1 difference over dt: equal
-    to rounding (1e-13 of the box's norm)."""
+    random velocities; reset with a velocity halfway. The rule: the previous velocity is
+    (q_k ⊖ q_{k−1})/Δt (MuJoCo's mj_differentiatePos at Δt, the reset's velocity on the
+    step after a reset, zero on the first), the box its ±a Δt intersected with the
+    incoming one. The limit differentiates with its dt = 1 difference over Δt: equal to
+    rounding (1e-13 of the box's norm)."""
     model = chain_model(4, free_base=True)
-    serial_robot, engine_robot = qpik.Robot(model), qpik.Robot(model)
-    serial = SerialAccelerationLimit(serial_robot, np.linspace(5.0, 30.0, model.nv))
-    engine = AccelerationLimit(engine_robot, np.linspace(5.0, 30.0, model.nv))
+    robot = qpik.Robot(model)
+    bounds = np.linspace(5.0, 30.0, model.nv)
+    limit = AccelerationLimit(robot, bounds)
+    previous_q, previous = robot.q.copy(), np.zeros(model.nv)
     for k, qdot in enumerate(moves(model.nv, 12, 0)):
         if k == 6:
             start = np.linspace(-1.0, 1.0, model.nv)
-            serial.reset(start)
-            engine.reset(start)
-        lb, ub = np.full(model.nv, -3.0), np.full(model.nv, 3.0)
-        lower, upper = lb[None].copy(), ub[None].copy()
-        serial.apply(DT, lb, ub)
-        engine.apply(DT, lower, upper)
-        assert_same(lower[0], lb, 1e-13)
-        assert_same(upper[0], ub, 1e-13)
-        assert_same(engine.previous_velocity, serial.previous_velocity, 1e-13)
-        for robot in (serial_robot, engine_robot):
-            robot.integrate(qdot, DT)
+            limit.reset(start)
+        if k and k != 6:
+            mujoco.mj_differentiatePos(model, previous, DT, previous_q, robot.q)
+        elif k == 6:
+            previous = start.copy()
+        expected = (np.maximum(-3.0, previous - bounds * DT), np.minimum(3.0, previous + bounds * DT))
+        lower, upper = np.full((1, model.nv), -3.0), np.full((1, model.nv), 3.0)
+        limit.apply(DT, lower, upper)
+        assert_same(lower[0], expected[0], 1e-13)
+        assert_same(upper[0], expected[1], 1e-13)
+        assert_same(limit.previous_velocity, previous, 1e-13)
+        assert np.any(expected[0] > -3.0) and np.any(expected[1] < 3.0)  # the rule binds
+        previous_q = robot.q.copy()
+        robot.integrate(qdot, DT)
 
 
 def test_each_world_is_its_own_run(chain_model, assert_same):
@@ -106,35 +113,25 @@ def test_reset_checks_the_velocity(chain_model):
 
 def test_qp_rollout_bounds_every_change_of_velocity(chain_model, lockstep):
     """A target that jumps every 0.1 s (a step the dead-beat gain asks to cover at once):
-    on the serial rollout's states the engine answers as the serial controller; its own
-    rollout changes no velocity by more than aΔt (to rounding of q̇)."""
+    every answer is the minimiser of its QP solved independently, its box the rule's
+    written out (the previous answer ± aΔt, the limit differentiating what the robot did),
+    and no velocity changes by more than aΔt (to rounding of q̇)."""
     model = chain_model()
-
-    def build(engine: bool):
-        robot = qpik.Robot(model)
-        robot.set_q(np.linspace(0.3, -0.4, model.nq))
-        Position, Damping, QP, Limit = (EnginePosition, EngineDamping, EngineQP, AccelerationLimit) if engine else \
-            (qpik.PositionTask, qpik.DampingTask, qpik.QPController, SerialAccelerationLimit)
-        reach = Position(robot, "tip")
-        return robot, QP(robot, [reach, Damping(robot, 1e-4)], [Limit(robot, AMAX)], dt=DT), reach
-
-    serial, engine = build(False), build(True)
-    base = np.array(serial[2].target)
-
-    def jump(k: int, tasks=(serial[2], engine[2])) -> None:
-        if k % 50 == 0:
-            for task in tasks:
-                task.set_target(base + (0.1 if (k // 50) % 2 else -0.1) * np.array([1.0, -0.5, 0.3]))
-
-    answers = lockstep(serial[:2], engine[:2], 200, DT, jump)
-    assert np.abs(np.diff(answers, axis=0)).max() <= AMAX * DT + 1e-9
-    robot, controller, task = engine
+    robot = qpik.Robot(model)
     robot.set_q(np.linspace(0.3, -0.4, model.nq))
-    controller.limits[0].reset()
-    previous = np.zeros(model.nv)
-    for k in range(200):
-        jump(k, (task,))
-        qdot = np.array(controller.compute_velocity())
-        assert np.abs(qdot - previous).max() <= AMAX * DT + 1e-9
-        robot.integrate(qdot, DT)
-        previous = qdot
+    reach = PositionTask(robot, "tip")
+    controller = QPController(robot, [reach, DampingTask(robot, 1e-4)], [AccelerationLimit(robot, AMAX)], dt=DT)
+    base = np.array(reach.target)
+    answers = [np.zeros(model.nv)]  # the limit starts at rest
+
+    def jump(k: int) -> None:
+        if k % 50 == 0:
+            reach.set_target(base + (0.1 if (k // 50) % 2 else -0.1) * np.array([1.0, -0.5, 0.3]))
+
+    def box(k: int):
+        return answers[-1] - AMAX * DT, answers[-1] + AMAX * DT
+
+    rollout = lockstep(robot, controller, 200, DT, jump, after=lambda k, qdot: answers.append(qdot), box=box)
+    steps = np.diff(np.vstack([np.zeros(model.nv), rollout]), axis=0)
+    assert np.abs(steps).max() <= AMAX * DT + 1e-9
+    assert np.isclose(np.abs(steps).max(axis=1), AMAX * DT, rtol=1e-9).sum() > 20  # the bound did bind

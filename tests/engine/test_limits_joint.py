@@ -1,21 +1,25 @@
-"""The engine's joint position and velocity limits: the serial classes' boxes at N = 1,
-each of N worlds its own one-world box, typed errors, and a QP rollout that keeps them
-and answers as the serial controller does."""
+"""The engine's joint position and velocity limits: their boxes at N = 1 against the rules
+written out joint by joint, each of N worlds its own one-world box, typed errors, and a
+QP rollout that keeps them, each step the minimiser of its QP solved independently."""
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import qpik
 from qpik import batch
-from qpik.controllers import QPController as EngineQP
-from qpik.limits import JointPositionLimit, JointVelocityLimit
-from qpik.tasks import DampingTask as EngineDamping
-from qpik.tasks import PositionTask as EnginePosition
+from qpik.controllers import QPController
 from qpik.errors import InvalidInput, ModelError, UnknownName
-from qpik.limits import JointPositionLimit as SerialPositionLimit
-from qpik.limits import JointVelocityLimit as SerialVelocityLimit
+from qpik.limits import JointPositionLimit, JointVelocityLimit
+from qpik.tasks import DampingTask, PositionTask
+
+_spec = importlib.util.spec_from_file_location("references", Path(__file__).with_name("references.py"))
+references = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(references)
 
 DT = 0.002
 # Configurations of the bundled arm: inside, near the bounds (within the damper's
@@ -36,20 +40,22 @@ def speed_box(robot, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize("influence", [0.0, 0.3])
-def test_position_box_equals_the_serial_limits(influence):
-    """The arrays path of the serial limit and the engine's write the same box (the same
-    operations in the same order: equal to the last bit)."""
+def test_position_box_follows_the_rule_joint_by_joint(influence):
+    """Inside, near the bounds (within the damper's influence) and outside the range: the
+    box is the rule's (references.position_limit_box), the same scalar operations in the
+    same order, so equal to the last bit."""
     robot = arm()
-    serial = SerialPositionLimit(robot, influence=influence, damper_rate=4.0, gain=0.9)
-    engine = JointPositionLimit(robot, influence=influence, damper_rate=4.0, gain=0.9)
+    limit = JointPositionLimit(robot, influence=influence, damper_rate=4.0, gain=0.9)
+    tightened = 0
     for q in ARM_STATES:
         robot.set_q(q)
         lower, upper = speed_box(robot)
-        lb, ub = lower[0].copy(), upper[0].copy()
-        serial.apply(DT, lb, ub)
-        engine.apply(DT, lower, upper)
-        np.testing.assert_array_equal(lower[0], lb)
-        np.testing.assert_array_equal(upper[0], ub)
+        expected = references.position_limit_box(limit, q, DT, lower[0], upper[0])
+        tightened += int(np.sum(expected[0] != lower[0]) + np.sum(expected[1] != upper[0]))
+        limit.apply(DT, lower, upper)
+        np.testing.assert_array_equal(lower[0], expected[0])
+        np.testing.assert_array_equal(upper[0], expected[1])
+    assert tightened >= 4  # the states near and outside the ranges: the rule did bind
 
 
 def test_position_box_of_each_world_is_its_own():
@@ -82,16 +88,27 @@ def test_position_limit_names_a_non_finite_joint():
         limit.apply(DT, *speed_box(robots, 3))
 
 
-def test_velocity_box_equals_the_serial_limits_in_every_world():
-    robot, robots = arm(), batch.Robot.load("arm", n=4)
+def test_velocity_box_is_the_bounds_given_in_every_world():
+    """{θ1: 1.5, d4: 0.25}: |q̇_0| <= 1.5, |q̇_3| <= 0.25, the other dofs left free, in one
+    robot and in each of 4 worlds (its own one-world box); without values, the bounds the
+    bundled arm declares (qpik_velocity_limit_*)."""
     values = {"theta1": 1.5, "d4": 0.25}
-    lb, ub = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
-    SerialVelocityLimit(robot, values).apply(DT, lb, ub)
-    lower, upper = np.full((4, robot.nv), -np.inf), np.full((4, robot.nv), np.inf)
-    JointVelocityLimit(robots, values).apply(DT, lower, upper)
-    np.testing.assert_array_equal(lower, np.tile(lb, (4, 1)))
-    np.testing.assert_array_equal(upper, np.tile(ub, (4, 1)))
-    assert JointVelocityLimit(robot).constant
+    expected = np.array([1.5, np.inf, np.inf, 0.25])
+    for robot in (arm(), batch.Robot.load("arm", n=4)):
+        lower, upper = np.full((robot.n, robot.nv), -np.inf), np.full((robot.n, robot.nv), np.inf)
+        limit = JointVelocityLimit(robot, values)
+        assert limit.constant and not limit.inequality_rows
+        limit.apply(DT, lower, upper)
+        np.testing.assert_array_equal(lower, np.tile(-expected, (robot.n, 1)))
+        np.testing.assert_array_equal(upper, np.tile(expected, (robot.n, 1)))
+    robot = arm()
+    declared = np.array([float(robot.model.numeric(f"qpik_velocity_limit_{robot.model.joint(j).name}").data[0])
+                         for j in range(robot.model.njnt)])
+    lower, upper = speed_box(robot)
+    lower[:], upper[:] = -np.inf, np.inf
+    JointVelocityLimit(robot).apply(DT, lower, upper)
+    np.testing.assert_array_equal(upper[0], declared)
+    np.testing.assert_array_equal(lower[0], -declared)
 
 
 @pytest.mark.parametrize("values, error, match", [
@@ -109,29 +126,21 @@ def test_velocity_limit_needs_bounds_somewhere(chain_model):
         JointVelocityLimit(qpik.Robot(chain_model(3)))
 
 
-def test_qp_rollout_keeps_the_joint_limits_and_answers_as_the_serial_controller(lockstep):
+def test_qp_rollout_keeps_the_joint_limits_and_each_step_is_its_qps_minimiser(lockstep):
     """A target out of reach drives the joints into their bounds at full speed: the box
-    binds (the solver's steps and the held bounds' closed form). On the serial rollout's
-    states every engine answer equals the serial one to 1e-10 of its norm; the engine's
-    own rollout keeps q in range and q̇ in the speed box."""
-    target = [0.0, 2.5, 0.3]
+    binds (the solver's steps and the held bounds' closed form). Every answer equals the
+    minimiser of its QP solved independently (1e-9 of its norm), q stays in range and q̇
+    in the speed box."""
+    robot = arm(ARM_STATES[0])
+    task = PositionTask(robot, "end_effector", gain=20.0)
+    task.set_target([0.0, 2.5, 0.3])
+    controller = QPController(robot, [task, DampingTask(robot, 1e-4)],
+                              [JointPositionLimit(robot, influence=0.2), JointVelocityLimit(robot)], dt=DT)
 
-    def build(engine: bool):
-        robot = arm(ARM_STATES[0])
-        Position, Damping, QP = (EnginePosition, EngineDamping, EngineQP) if engine else \
-            (qpik.PositionTask, qpik.DampingTask, qpik.QPController)
-        Limits = (JointPositionLimit, JointVelocityLimit) if engine else (SerialPositionLimit, SerialVelocityLimit)
-        task = Position(robot, "end_effector", gain=20.0)
-        task.set_target(target)
-        return robot, QP(robot, [task, Damping(robot, 1e-4)], [Limits[0](robot, influence=0.2), Limits[1](robot)],
-                         dt=DT)
-
-    answers = lockstep(build(False), build(True), 300, DT)
-    assert np.abs(answers).max() == pytest.approx(8.0)  # a joint did run at its speed bound
-    robot, controller = build(True)
-    for _ in range(300):
-        qdot = controller.compute_velocity()
+    def after(k, qdot):
         assert np.all(np.abs(qdot) <= robot.velocity_limits * (1.0 + 1e-12))
-        robot.integrate(qdot, DT)
         assert robot.joint_limits.violation(robot.q) <= 1e-9
+
+    answers = lockstep(robot, controller, 300, DT, after=after)
+    assert np.abs(answers).max() == pytest.approx(8.0)  # a joint did run at its speed bound
     assert controller.solver_calls > 0

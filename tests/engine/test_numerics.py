@@ -105,3 +105,19 @@ def test_cholesky_solve_of_no_rows_is_empty_and_solved(n):
     an untyped error of LAPACK's (as the hand-solved small systems once raised ValueError)."""
     X, ok = numerics.cholesky_solve(np.zeros((n, 0, 0)), np.zeros((n, 0)), ratio=1e6)
     assert X.shape == (n, 0) and ok.all()
+
+
+@pytest.mark.parametrize("n", [1, 5])
+@pytest.mark.parametrize("m, k, p", [(2, 4, 3), (3, 7, 5), (6, 7, 6), (1, 1, 1)])
+def test_products_of_every_worlds_matrices_equal_numpy_world_by_world(n, m, k, p):
+    """matvec (A x), vecmat (Aᵀ y) and outer_product (A Bᵀ, through the worlds-last path
+    when m·p <= 16 and through matmul above) against NumPy's 2-D products of each world:
+    sums of k products of O(1) numbers in another order, 1e-14 of their scale."""
+    rng = np.random.default_rng(n * 100 + m * 10 + p)
+    A, B = rng.normal(size=(n, m, k)), rng.normal(size=(n, p, k))
+    x, y = rng.normal(size=(n, k)), rng.normal(size=(n, m))
+    results = (numerics.matvec(A, x, np.empty((n, m))), numerics.vecmat(y, A, np.empty((n, k))),
+               numerics.outer_product(A, B, np.empty((n, m, p))))
+    for w in range(n):
+        for result, expected in zip(results, (A[w] @ x[w], y[w] @ A[w], A[w] @ B[w].T)):
+            np.testing.assert_allclose(result[w], expected, rtol=0, atol=1e-14 * k)

@@ -1,7 +1,8 @@
 """The engine's ComTask (the whole model's CoM and a subtree's, masked): on one robot equal
-to the serial class; on 4 worlds with their own states and targets, each world equal to
-its own one-world run; J against finite differences; the CoM against the bodies' mass-
-weighted mean; bad input is a typed error naming the worlds."""
+to its formula written out on MuJoCo's own CoM and CoM Jacobian (``subtree_com``,
+``mj_jacSubtreeCom``); on 4 worlds with their own states and targets, each world equal to
+its own one-world run; J against finite differences; the CoM against the bodies'
+mass-weighted mean; bad input is a typed error naming the worlds."""
 
 from __future__ import annotations
 
@@ -12,41 +13,62 @@ import mujoco
 import numpy as np
 import pytest
 
-from qpik import InvalidInput, ModelError, UnknownName, tasks as serial
+from qpik import InvalidInput, ModelError, UnknownName
 from qpik import tasks as engine
 from qpik.errors import InvalidWorlds
 
-_spec = importlib.util.spec_from_file_location("tasks_support", Path(__file__).with_name("tasks_support.py"))
-support = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(support)
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+support, references = _load("tasks_support"), _load("references")
 
 SUBTREES = {"arm": "link2", "hexapod": "platform", "jaco": "b_3", "humanoid": "lfemur", "pusher": "r_upper_arm_link"}
 
 
-def whole(T, robot, t):
-    task = T.ComTask(robot, gain=5.0, weight=[1.0, 2.0, 3.0], lm_damping=0.2)
+def whole(robot, t):
+    task = engine.ComTask(robot, gain=5.0, weight=[1.0, 2.0, 3.0], lm_damping=0.2)
     task.set_target(task.target + t[..., :3], t[..., 3:])
     return task
 
 
-def subtree_xz(T, robot, t, name):
-    task = T.ComTask(robot, subtree=SUBTREES[name], axes="xz")  # dead-beat
+def subtree_xz(robot, t, name):
+    task = engine.ComTask(robot, subtree=SUBTREES[name], axes="xz")  # dead-beat
     task.set_target(task.target + t[..., :2], t[..., 3:5])
     return task
 
 
 def cases(name):
-    return [whole, lambda T, robot, t: subtree_xz(T, robot, t, name)]
+    return [whole, lambda robot, t: subtree_xz(robot, t, name)]
+
+
+def com_rows(model, q, body: int, rows: list[int], target_offset, rate, gain):
+    """e = c_d − c on the kept rows (c_d: the CoM at q plus the offset), J = MuJoCo's
+    ∂c/∂q rows, v = K e + ċ_d."""
+    data = references.mujoco_data(model, q)
+    jacobian = np.zeros((3, model.nv))
+    mujoco.mj_jacSubtreeCom(model, data, jacobian, body)
+    com = data.subtree_com[body]
+    e = com[rows] + target_offset - com[rows]
+    return e, jacobian[rows], gain * e + rate
 
 
 @pytest.mark.parametrize("name", sorted(SUBTREES))
-def test_one_robot_equals_the_serial_class(model_path, name):
+def test_one_robot_equals_mujocos_com_rows(model_path, name):
     path = model_path(name)
     start = support.one_robot(path)
     q = support.displaced(start.model, start.q, seed=1)
     t = np.random.default_rng(2).normal(scale=0.05, size=6)
-    for case in cases(name):
-        support.assert_same_rows(case(engine, support.one_robot(path, q), t), case(serial, support.one_robot(path, q), t))
+    robot = support.one_robot(path, q)
+    support.assert_rows(whole(robot, t), com_rows(robot.model, q, 0, [0, 1, 2], t[:3], t[3:], 5.0))
+    robot = support.one_robot(path, q)
+    body = robot.model.body(SUBTREES[name]).id
+    support.assert_rows(subtree_xz(robot, t, name), com_rows(robot.model, q, body, [0, 2], t[:2], t[3:5],
+                                                             1.0 / support.DT))
 
 
 @pytest.mark.parametrize("name", ["arm", "hexapod", "humanoid"])
@@ -55,7 +77,7 @@ def test_each_of_four_worlds_is_its_own_one_world_run(model_path, name):
     t = np.random.default_rng(4).normal(scale=0.05, size=(robots.n, 6))
     for case in cases(name):
         # Targets relative to each world's own CoM: the batch task's target is (N, dim).
-        support.assert_each_world(robots, lambda robot, w, case=case: case(engine, robot, t if w is None else t[w]))
+        support.assert_each_world(robots, lambda robot, w, case=case: case(robot, t if w is None else t[w]))
 
 
 @pytest.mark.parametrize("name", ["arm", "hexapod", "jaco", "humanoid"])

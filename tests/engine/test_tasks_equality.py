@@ -1,10 +1,10 @@
 """The engine's EqualityTask and the robots' ``equality_rows``: MuJoCo's connect, weld, joint
-and tendon rows. On one robot equal to the serial class and to MuJoCo's whole pipeline
-(``mj_forward``); on 4 worlds with their own states, each world equal to its own one-world
+and tendon rows. On one robot equal to MuJoCo's whole pipeline (``mj_forward``: the
+equality rows of ``efc_pos``/``efc_J``, v = −K e written out); on 4 worlds with their own states, each world equal to its own one-world
 run, whichever path (the back-end's batched rows, MuJoCo's C world by world) wrote its
 rows; J against finite differences of the residual; residuals per world; bad input typed.
 
-The models are the serial tests' (tests/core/test_equality.py, loaded from there)."""
+The models are the core tests' (tests/core/test_equality.py, loaded from there)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from qpik import InvalidInput, ModelError, UnknownName, tasks as serial
+from qpik import InvalidInput, ModelError, UnknownName
 from qpik import tasks as engine
 
 
@@ -33,24 +33,46 @@ OPTIONS = ["", ' jacobian="sparse"']
 
 
 def equality_model(option: str = "") -> mujoco.MjModel:
-    """The serial tests' model, its pin placed where the tip is at qpos0."""
+    """The core tests' model, its pin placed where the tip is at qpos0."""
     return core.equality_robot(option, seed=None).model
 
 
 def builders(gain=2.0):
-    """Tasks on every active equality, on a subset, soft, and dead-beat."""
-    return [lambda T, robot: T.EqualityTask(robot, gain=gain),
-            lambda T, robot: T.EqualityTask(robot, ["cord", "pin"], gain=gain),
-            lambda T, robot: T.EqualityTask(robot, ["glue", "couple"], hard=False, weight=3.0, gain=gain),
-            lambda T, robot: T.EqualityTask(robot)]
+    """Tasks on every active equality, on a subset, soft, and dead-beat: (build, the
+    equalities it names (None: the active ones), K once attached)."""
+    return [(lambda robot: engine.EqualityTask(robot, gain=gain), None, gain),
+            (lambda robot: engine.EqualityTask(robot, ["cord", "pin"], gain=gain), ["cord", "pin"], gain),
+            (lambda robot: engine.EqualityTask(robot, ["glue", "couple"], hard=False, weight=3.0, gain=gain),
+             ["glue", "couple"], gain),
+            (lambda robot: engine.EqualityTask(robot), None, 1.0 / support.DT)]
+
+
+def mujoco_rows(model, q, names, gain: float):
+    """(e, J, v) of the named equalities (None: the active ones, here all but "spare") from
+    MuJoCo's whole pipeline on a fresh MjData: the equality rows of efc_pos and efc_J
+    (``mj_forward``, in the equalities' id order), v = −K e."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = q
+    mujoco.mj_forward(model, data)
+    jacobian = np.zeros((data.nefc, model.nv))
+    if mujoco.mj_isSparse(model):
+        mujoco.mju_sparse2dense(jacobian, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
+    else:
+        jacobian[:] = data.efc_J.reshape(data.nefc, model.nv)
+    ids = [model.equality(name).id for name in (core.NAMES if names is None else names)]
+    rows = (data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & np.isin(data.efc_id, ids)
+    assert rows.sum() == sum(core.ROWS[model.equality(i).name] for i in ids)
+    return data.efc_pos[rows], jacobian[rows], -gain * data.efc_pos[rows]
 
 
 @pytest.mark.parametrize("option", OPTIONS)
-def test_one_robot_equals_the_serial_class_and_mujocos_rows(option):
+def test_one_robot_equals_mujocos_rows(option):
     model = equality_model(option)
     q = support.displaced(model, model.qpos0, seed=1, scale=0.05)
-    for build in builders():
-        support.assert_same_rows(build(engine, support.one_robot(model, q)), build(serial, support.one_robot(model, q)))
+    for build, names, gain in builders():
+        # The same C calls on the same q (the task's on a pipeline pared to the equality
+        # rows): equal to rounding, 1e-12 relative.
+        support.assert_rows(build(support.one_robot(model, q)), mujoco_rows(model, q, names, gain))
     robot = support.one_robot(model, q)
     task = engine.EqualityTask(robot, gain=2.0)
     error, jacobian, velocity = support.measured(task)
@@ -65,8 +87,8 @@ def test_one_robot_equals_the_serial_class_and_mujocos_rows(option):
 @pytest.mark.parametrize("option", OPTIONS)
 def test_each_of_four_worlds_is_its_own_one_world_run(option):
     robots = support.worlds(equality_model(option), n=4, seed=2, scale=0.05)
-    for build in builders():
-        support.assert_each_world(robots, lambda robot, w, build=build: build(engine, robot))
+    for build, _, _ in builders():
+        support.assert_each_world(robots, lambda robot, w, build=build: build(robot))
 
 
 def test_the_hexapods_loops_on_four_worlds():
@@ -117,10 +139,13 @@ def test_residuals_are_per_world():
     residuals, largest = task.residuals(), task.max_residual()
     assert residuals.shape == (4, len(core.NAMES)) and largest.shape == (4,)
     for w in range(robots.n):
-        reference = serial.EqualityTask(support.world_robot(robots, w), gain=2.0)
-        # Norms of the same O(1e-2) residuals, summed in another order: 1e-14 relative.
-        np.testing.assert_allclose(residuals[w], reference.residuals(), rtol=1e-14, atol=0)
-        assert largest[w] == pytest.approx(reference.max_residual(), rel=1e-14)
+        error, _, _ = mujoco_rows(robots.model, robots.q[w], None, 2.0)
+        starts = np.cumsum([0] + [core.ROWS[name] for name in core.NAMES])
+        reference = np.array([np.linalg.norm(error[a:b]) for a, b in zip(starts[:-1], starts[1:])])
+        # Norms of the same O(1e-2) residuals (MuJoCo's pipeline on the world's q), summed
+        # in another order: 1e-14 relative (the batch forms connect and joint rows in NumPy).
+        np.testing.assert_allclose(residuals[w], reference, rtol=1e-14, atol=0)
+        assert largest[w] == pytest.approx(reference.max(), rel=1e-14)
     one = engine.EqualityTask(support.world_robot(robots, 1), gain=2.0)
     np.testing.assert_allclose(one.residuals(), residuals[1], rtol=1e-14)
     assert np.ndim(one.max_residual()) == 0

@@ -1,7 +1,8 @@
 """The engine's PositionTask, OrientationTask and FrameTask (world and local axes, masks, a
-site, a body and a geom): on one robot equal to the serial classes; on 4 worlds with
-their own states and targets, each world equal to its own one-world run; J against finite
-differences of the error; bad targets are typed errors naming the worlds."""
+site, a body and a geom): on one robot equal to their formulas written out on MuJoCo's own
+poses and Jacobians (SciPy's rotation vectors); on 4 worlds with their own states and
+targets, each world equal to its own one-world run; J against finite differences of the
+error; bad targets are typed errors naming the worlds."""
 
 from __future__ import annotations
 
@@ -11,13 +12,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qpik import InvalidInput, tasks as serial
+from qpik import InvalidInput
 from qpik import tasks as engine
 from qpik.errors import InvalidWorlds
 
-_spec = importlib.util.spec_from_file_location("tasks_support", Path(__file__).with_name("tasks_support.py"))
-support = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(support)
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+support, references = _load("tasks_support"), _load("references")
+DEAD_BEAT = 1.0 / support.DT  # the gain a default (dead-beat) gain becomes once attached
 
 # Per model: the tracked frame, a body frame and a geom frame (None: the model has no named one).
 MODELS = {
@@ -38,55 +46,71 @@ def targets(rng, n: int) -> dict:
                 linear=rng.normal(size=(n, 3)), angular=rng.normal(size=(n, 3)))
 
 
-# Each case builds its task with module T (qpik.tasks or qpik.tasks) on ``robot``
-# and gives it targets t (per world, or one world's) relative to ``start`` (the frame's pose).
-def position_xz(T, robot, spec, t, start):
-    task = T.PositionTask(robot, *spec["frame"], axes="xz", gain=20.0, weight=[1.0, 2.0])
+# Each case builds its task on ``robot`` and gives it targets t (per world, or one world's)
+# relative to ``start`` (the frame's pose); it returns the task and, for one world, the
+# arguments of references.pose_rows that write the same rows out (the gains of each row,
+# whole 3-vector targets and velocities in world axes).
+def position_xz(robot, spec, t, start):
+    task = engine.PositionTask(robot, *spec["frame"], axes="xz", gain=20.0, weight=[1.0, 2.0])
     task.set_target((start[0] + t["offset"])[..., [0, 2]], t["linear"][..., :2])
-    return task
+    linear = np.array([t["linear"][..., 0], 0.0, t["linear"][..., 1]]) if np.ndim(t["linear"]) == 1 else None
+    return task, dict(frame=spec["frame"], gains=[20.0, 20.0], position=start[0] + t["offset"], position_axes="xz",
+                      linear=linear)
 
 
-def position_local(T, robot, spec, t, start):
-    task = T.PositionTask(robot, *spec["frame"], axes="xy", gain=[5.0, 7.0], axes_frame="local", lm_damping=0.1)
+def position_local(robot, spec, t, start):
+    task = engine.PositionTask(robot, *spec["frame"], axes="xy", gain=[5.0, 7.0], axes_frame="local", lm_damping=0.1)
     task.set_target(start[0] + t["offset"], t["linear"])
-    return task
+    return task, dict(frame=spec["frame"], gains=[5.0, 7.0], position=start[0] + t["offset"], position_axes="xy",
+                      local=True, linear=t["linear"])
 
 
-def orientation_world(T, robot, spec, t, start):
-    task = T.OrientationTask(robot, *spec["frame"], gain=30.0)
+def orientation_world(robot, spec, t, start):
+    task = engine.OrientationTask(robot, *spec["frame"], gain=30.0)
     task.set_target(t["quat"], t["angular"])
-    return task
+    return task, dict(frame=spec["frame"], gains=[30.0] * 3, rotation=_matrix(t["quat"]), angular=t["angular"])
 
 
-def orientation_local_xz(T, robot, spec, t, start):
-    task = T.OrientationTask(robot, *spec["frame"], axes="xz", axes_frame="local")  # dead-beat
+def orientation_local_xz(robot, spec, t, start):
+    task = engine.OrientationTask(robot, *spec["frame"], axes="xz", axes_frame="local")  # dead-beat
     task.set_target(t["quat"], t["angular"])
-    return task
+    return task, dict(frame=spec["frame"], gains=[DEAD_BEAT] * 2, rotation=_matrix(t["quat"]), orientation_axes="xz",
+                      local=True, angular=t["angular"])
 
 
-def frame_world(T, robot, spec, t, start):
-    task = T.FrameTask(robot, *spec["frame"], position_gain=10.0, orientation_gain=[1.0, 2.0, 3.0])
+def frame_world(robot, spec, t, start):
+    task = engine.FrameTask(robot, *spec["frame"], position_gain=10.0, orientation_gain=[1.0, 2.0, 3.0])
     task.set_target(start[0] + t["offset"], t["quat"], t["linear"], t["angular"])
-    return task
+    return task, dict(frame=spec["frame"], gains=[10.0, 10.0, 10.0, 1.0, 2.0, 3.0], position=start[0] + t["offset"],
+                      rotation=_matrix(t["quat"]), linear=t["linear"], angular=t["angular"])
 
 
-def frame_local_masked(T, robot, spec, t, start):
-    task = T.FrameTask(robot, *spec["frame"], position_axes="xy", orientation_axes="z", axes_frame="local",
-                       weight=[1.0, 2.0, 3.0])
+def frame_local_masked(robot, spec, t, start):
+    task = engine.FrameTask(robot, *spec["frame"], position_axes="xy", orientation_axes="z", axes_frame="local",
+                            weight=[1.0, 2.0, 3.0])
     task.set_target(start[0] + t["offset"], t["quat"], t["linear"], t["angular"])
-    return task
+    return task, dict(frame=spec["frame"], gains=[DEAD_BEAT] * 3, position=start[0] + t["offset"],
+                      rotation=_matrix(t["quat"]), position_axes="xy", orientation_axes="z", local=True,
+                      linear=t["linear"], angular=t["angular"])
 
 
-def frame_body_local(T, robot, spec, t, start):
-    task = T.FrameTask(robot, *spec["body"], position_gain=3.0, orientation_gain=4.0, axes_frame="local")
+def frame_body_local(robot, spec, t, start):
+    task = engine.FrameTask(robot, *spec["body"], position_gain=3.0, orientation_gain=4.0, axes_frame="local")
     task.set_target(start[1] + t["offset"], t["quat"])
-    return task
+    return task, dict(frame=spec["body"], gains=[3.0] * 3 + [4.0] * 3, position=start[1] + t["offset"],
+                      rotation=_matrix(t["quat"]), local=True)
 
 
-def frame_geom(T, robot, spec, t, start):
-    task = T.FrameTask(robot, *spec["geom"], position_gain=3.0, orientation_gain=4.0, position_axes="yz")
+def frame_geom(robot, spec, t, start):
+    task = engine.FrameTask(robot, *spec["geom"], position_gain=3.0, orientation_gain=4.0, position_axes="yz")
     task.set_target(start[2] + t["offset"], t["quat"], t["linear"])
-    return task
+    return task, dict(frame=spec["geom"], gains=[3.0] * 2 + [4.0] * 3, position=start[2] + t["offset"],
+                      rotation=_matrix(t["quat"]), position_axes="yz", linear=t["linear"])
+
+
+def _matrix(quat):
+    """One world's target rotation (MuJoCo's matrix of the quaternion); None for (N, 4)."""
+    return references.quaternion_matrix(quat) if np.ndim(quat) == 1 else None
 
 
 CASES = [position_xz, position_local, orientation_world, orientation_local_xz, frame_world, frame_local_masked,
@@ -99,15 +123,16 @@ def starts(robot, spec) -> list[np.ndarray]:
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
-def test_one_robot_equals_the_serial_class(model_path, name):
+def test_one_robot_equals_the_formulas_on_mujocos_kinematics(model_path, name):
     spec, rng = MODELS[name], np.random.default_rng(1)
     path = model_path(name)
     q = support.displaced(support.one_robot(path).model, support.one_robot(path).q, seed=2)
     t = {k: v[0] for k, v in targets(rng, 1).items()}
     for case in CASES:
-        robot, reference = support.one_robot(path, q), support.one_robot(path, q)
+        robot = support.one_robot(path, q)
         start = [s[0] for s in starts(robot, spec)]
-        support.assert_same_rows(case(engine, robot, spec, t, start), case(serial, reference, spec, t, start))
+        task, reference = case(robot, spec, t, start)
+        support.assert_rows(task, references.pose_rows(robot.model, q, **reference))
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
@@ -118,8 +143,8 @@ def test_each_of_four_worlds_is_its_own_one_world_run(model_path, name):
     for case in CASES:
         def build(robot, w, case=case):
             if w is None:
-                return case(engine, robot, spec, t, origin)
-            return case(engine, robot, spec, {k: v[w] for k, v in t.items()}, [s[w] for s in origin])
+                return case(robot, spec, t, origin)[0]
+            return case(robot, spec, {k: v[w] for k, v in t.items()}, [s[w] for s in origin])[0]
 
         support.assert_each_world(robots, build)
 

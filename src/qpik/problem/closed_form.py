@@ -164,6 +164,7 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.nda
 
 
 _SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >= 0
+_INF = float("inf")
 
 
 def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.ndarray | None = None,
@@ -174,15 +175,20 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
     if len(x) == 1 and G is None:
         lower, upper = box[0].tolist()
         for value, low, high in zip(x[0].tolist(), lower, upper):
-            if not low <= value <= high:
+            if not low <= value <= high or abs(value) == _INF:  # ±inf meets an absent bound's ±inf
                 return nowhere(1)
         return everywhere(1)
-    gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
+    with np.errstate(invalid="ignore"):  # ±inf on an absent bound: inf − inf, NaN, outside
+        gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
     np.multiply(gap, sides, gap)
     ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
-    if G is None:
+    if G is None or not G.shape[1]:
         return ok
-    return ok & (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1) if G.shape[1] else ok
+    if ok is everywhere(len(x)):
+        return (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
+    worlds = np.flatnonzero(ok)  # the rows of the worlds in the box only (x finite there)
+    ok[worlds] = (np.matmul(G[worlds], x[worlds, :, None])[:, :, 0] <= h[worlds]).all(axis=1)
+    return ok
 
 
 class HeldBounds:
