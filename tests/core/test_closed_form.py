@@ -1,5 +1,5 @@
 """The engine's closed form (qpik.problem.closed_form) against independent references: the
-equality-constrained minimiser (EqualityQP, with and without held dofs) against its KKT
+equality-constrained minimiser (DampedLeastSquares, with and without held dofs) against its KKT
 system solved by NumPy on random problems over N worlds; dependent rows refused; the
 bounds held (HeldBounds) against DAQP called directly on random boxed QPs; rows_met and
 inside, their one-world float paths against their N-world paths; the damped
@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 
 from qpik import DampingTask, PostureTask, QPController, Robot
-from qpik.problem import least_squares
-from qpik.problem.closed_form import EqualityQP, HeldBounds, inside, rows_met
-from qpik.problem.least_squares import DampedLeastSquares
+from qpik.problem import closed_form
+from qpik.problem.closed_form import DampedLeastSquares, HeldBounds, inside, rows_met
 from qpik.scenario import build_scenario
 
 _spec = importlib.util.spec_from_file_location("references", Path(__file__).parents[1] / "engine" / "references.py")
@@ -29,18 +28,20 @@ EPS = np.finfo(float).eps
 NV = 7
 
 
-def _hessians(rng, n: int, kind: str) -> np.ndarray:
+def _costs(rng, n: int, kind: str):
+    """D (n, NV) and soft rows R₁ (n, m, NV) with r₁ (n, m): H = D + R₁ᵀR₁ is a uniform
+    diagonal, a diagonal, or dense (three soft rows)."""
     if kind == "uniform":
-        return np.eye(NV) * rng.uniform(0.1, 3.0, (n, 1, 1))
-    if kind == "diagonal":
-        return np.eye(NV) * rng.uniform(0.1, 3.0, (n, 1, NV))
-    M = rng.normal(size=(n, NV, NV))
-    return M @ M.transpose(0, 2, 1) + 0.1 * np.eye(NV)
+        D = np.ones((n, NV)) * rng.uniform(0.1, 3.0, (n, 1))
+    else:
+        D = rng.uniform(0.1, 3.0, (n, NV))
+    m = 3 if kind == "dense" else 0
+    return D, rng.normal(size=(n, m, NV)), rng.normal(size=(n, m))
 
 
-def _inverse_diagonal(H: np.ndarray, kind: str):
-    """H⁻¹'s diagonal where H is diagonal (the closed form's diagonal path), else None."""
-    return None if kind == "dense" else 1.0 / np.einsum("nii->ni", H)
+def _dense(D, R1, r1, c):
+    """H = D + R₁ᵀR₁ and the QP's c − R₁ᵀr₁ of one world."""
+    return np.diag(D) + R1.T @ R1, c - R1.T @ r1
 
 
 def _kkt(H, c, A, b, fixed=None, values=None):
@@ -61,20 +62,23 @@ def _kkt(H, c, A, b, fixed=None, values=None):
 @pytest.mark.parametrize("meq", [0, 1, 2, 4, 7])
 def test_the_equality_minimiser_is_the_kkt_solution_in_every_world(n, hessian, meq):
     """Random strictly convex problems (7 dofs, meq rows; meq = 7: x fixed by the rows):
-    x and y of every world against the KKT system (a backward-stable solve of each: they
-    differ by ~ε κ(KKT), 1e3 ε κ allowed), the rows met."""
+    x and the rows' multipliers z₂ of every world against the KKT system (a backward-stable
+    solve of each: they differ by ~ε κ(KKT), 1e3 ε κ allowed), the rows met."""
     rng = np.random.default_rng(10 * meq + n)
     for _ in range(10):
-        H = _hessians(rng, n, hessian)
+        D, R1, r1 = _costs(rng, n, hessian)
         c, A, b = rng.normal(size=(n, NV)), rng.normal(size=(n, meq, NV)), rng.normal(size=(n, meq))
-        x, y, ok = EqualityQP(n, NV, meq).solve(_inverse_diagonal(H, hessian), H, c, A, b)
+        m = R1.shape[1]
+        x, z, ok = DampedLeastSquares(n, NV, m, meq).solve(1.0 / D, np.concatenate([R1, A], 1),
+                                                            np.concatenate([r1, b], 1), c)
         assert np.all(ok)
         for w in range(n):
-            expected_x, expected_y, condition = _kkt(H[w], c[w], A[w], b[w])
+            H, c_full = _dense(D[w], R1[w], r1[w], c[w])
+            expected_x, expected_y, condition = _kkt(H, c_full, A[w], b[w])
             tolerance = 1e3 * EPS * condition
             assert np.linalg.norm(x[w] - expected_x) <= tolerance * (1.0 + np.linalg.norm(expected_x))
             if meq:
-                assert np.linalg.norm(y[w] - expected_y) <= tolerance * (1.0 + np.linalg.norm(expected_y))
+                assert np.linalg.norm(z[w, m:] - expected_y) <= tolerance * (1.0 + np.linalg.norm(expected_y))
                 assert np.linalg.norm(A[w] @ x[w] - b[w]) <= 1e-10 * (1.0 + np.linalg.norm(b[w]))
 
 
@@ -86,29 +90,30 @@ def test_held_dofs_are_their_values_and_the_rest_the_kkt_solution(n, hessian, me
     there exactly and the KKT solution of the problem with those equalities added."""
     rng = np.random.default_rng(100 + 10 * meq + n)
     for _ in range(10):
-        H = _hessians(rng, n, hessian)
+        D, R1, r1 = _costs(rng, n, hessian)
         c, A, b = rng.normal(size=(n, NV)), rng.normal(size=(n, meq, NV)), rng.normal(size=(n, meq))
         fixed = np.zeros((n, NV), dtype=bool)
         for w in range(n):
             fixed[w, rng.permutation(NV)[:int(rng.integers(1, NV - meq))]] = True
         values = np.where(fixed, rng.normal(size=(n, NV)), 0.0)
-        x, _, ok = EqualityQP(n, NV, meq).solve(_inverse_diagonal(H, hessian), H, c, A, b, fixed, values)
+        x, _, ok = DampedLeastSquares(n, NV, R1.shape[1], meq).solve(
+            1.0 / D, np.concatenate([R1, A], 1), np.concatenate([r1, b], 1), c, fixed, values)
         assert np.all(ok)
         np.testing.assert_array_equal(x[fixed], values[fixed])
         for w in range(n):
-            expected, _, condition = _kkt(H[w], c[w], A[w], b[w], fixed[w], values[w])
+            H, c_full = _dense(D[w], R1[w], r1[w], c[w])
+            expected, _, condition = _kkt(H, c_full, A[w], b[w], fixed[w], values[w])
             assert np.linalg.norm(x[w] - expected) <= 1e3 * EPS * condition * (1.0 + np.linalg.norm(expected))
 
 
 @pytest.mark.parametrize("n", [1, 3])
 def test_dependent_or_zero_rows_are_refused_in_their_world_alone(n):
-    """The same row twice, and a row of zeros: S = A H⁻¹ Aᵀ is singular, the world is
-    refused (left to the solver); the other worlds are solved."""
-    H = np.tile(np.eye(3), (n, 1, 1))
+    """The same row twice, and a row of zeros: A D⁻¹ Aᵀ is singular, the world is refused
+    (left to the solver); the other worlds are solved."""
     A = np.tile(np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]), (n, 1, 1))
     for bad in (np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0]]), np.array([[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]])):
         A[-1] = bad
-        _, _, ok = EqualityQP(n, 3, 2).solve(np.ones((n, 3)), H, np.zeros((n, 3)), A, np.ones((n, 2)))
+        _, _, ok = DampedLeastSquares(n, 3, 0, 2).solve(np.ones((n, 3)), A, np.ones((n, 2)), np.zeros((n, 3)))
         assert np.asarray(ok).tolist() == [True] * (n - 1) + [False]
 
 
@@ -130,21 +135,23 @@ def test_held_bounds_give_the_qps_minimiser_or_nothing(hessian, meq):
     n, held_right, repaired = 4, 0, 0
     box = np.tile(np.stack([np.full(NV, -0.5), np.full(NV, 0.5)]), (n, 1, 1))
     for _ in range(10):
-        H = _hessians(rng, n, hessian)
+        D, R1, r1 = _costs(rng, n, hessian)
         c, A, b = 3.0 * rng.normal(size=(n, NV)), rng.normal(size=(n, meq, NV)), 0.1 * rng.normal(size=(n, meq))
-        expected = np.array([_qp_reference(H[w], c[w], A[w], b[w], box[w, 0], box[w, 1]) for w in range(n)])
-        cost = SimpleNamespace(inverse_diagonal=_inverse_diagonal(H, hessian), H=H, c=c)
-        held = HeldBounds(n, NV, meq)
+        dense = [_dense(D[w], R1[w], r1[w], c[w]) for w in range(n)]
+        expected = np.array([_qp_reference(*dense[w], A[w], b[w], box[w, 0], box[w, 1]) for w in range(n)])
+        cost = SimpleNamespace(dinv=1.0 / D, damping=D, R=np.concatenate([R1, A], 1), rhs=np.concatenate([r1, b], 1),
+                               linear=c)
+        held = HeldBounds(n, NV, R1.shape[1], meq)
         held.remember(np.arange(n), expected, box[:, 0], box[:, 1])
         held_right += int(held.lower.any(axis=1).sum() + held.upper.any(axis=1).sum())
-        x, solved = held.solve(cost, A, b, box)
+        x, solved = held.solve(cost, box)
         assert np.all(solved)
         np.testing.assert_allclose(x, expected, rtol=0, atol=1e-9)
         for w in range(n):  # a guess: two dofs at their lower bound, one at its upper
             guess = rng.permutation(NV)[:3]
             held.lower[w], held.upper[w] = np.isin(np.arange(NV), guess[:2]), np.arange(NV) == guess[2]
         held.holding = True
-        x, solved = held.solve(cost, A, b, box)
+        x, solved = held.solve(cost, box)
         np.testing.assert_allclose(x[solved], expected[solved], rtol=0, atol=1e-9)
         repaired += int(np.sum(solved))
     assert held_right >= 30  # the box binds in most worlds
@@ -205,7 +212,7 @@ def test_the_damped_least_squares_step_is_the_kkt_solution(soft_rows, hard_rows,
         R = rng.normal(size=(n, soft_rows + hard_rows, NV))
         rhs, c = rng.normal(size=(n, soft_rows + hard_rows)), rng.normal(size=(n, NV)) * epsilon
         diagonal = epsilon * (1.0 + rng.random((n, NV)))
-        x, ok = step.solve(1.0 / diagonal, R, rhs, c)
+        x, _, ok = step.solve(1.0 / diagonal, R, rhs, c)
         assert np.all(ok)
         for w in range(n):
             R1, R2 = R[w, :soft_rows], R[w, soft_rows:]
@@ -220,19 +227,29 @@ def test_the_damped_least_squares_step_is_the_kkt_solution(soft_rows, hard_rows,
                 np.testing.assert_allclose(x[w], expected, rtol=1e-9, atol=1e-12)
 
 
-def test_the_damped_least_squares_step_refuses_an_answer_that_misses_the_equalities(monkeypatch):
+def test_refinement_brings_back_the_digits_a_tiny_epsilon_loses(monkeypatch):
     """Equalities that fix x entirely, ε = 1e-10 (a hierarchy level whose bounds left as
-    many free joints as rows above): the soft rows' Schur complement is a difference of
-    1e10-sized terms. Unchecked, the equalities are met to ~1e-6 relative; checked, the
-    step declines (ok False) and the solver takes the level."""
+    many free joints as rows above): x = D⁻¹(Rᵀz − c) is a difference of 1e10-sized terms.
+    Without refinement the equalities are met to ~1e-6 relative, and the answer is
+    refused; with it, every answer that is kept meets them to 1e-10 and is the point
+    they fix (NumPy's solve of R₂x = r₂; R₂ 2×2 of normal entries: κ below 1e4 in all but
+    a few draws, 1e-8 relative allowed)."""
     rng = np.random.default_rng(0)
     problems = [(rng.normal(size=(1, 3, 2)), 100.0 * rng.normal(size=(1, 3))) for _ in range(50)]
     step = DampedLeastSquares(1, 2, 1, 2)
-    assert not any(step.solve(np.full((1, 2), 1e10), R, rhs, np.zeros((1, 2)))[1][0] for R, rhs in problems)
-    monkeypatch.setattr(least_squares, "EQUALITY_TOLERANCE", np.inf)
+    kept = 0
+    for R, rhs in problems:
+        x, _, ok = step.solve(np.full((1, 2), 1e10), R, rhs, np.zeros((1, 2)))
+        if ok[0]:
+            kept += 1
+            expected = np.linalg.solve(R[0, 1:], rhs[0, 1:])
+            assert np.linalg.norm(x[0] - expected) <= 1e-8 * np.linalg.norm(expected)
+    assert kept >= 40
+    monkeypatch.setattr(closed_form, "REFINEMENTS", 0)
+    monkeypatch.setattr(closed_form, "EQUALITY_TOLERANCE", np.inf)
     misses = []
     for R, rhs in problems:
-        x, ok = step.solve(np.full((1, 2), 1e10), R, rhs, np.zeros((1, 2)))
+        x, _, ok = step.solve(np.full((1, 2), 1e10), R, rhs, np.zeros((1, 2)))
         if not ok[0]:  # declined on its pivots already
             continue
         misses.append(np.linalg.norm(R[0, 1:] @ x[0] - rhs[0, 1:]) / np.linalg.norm(rhs[0, 1:]))

@@ -21,7 +21,7 @@ import qpik.limits as engine_limits
 import qpik.tasks as engine_tasks
 from qpik.controllers import HierarchicalController
 from qpik.errors import InfeasibleProblem, InvalidInput, UnknownName, WorldsFailed
-from qpik.problem.least_squares import DampedLeastSquares
+from qpik.problem import DampedLeastSquares
 from qpik.robots.arm.scenarios import ARM_START, SEED_PATH, TOO_FAST_SPEEDS, three_tasks_start
 from qpik.trajectories import Segment
 
@@ -327,12 +327,12 @@ def test_the_least_squares_closed_form_is_the_kkt_solution_in_every_world(form):
         dinv, c = np.full((n, nv), 1e10), None
     else:
         dinv, c = 1.0 / rng.uniform(0.1, 2.0, (n, nv)), rng.normal(size=(n, nv))
-    batch, ok = DampedLeastSquares(n, nv, soft, rows).solve(dinv, R, rhs, c)
+    batch, _, ok = DampedLeastSquares(n, nv, soft, rows).solve(dinv, R, rhs, c)
     assert ok.tolist() == [True, True, True, False, True]
     one = DampedLeastSquares(1, nv, soft, rows)
     for w in (0, 1, 2, 4):
         cw = None if c is None else c[w:w + 1]
-        x, solved = one.solve(dinv[w:w + 1], R[w:w + 1], rhs[w:w + 1], cw)
+        x, _, solved = one.solve(dinv[w:w + 1], R[w:w + 1], rhs[w:w + 1], cw)
         assert solved[0] and _close(batch[w], x[0], WORLD_TOLERANCE)
         expected, condition = _kkt_solution(dinv[w], R[w], rhs[w], soft, None if c is None else c[w])
         assert condition * np.finfo(float).eps < 1e-12

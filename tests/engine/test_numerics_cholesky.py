@@ -71,14 +71,14 @@ def test_ill_conditioned_solves_agree_with_lapack_to_their_condition(n, k, condi
 
 
 @pytest.mark.parametrize("n", [1, 5])
-def test_the_pivot_ratio_is_lapacks_factor_span(n):
-    """``ratio`` refuses a world whose Cholesky factor's diagonal spans more than it: the
-    span of LAPACK's factor (NumPy's cholesky), a hair above it solved, a hair below it
-    refused, on both paths."""
+def test_the_ratio_is_lapacks_factor_against_the_diagonal(n):
+    """``ratio`` refuses a world whose Cholesky pivots fall below √M_jj / ratio: the largest
+    √M_jj / L_jj of LAPACK's factor (NumPy's cholesky), a hair above it solved, a hair below
+    it refused, on both paths."""
     rng = np.random.default_rng(n + 20)
     M = np.stack([_conditioned(rng, 5, 1e6) for _ in range(n)])
-    spans = np.array([np.diag(np.linalg.cholesky(m)).max() / np.diag(np.linalg.cholesky(m)).min() for m in M])
+    ratios = np.array([(np.sqrt(np.diag(m)) / np.diag(np.linalg.cholesky(m))).max() for m in M])
     for factor, expected in ((1.0 + 1e-9, True), (1.0 - 1e-9, False)):
         for w in range(n):
-            _, ok = cholesky_solve(M, np.ones((n, 5)), ratio=spans[w] * factor)
+            _, ok = cholesky_solve(M, np.ones((n, 5)), ratio=ratios[w] * factor)
             assert bool(np.asarray(ok)[w]) is expected
