@@ -223,18 +223,14 @@ def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
     parts = {"kinematics update": cost(robot.update_kinematics)}
     for i, task in enumerate(demo.tasks):
         parts[f"task {i}: {type(task).__name__}"] = cost(task.update)
-    for limit in controller.limits:
-        if not limit.constant:
-            rows = slice(0, limit.inequality_rows)
-            parts[type(limit).__name__] = cost(lambda: limit.apply(demo.dt, controller.lb, controller.ub,
-                                                                   controller.G[rows], controller.h[rows]))
-    step = controller._step
-    if controller._closed_form is not None:
-        parts["closed-form attempt"] = cost(lambda: step.solve(controller.H, controller._Ac, controller.b))
+    problem = controller.problem
+    changing = [limit for limit in problem.limits if not limit.constant]
+    for limit, (apply, arguments) in zip(changing, problem._writes):
+        parts[type(limit).__name__] = cost(lambda apply=apply, arguments=arguments: apply(*arguments))
+    parts["closed form (bounds held)"] = cost(lambda: controller.held.solve(controller.cost, problem.box,
+                                                                              *controller._rows))
     if needs_solver:
-        backend = controller._backend
-        backend.A[:], backend.b[:] = controller.A, controller.b
-        parts["solver (daqp)"] = cost(lambda: backend.solve(controller.H, controller.c, hessian_changed=True))
+        parts["solver (daqp)"] = cost(lambda: controller._solve_world(0))
     total = cost(lambda: (robot.update_kinematics(), controller.compute_velocity()))
     parts["rest of compute_velocity"] = total - sum(parts.values())
     return {"at_s": at, "needs_solver": needs_solver, "total_us": total, "parts_us": parts}

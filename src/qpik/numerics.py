@@ -94,9 +94,15 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
     """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
-    factor, X, info = dposv(M, B[0])
-    ok = info == 0 and all(math.sqrt(d) <= ratio * p for d, p in zip(M.diagonal().tolist(), factor.diagonal().tolist()))
-    if in_place:
+    factor, X, info = dposv(M, B[0], overwrite_b=in_place and B.ndim == 2)
+    ok = info == 0
+    if ok and ratio < math.inf:  # M_jj <= ratio² L_jj² on every pivot, in floats
+        square = ratio * ratio
+        for diagonal, pivot in zip(M.diagonal().tolist(), factor.diagonal().tolist()):
+            if diagonal > square * pivot * pivot:
+                ok = False
+                break
+    if in_place and X is not B[0]:
         B[0] = X
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 

@@ -60,6 +60,7 @@ class DampedLeastSquares:
         self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
         self._x_row = self.x[:, None, :]
+        self._everywhere = everywhere(n)
 
     def solve(self, dinv, R, rhs, c=None, fixed=None, values=None):
         """``(x (N, nv), z (N, m), ok (N,))``: ``ok`` where the system is numerically
@@ -97,18 +98,24 @@ class DampedLeastSquares:
         if fixed is not None:
             x += values
         met = self._fits(R, rhs, REFINE_TOLERANCE)
-        for _ in range(REFINEMENTS):
-            if met is everywhere(len(x)) or met.all():
-                break
-            correction, _ = cholesky_solve(K, self._fit, SINGULAR_RATIO)  # K δz = −residual
-            z -= correction
-            x -= vecmat(correction, scaled, self._Rz)
-            met = self._fits(R, rhs, REFINE_TOLERANCE)
-        if not (met is everywhere(len(x)) or met.all()):
-            met = self._fits(R, rhs, EQUALITY_TOLERANCE)
+        if met is not self._everywhere:
+            met = self._refined(K, R, rhs, met)
         if R.shape[1]:  # a non-finite x leaves a non-finite residual (NaN even where R is 0)
-            return x, z, both(solved, met)
-        return x, z, everywhere(len(x)) if all_finite(x) else np.isfinite(x).all(axis=1)
+            return x, z, solved if met is solved else both(solved, met)
+        return x, z, self._everywhere if all_finite(x) else np.isfinite(x).all(axis=1)
+
+    def _refined(self, K, R, rhs, met) -> np.ndarray:
+        """Up to ``REFINEMENTS`` steps of iterative refinement of x and z while some world's
+        residual is above ``REFINE_TOLERANCE``; whether each world's residual is then within
+        ``EQUALITY_TOLERANCE``."""
+        for _ in range(REFINEMENTS):
+            if met.all():
+                return self._everywhere
+            correction, _ = cholesky_solve(K, self._fit)  # K δz = −residual (K as solved above)
+            self.z -= correction
+            self.x -= vecmat(correction, self.scaled, self._Rz)
+            met = self._fits(R, rhs, REFINE_TOLERANCE)
+        return met if met.all() else self._fits(R, rhs, EQUALITY_TOLERANCE)
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
         """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual; the
@@ -164,29 +171,28 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.nda
 
 
 _SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >= 0
-_INF = float("inf")
 
 
 def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.ndarray | None = None,
            gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
     """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
-    comparisons: a point on a bound is inside; NaN, and ±inf on an absent bound, are not).
-    One comparison decides the usual step where every world is inside; one world's, in floats."""
-    if len(x) == 1 and G is None:
-        lower, upper = box[0].tolist()
-        for value, low, high in zip(x[0].tolist(), lower, upper):
-            if not low <= value <= high or abs(value) == _INF:  # ±inf meets an absent bound's ±inf
-                return nowhere(1)
-        return everywhere(1)
-    with np.errstate(invalid="ignore"):  # ±inf on an absent bound: inf − inf, NaN, outside
-        gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
+    comparisons: a point on a bound is inside; NaN and ±inf are not). One comparison
+    decides the usual step where every world is inside."""
+    if not all_finite(x):  # decided on the finite worlds alone (inf − inf would be NaN)
+        finite = np.isfinite(x).all(axis=1)
+        if not finite.all():
+            if finite.any():
+                finite[finite] = inside(x[finite], box[finite], None if G is None else G[finite],
+                                        None if h is None else h[finite])
+            return finite
+    gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
     np.multiply(gap, sides, gap)
     ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
     if G is None or not G.shape[1]:
         return ok
     if ok is everywhere(len(x)):
         return (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
-    worlds = np.flatnonzero(ok)  # the rows of the worlds in the box only (x finite there)
+    worlds = np.flatnonzero(ok)  # the rows of the worlds in the box only
     ok[worlds] = (np.matmul(G[worlds], x[worlds, :, None])[:, :, 0] <= h[worlds]).all(axis=1)
     return ok
 
@@ -223,8 +229,8 @@ class HeldBounds:
             data = tuple(None if a is None else a[worlds] for a in data)
         if not self.holding:  # the plain closed form first: most steps end here
             form = self._form(len(box) if worlds is None else len(worlds))
-            x, _, ok = form.solve(data[0], *data[2:5])
-            inside_box = form.admits(*data[5:])
+            x, _, ok = form.solve(data[0], data[2], data[3], data[4])
+            inside_box = form.admits(data[5], data[6], data[7])
             if ok is inside_box:  # both everywhere: every world settled
                 return x, ok
             solved = both(ok, inside_box)
@@ -256,11 +262,15 @@ class HeldBounds:
         for _ in range(HELD_TRIES):
             if not len(todo):
                 return
-            worlds = ids[todo]
-            part = tuple(None if a is None else a[todo] for a in data)
+            every = len(todo) == len(x)  # todo is every position: the data as it is
+            worlds = ids if every else ids[todo]
+            part = data if every else tuple(None if a is None else a[todo] for a in data)
             attempt, kept, (held_lower, held_upper, changed) = _attempt(self._form(len(todo)), part,
                                                                         self.lower[worlds], self.upper[worlds])
-            x[todo[kept]], solved[todo[kept]] = attempt[kept], True
+            if every and kept.all():
+                x[...], solved[...] = attempt, True
+            else:
+                x[todo[kept]], solved[todo[kept]] = attempt[kept], True
             self.lower[worlds], self.upper[worlds] = held_lower, held_upper
             todo = todo[~kept & changed]  # the worlds whose held set changed: try again
 

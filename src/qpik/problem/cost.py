@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..numerics import everywhere
+from ..numerics import everywhere, vecmat
 from ..tasks import Task
 from ..tasks.inputs import as_index
 from .rows import Stack
@@ -80,11 +80,13 @@ class Cost:
         self.soft_rows = self.rows.dim - sum(task.dim for task in hard)
         self.R, self.rhs = self.rows.J, self.rows.v
         self.A, self.b = self.R[:, self.soft_rows:], self.rhs[:, self.soft_rows:]
+        self._soft = self.R[:, :self.soft_rows], self.rhs[:, :self.soft_rows]  # R₁, r₁ (views)
         self.hard_task_rows = [(task, slice(rows.start - self.soft_rows, rows.stop - self.soft_rows))
                                for task, rows in self.rows.task_rows if task.hard]  # (task, its rows of A)
         self.c = np.zeros((n, nv)) if self.soft_rows or self.linear is None else self.linear
         self._lm = [(task, task.lm_damping * task.weight) for task in self.general if task.lm_damping]
         self.factor = np.ones(n)  # H and c's scale for the solver (below 1 past LM_RESCALE)
+        self._rescaled = False  # whether some world's factor is below 1
 
     def write(self) -> None:
         """The step's rows, D and c, in every world."""
@@ -95,14 +97,16 @@ class Cost:
             self.damping = self.diagonal0 + lm[:, None]
             self.dinv = 1.0 / self.damping
             big = lm > LM_RESCALE
-            self.factor = np.where(big, 1.0 / (1.0 + lm), 1.0) if big.any() else np.ones(len(lm))
-        m = self.soft_rows
-        if m:
-            np.einsum("nij,ni->nj", self.R[:, :m], self.rhs[:, :m], out=self.c)
-            np.negative(self.c, self.c)
-            if self.linear is not None:
-                self.c += self.linear
-            if self.factor.min() < 1.0:  # the same minimiser, numbers a solver can take
+            self._rescaled = bool(big.any())
+            self.factor = np.where(big, 1.0 / (1.0 + lm), 1.0) if self._rescaled else np.ones(len(lm))
+        if self.soft_rows:
+            R1, r1 = self._soft
+            vecmat(r1, R1, self.c)
+            if self.linear is None:
+                np.negative(self.c, self.c)
+            else:
+                np.subtract(self.linear, self.c, self.c)
+            if self._rescaled:  # the same minimiser, numbers a solver can take
                 self.c *= self.factor[:, None]
 
     def _write_linear(self) -> None:
@@ -137,7 +141,7 @@ class Cost:
     def scale(self) -> np.ndarray:
         """(N,) H's largest diagonal entry, as the solver sees H (what the cost cap is
         relative to)."""
-        R1 = self.R[:, :self.soft_rows]
+        R1 = self._soft[0]
         return (self.damping + np.einsum("nij,nij->nj", R1, R1)).max(axis=1) * self.factor
 
     def uncapped(self) -> np.ndarray:

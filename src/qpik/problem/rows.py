@@ -101,9 +101,11 @@ class Stack:
             self.J, self.v = self.tasks[0].jacobians, self.tasks[0].target_velocities
         else:
             self.J, self.v = np.zeros((n, self.dim + spare_rows, nv)), np.zeros((n, self.dim + spare_rows))
-        self._blocks = [(task, None if len(keep) == task.dim else keep, rows,
-                         None if np.all(root == 1.0) else np.tile(root, (n, 1)))
-                        for (task, rows), keep, root in zip(self.task_rows, kept, roots)]
+        self._blocks = []  # (task, its kept rows or None, its blocks of J and v (views), √w for J and v or None)
+        for (task, rows), keep, root in zip(self.task_rows, kept, roots):
+            scale = None if np.all(root == 1.0) else np.tile(root, (n, 1))
+            self._blocks.append((task, None if len(keep) == task.dim else keep, self.J[:, rows], self.v[:, rows],
+                                 None if scale is None else scale[:, :, None], scale))
         # J = I (a joint-space task on every dof): a controller may skip J.
         self.identity = bool(single and self.tasks[0].joint_space and np.array_equal(self.tasks[0].dofs, np.arange(nv)))
 
@@ -111,14 +113,13 @@ class Stack:
         """Copy each task's J and v (scaled where weighted)."""
         if self._direct is not None:
             return
-        J, v = self.J, self.v
-        for task, keep, rows, root in self._blocks:
-            if keep is None:
-                J[:, rows] = task.jacobians
-                v[:, rows] = task.target_velocities
+        for task, keep, J, v, row_roots, roots in self._blocks:
+            jacobians, velocities = task.jacobians, task.target_velocities
+            if keep is not None:
+                jacobians, velocities = jacobians[:, keep], velocities[:, keep]
+            if roots is None:
+                np.copyto(J, jacobians)
+                np.copyto(v, velocities)
             else:
-                J[:, rows] = task.jacobians[:, keep]
-                v[:, rows] = task.target_velocities[:, keep]
-            if root is not None:
-                J[:, rows] *= root[:, :, None]
-                v[:, rows] *= root
+                np.multiply(jacobians, row_roots, J)
+                np.multiply(velocities, roots, v)
