@@ -94,7 +94,7 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
     """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
-    factor, X, info = dposv(M, B[0], overwrite_b=in_place and B.ndim == 2)
+    factor, X, info = dposv(M, B[0], 0, 0, in_place and B.ndim == 2)  # (lower, overwrite_a, overwrite_b)
     ok = info == 0
     if ok and ratio < math.inf:  # M_jj <= ratio² L_jj² on every pivot, in floats
         square = ratio * ratio

@@ -25,6 +25,8 @@ whose general rows bind. Every answer is checked against the hard rows
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..numerics import all_finite, both, cholesky_solve, everywhere, matvec, nowhere, outer_product, vecmat
@@ -177,7 +179,14 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
            gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
     """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
     comparisons: a point on a bound is inside; NaN and ±inf are not). One comparison
-    decides the usual step where every world is inside."""
+    decides the usual step where every world is inside; one world's, in floats."""
+    if len(x) == 1 and G is None:
+        values = x[0].tolist()
+        for value, low, high in zip(values, *box[0].tolist()):
+            if not low <= value <= high:  # NaN fails too
+                return nowhere(1)
+        finite = math.isfinite(sum(values)) or all(map(math.isfinite, values))  # (the sum may overflow)
+        return everywhere(1) if finite else nowhere(1)
     if not all_finite(x):  # decided on the finite worlds alone (inf − inf would be NaN)
         finite = np.isfinite(x).all(axis=1)
         if not finite.all():
