@@ -99,17 +99,20 @@ def _sized(build, default: float):
     return lambda duration=None: build(default if duration is None else duration)
 
 
+# The bounds on qpik / mink: the one engine's serial step at most 0.35 of mink's on the
+# pusher and 0.45 on the humanoid (its feet held on a floating base that only ε weighs);
+# the earlier goals elsewhere.
 CASES: dict[str, Case] = {
     "jaco": Case("jaco", "Kinova Jaco (dm_control), 6-D pose circle, joint position + speed limits, 5 s",
                  _sized(jaco_circle.build, jaco_circle.DURATION), 0.25, PAIR),
     "humanoid": Case("humanoid", "CMU humanoid (dm_control), feet hard + CoM + hand + posture + limits, 3 s",
-                     _sized(humanoid_reach.build, humanoid_reach.DURATION), 0.35, PAIR),
+                     _sized(humanoid_reach.build, humanoid_reach.DURATION), 0.45, PAIR),
     **{f"chain{n}": Case(f"chain{n}", f"chain of {n} hinges (MjSpec), hard 6-D pose circle + posture + limits, 2 s",
                          _sized(lambda d, n=n: chain_demo(n, d), CHAIN_MOTION), 0.20, PAIR) for n in (7, 30, 60)},
     "chain30-soft": Case("chain30-soft", "chain of 30 hinges (MjSpec), soft 6-D pose circle + posture + limits, 2 s",
                          _sized(lambda d: chain_demo(30, d, hard=False), CHAIN_MOTION), 0.25, PAIR),
     "pusher": Case("pusher", "7-DoF pusher (gymnasium), hard 6-D pose circle + posture + limits, 3 s",
-                   _sized(pusher_demo, PUSHER_MOTION), 0.20, PAIR),
+                   _sized(pusher_demo, PUSHER_MOTION), 0.35, PAIR),
     "collision": Case("collision", "Jaco's hand pulled through a box, minimum distance 2 cm (native convex "
                                    "collision on), 3 s",
                       _sized(lambda d: collision_avoidance.build(d, native_ccd=True), collision_avoidance.DURATION),

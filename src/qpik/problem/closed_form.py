@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ..numerics import all_finite, both, cholesky_solve, everywhere, matvec, nowhere, outer_product, vecmat
+from ..numerics import all_finite, both, cholesky_solve, everywhere, matvec, nowhere, outer_product, squared_norm, vecmat
 
 # The system is treated as singular (dependent hard rows) when its Cholesky factor's
 # diagonal spans more than this ratio (its condition number is the square of it: 1e12).
@@ -166,7 +166,7 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.nda
     if len(b) == 1:  # one world: two dot products
         met = Ax[0].dot(Ax[0]) <= tolerance * tolerance * (1.0 + b[0].dot(b[0]))
         return (everywhere(1) if all_worlds is None else all_worlds) if met else nowhere(1)
-    if np.vdot(Ax, Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
+    if squared_norm(Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
         return everywhere(len(b)) if all_worlds is None else all_worlds
     miss = np.einsum("ni,ni->n", Ax, Ax)
     return miss <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))

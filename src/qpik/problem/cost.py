@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..numerics import everywhere, vecmat
+from ..numerics import everywhere, squared_norm, vecmat
 from ..tasks import Task
 from ..tasks.inputs import as_index
 from .rows import Stack
@@ -148,7 +148,7 @@ class Cost:
         """(N,) whether :func:`tame` leaves each world's c as it is: only there may a closed
         form answer, or the solver's answer would differ."""
         c = self.c
-        if np.vdot(c, c) <= UNCAPPED_NORM2:  # the usual step: every world's c is small
+        if squared_norm(c) <= UNCAPPED_NORM2:  # the usual step: every world's c is small
             return everywhere(len(c))
         small = np.einsum("ni,ni->n", c, c) <= UNCAPPED_NORM2
         return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale()))
