@@ -79,12 +79,13 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return (B if in_place else B.copy()), everywhere(len(M))
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
+    L, factored = _cholesky_factors(M)
     columns = B[..., None] if B.ndim == 2 else B
-    X, pivots = _cholesky_solve_last(worlds_last(M), worlds_last(columns))
-    X = np.moveaxis(X, -1, 0)
+    Lt = worlds_last(L)
+    X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
+    pivots = np.einsum("iin->in", Lt)  # (k, N)
     scales = np.sqrt(np.maximum(np.einsum("nii->in", M), 0.0))  # (k, N) √M_ii
-    with np.errstate(invalid="ignore"):  # inf · 0 where a world has no positive pivot: refused anyway
-        ok = (pivots.min(axis=0) > 0.0) & (scales <= ratio * pivots).all(axis=0)
+    ok = factored & (pivots.min(axis=0) > 0.0) & (scales <= ratio * pivots).all(axis=0)
     X = X[..., 0] if B.ndim == 2 else X
     if in_place:
         B[...] = X
@@ -107,32 +108,36 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 
 
-def _cholesky_solve_last(Mt: np.ndarray, Bt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`cholesky_solve` with the worlds along the last axis: Mt (k, k, N),
-    Bt (k, m, N); returns X (k, m, N) and the pivots (k, N)."""
-    n = Mt.shape[0]
-    L = np.zeros_like(Mt)
-    pivots = np.empty((n, Mt.shape[2]))
-    for j in range(n):
-        d = Mt[j, j] - (L[j, :j] * L[j, :j]).sum(axis=0) if j else Mt[j, j]
-        positive = d > 0.0
-        root = np.sqrt(np.where(positive, d, 1.0))
-        pivots[j] = np.where(positive, root, 0.0)
-        L[j, j] = root
-        if j + 1 < n:
-            column = Mt[j + 1:, j] - (L[j + 1:, :j] * L[j, :j]).sum(axis=1) if j else Mt[j + 1:, j]
-            L[j + 1:, j] = column / root
+def _cholesky_factors(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every world's L (lower, L Lᵀ = M) by LAPACK (NumPy's stacked ``cholesky``), and where
+    it exists (:func:`everywhere` when it does in every world): a world that is not
+    positive definite gets the identity, its answer refused."""
+    try:
+        return np.linalg.cholesky(M), everywhere(len(M))
+    except np.linalg.LinAlgError:  # some world is not: factor them one by one
+        L, ok = np.empty_like(M), np.zeros(len(M), dtype=bool)
+        for w, matrix in enumerate(M):
+            try:
+                L[w], ok[w] = np.linalg.cholesky(matrix), True
+            except np.linalg.LinAlgError:
+                L[w] = np.eye(M.shape[1])
+        return L, ok
+
+
+def _substitute(Lt: np.ndarray, Bt: np.ndarray) -> np.ndarray:
+    """X with L Lᵀ X = B in every world, by forward then back substitution with the worlds
+    along the last axis (one vector operation over the worlds per row): Lt (k, k, N), Bt
+    (k, m, N); X (k, m, N)."""
+    n = Lt.shape[0]
     Y = np.empty_like(Bt)
     for j in range(n):  # L Y = B
-        rest = Bt[j] - (L[j, :j, None] * Y[:j]).sum(axis=0) if j else Bt[j]
-        Y[j] = rest / L[j, j]
-    X = Y  # Lᵀ X = Y, in place from the last row up
-    for j in range(n - 1, -1, -1):
+        rest = Bt[j] - (Lt[j, :j, None] * Y[:j]).sum(axis=0) if j else Bt[j]
+        Y[j] = rest / Lt[j, j]
+    for j in range(n - 1, -1, -1):  # Lᵀ X = Y, in place from the last row up
         if j < n - 1:
-            X[j] = (Y[j] - (L[j + 1:, j, None] * X[j + 1:]).sum(axis=0)) / L[j, j]
-        else:
-            X[j] = Y[j] / L[j, j]
-    return X, pivots
+            Y[j] -= (Lt[j + 1:, j, None] * Y[j + 1:]).sum(axis=0)
+        Y[j] /= Lt[j, j]
+    return Y
 
 
 # -- Rotations (MuJoCo's quaternion routines across worlds) ----------------------------

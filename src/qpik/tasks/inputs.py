@@ -128,16 +128,23 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
         rot = _quaternion_matrix(rot, what)
     elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
-    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
-    gram = (a * a + d * d + g * g - 1.0, b * b + e * e + h * h - 1.0, c * c + f * f + i * i - 1.0,
-            a * b + d * e + g * h, a * c + d * f + g * i, b * c + e * f + h * i)
+    gram, det = _orthonormality(rot.reshape(9).tolist())
     if not all(-1e-6 <= x <= 1e-6 for x in gram):  # NaN fails too
         if not math.isfinite(sum(gram)):
             raise InvalidInput(f"{what} contains NaN or inf")
         raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {max(abs(x) for x in gram):.2g})")
-    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+    if det < 0:
         raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
     return rot
+
+
+def _orthonormality(entries):
+    """(RᵀR − I's six distinct entries, det R) of a matrix's nine entries row by row: floats
+    for one matrix, or arrays (one entry of every world's matrix each) for many."""
+    a, b, c, d, e, f, g, h, i = entries
+    gram = (a * a + d * d + g * g - 1.0, b * b + e * e + h * h - 1.0, c * c + f * f + i * i - 1.0,
+            a * b + d * e + g * h, a * c + d * f + g * i, b * c + e * f + h * i)
+    return gram, a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def _quaternion_matrix(quaternion: np.ndarray, what: str) -> np.ndarray:
@@ -170,8 +177,9 @@ def world_rotations(robot, value, what: str = "target rotation") -> np.ndarray:
         for matrix, quat in zip(matrices, arr):
             mujoco.mju_quat2Mat(matrix, quat)
         arr = matrices.reshape(-1, 3, 3)
-    deviation = np.abs(np.einsum("nki,nkj->nij", arr, arr) - np.eye(3)).reshape(robot.n, 9).max(axis=1)
-    _refuse_worlds(~(deviation <= 1e-6) | (np.linalg.det(arr) < 0),
+    gram, det = _orthonormality(arr.reshape(robot.n, 9).T)
+    deviation = np.abs(np.stack(gram)).max(axis=0)
+    _refuse_worlds(~(deviation <= 1e-6) | (det < 0),
                    f"{what}: not a rotation matrix (NaN, not orthonormal to 1e-6, or a reflection)")
     return arr
 

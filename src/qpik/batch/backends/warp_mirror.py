@@ -226,7 +226,7 @@ def configuration_difference(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dty
 @wp.func
 def _cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64), ratio: F64) -> int:
     """L (lower) with L Lᵀ = M[w] (its lower triangle read), a pivot of 1 where the
-    Schur complement is not positive (as ``numerics._cholesky_solve_last``); whether
+    Schur complement is not positive (the engine refuses such a world too); whether
     every pivot L_jj is positive with √M_jj <= ``ratio`` L_jj."""
     k = M.shape[1]
     ok = int(1)
