@@ -79,13 +79,12 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return (B if in_place else B.copy()), everywhere(len(M))
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
-    L, factored = _cholesky_factors(M)
     columns = B[..., None] if B.ndim == 2 else B
-    Lt = worlds_last(L)
+    Mt = worlds_last(M)
+    Lt, pivots = _cholesky_factor_last(Mt)
     X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
-    pivots = np.einsum("iin->in", Lt)  # (k, N)
-    scales = np.sqrt(np.maximum(np.einsum("nii->in", M), 0.0))  # (k, N) √M_ii
-    ok = factored & (pivots.min(axis=0) > 0.0) & (scales <= ratio * pivots).all(axis=0)
+    with np.errstate(invalid="ignore", over="ignore"):  # inf · 0 where a world has no positive pivot: refused
+        ok = (pivots.min(axis=0) > 0.0) & (np.einsum("iin->in", Mt) <= ratio * ratio * pivots * pivots).all(axis=0)
     X = X[..., 0] if B.ndim == 2 else X
     if in_place:
         B[...] = X
@@ -108,20 +107,25 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 
 
-def _cholesky_factors(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every world's L (lower, L Lᵀ = M) by LAPACK (NumPy's stacked ``cholesky``), and where
-    it exists (:func:`everywhere` when it does in every world): a world that is not
-    positive definite gets the identity, its answer refused."""
-    try:
-        return np.linalg.cholesky(M), everywhere(len(M))
-    except np.linalg.LinAlgError:  # some world is not: factor them one by one
-        L, ok = np.empty_like(M), np.zeros(len(M), dtype=bool)
-        for w, matrix in enumerate(M):
-            try:
-                L[w], ok[w] = np.linalg.cholesky(matrix), True
-            except np.linalg.LinAlgError:
-                L[w] = np.eye(M.shape[1])
-        return L, ok
+def _cholesky_factor_last(Mt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """L (lower, L Lᵀ = M) of every world with the worlds along the last axis, Mt (k, k, N),
+    one vector operation over the worlds per column (NumPy's stacked LAPACK call costs more
+    on a step's small systems, and stops at the first world that is not positive
+    definite); and its pivots (k, N): 0 where the Schur complement is not positive (L's
+    diagonal is 1 there, so that the solves stay finite; the world is refused)."""
+    n = Mt.shape[0]
+    L = np.zeros_like(Mt)
+    pivots = np.empty((n, Mt.shape[2]))
+    for j in range(n):
+        d = Mt[j, j] - np.einsum("jn,jn->n", L[j, :j], L[j, :j]) if j else Mt[j, j]
+        positive = d > 0.0
+        root = np.sqrt(np.where(positive, d, 1.0))
+        pivots[j] = np.where(positive, root, 0.0)
+        L[j, j] = root
+        if j + 1 < n:
+            column = Mt[j + 1:, j] - np.einsum("ijn,jn->in", L[j + 1:, :j], L[j, :j]) if j else Mt[j + 1:, j]
+            L[j + 1:, j] = column / root
+    return L, pivots
 
 
 def _substitute(Lt: np.ndarray, Bt: np.ndarray) -> np.ndarray:
