@@ -17,7 +17,7 @@ import math
 
 import mujoco
 import numpy as np
-from scipy.linalg.lapack import dposv
+from scipy.linalg.lapack import dgesv, dposv
 
 MINVAL = 1e-15  # mjMINVAL
 
@@ -90,6 +90,27 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         B[...] = X
         X = B
     return X, (everywhere(len(ok)) if ok.all() else ok)
+
+
+def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve M_k X_k = B_k in every world by LU with partial pivoting (LAPACK's ``gesv``),
+    M (N, k, k) square, B and ``out`` (N, k): ``(out, ok (N,))``, ``ok`` where M is not
+    singular (:func:`everywhere` when no world is); out means nothing elsewhere."""
+    if len(M) == 1:
+        _, _, x, info = dgesv(M[0], B[0])
+        out[0] = x
+        return out, everywhere(1) if info == 0 else nowhere(1)
+    try:
+        np.copyto(out, np.linalg.solve(M, B[..., None])[..., 0])
+        return out, everywhere(len(M))
+    except np.linalg.LinAlgError:  # some world is singular: solve them one by one
+        ok = np.ones(len(M), dtype=bool)
+        for w in range(len(M)):
+            try:
+                out[w] = np.linalg.solve(M[w], B[w])
+            except np.linalg.LinAlgError:
+                ok[w] = False
+        return out, ok
 
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):

@@ -29,7 +29,8 @@ import math
 
 import numpy as np
 
-from ..numerics import all_finite, both, cholesky_solve, everywhere, matvec, nowhere, outer_product, squared_norm, vecmat
+from ..numerics import (all_finite, both, cholesky_solve, everywhere, lu_solve, matvec, nowhere, outer_product,
+                        squared_norm, vecmat)
 
 # The system is treated as singular (dependent hard rows) when its Cholesky factor's
 # diagonal spans more than this ratio (its condition number is the square of it: 1e12).
@@ -63,13 +64,15 @@ class DampedLeastSquares:
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
         self._x_row = self.x[:, None, :]
         self._everywhere = everywhere(n)
+        self._square = not soft_rows and rows == nv  # the hard rows alone fix x (see _point)
 
     def solve(self, dinv, R, rhs, c=None, fixed=None, values=None):
-        """``(x (N, nv), z (N, m), ok (N,))``: ``ok`` where the system is numerically
+        """``(x (N, nv), z (N, m) or None, ok (N,))``: ``ok`` where the system is numerically
         positive definite (:func:`~qpik.numerics.cholesky_solve` within ``SINGULAR_RATIO``),
         x is finite and the system's residual (the hard rows' miss among it) is within
         ``EQUALITY_TOLERANCE`` of 1 + |rhs|; x and z mean nothing elsewhere (buffers,
-        overwritten by the next solve).
+        overwritten by the next solve). z is None where the hard rows alone fix x
+        (:meth:`_point`).
 
         Args:
             dinv: (N, nv) D⁻¹.
@@ -77,6 +80,8 @@ class DampedLeastSquares:
             c: (N, nv), or None for zero.
             fixed, values: (N, nv) the dofs held and their values (zero elsewhere), or None.
         """
+        if self._square and fixed is None:
+            return self._point(R, rhs)
         scaled, K, x, z = self.scaled, self.K, self.x, self.z
         right = rhs
         if fixed is not None:  # D⁻¹ = 0 on the held dofs, their values moved to the right
@@ -105,6 +110,14 @@ class DampedLeastSquares:
         if R.shape[1]:  # a non-finite x leaves a non-finite residual (NaN even where R is 0)
             return x, z, solved if met is solved else both(solved, met)
         return x, z, self._everywhere if all_finite(x) else np.isfinite(x).all(axis=1)
+
+    def _point(self, A, b):
+        """:meth:`solve` where the hard rows are as many as the dofs, no soft row and no dof
+        held: they alone fix x = A⁻¹b (one LU; nothing is left to minimise, and z is not
+        computed: None), checked as every answer is."""
+        x, solved = lu_solve(A, b, self.x)
+        met = self._fits(A, b, EQUALITY_TOLERANCE)
+        return x, None, solved if met is solved else both(solved, met)
 
     def _refined(self, K, R, rhs, met) -> np.ndarray:
         """Up to ``REFINEMENTS`` steps of iterative refinement of x and z while some world's

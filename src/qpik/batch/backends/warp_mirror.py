@@ -33,8 +33,9 @@ device sums in index order, so the two agree to rounding, not bit for bit; every
 else (the branches, the order of the arithmetic, what counts as solved) is the engine's.
 
 No step calls them yet. A control step is more than these primitives: the tasks' rows,
-the limits' boxes, the cost's assembly and the closed form's held-bounds iteration
-(``HeldBounds``) are the engine's NumPy code and have no device function, so the warp
+the limits' boxes, the cost's assembly, the closed form's held-bounds iteration
+(``HeldBounds``) and its LU where the hard rows alone fix x (``numerics.lu_solve``) are
+the engine's NumPy code and have no device function, so the warp
 back-end runs the whole step on the host, over the device's kinematics, and says so
 (:class:`~qpik.errors.HostStepWarning`; see :mod:`qpik.batch.backends.warp`).
 """
