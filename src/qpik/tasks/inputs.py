@@ -47,13 +47,18 @@ def check_axes_frame(axes_frame: str) -> bool:
     return axes_frame == "local"
 
 
+def as_floats(value, what: str, must: str = "must be") -> np.ndarray:
+    """``value`` as a float array of any shape, or InvalidInput ("{what} {must} numbers")."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} {must} numbers, got {value!r}") from None
+
+
 def float_array(value, shape: int | tuple, what: str) -> np.ndarray:
     """``value`` as a float array of ``shape`` (its entries not checked), or InvalidInput."""
     shape = (shape,) if isinstance(shape, int) else tuple(shape)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+    arr = as_floats(value, what)
     if arr.shape != shape:
         raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
     return arr
@@ -67,22 +72,6 @@ def finite_vector(value, size: int, what: str) -> np.ndarray:
     return arr
 
 
-def target_vector(value, size: int, what: str) -> np.ndarray:
-    """:func:`finite_vector`, and InvalidInput for an entry beyond
-    :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
-    arr = float_array(value, size, what)
-    if not math.hypot(*arr.tolist()) <= TARGET_MAGNITUDE_LIMIT:
-        _name_bad_target(arr, what)
-    return arr
-
-
-def _name_bad_target(arr: np.ndarray, what: str) -> None:
-    if not np.isfinite(arr).all():
-        raise InvalidInput(f"{what} contains NaN or inf: {arr}")
-    raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
-                       "square) would overflow; give a target the robot could reach")
-
-
 def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
     """``value`` as (N, *shape) floats: one value for every world, or (for N worlds) one per
     world, each finite and within :data:`TARGET_MAGNITUDE_LIMIT`.
@@ -93,13 +82,13 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
     """
     if not robot.batched:
         arr = float_array(value, shape, what)
-        if not math.hypot(*arr.reshape(-1).tolist()) <= TARGET_MAGNITUDE_LIMIT:
-            _name_bad_target(arr, what)
-        return arr[None]
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+        if math.hypot(*arr.reshape(-1).tolist()) <= TARGET_MAGNITUDE_LIMIT:
+            return arr[None]
+        if not np.isfinite(arr).all():
+            raise InvalidInput(f"{what} contains NaN or inf: {arr}")
+        raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
+                           "square) would overflow; give a target the robot could reach")
+    arr = as_floats(value, what)
     if arr.shape == shape:
         arr = np.broadcast_to(arr, (robot.n,) + shape)
     if arr.shape != (robot.n,) + shape:
