@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from ..errors import InvalidInput, InvalidWorlds, listed
+from ..robot import as_floats, as_index  # noqa: F401 (the tasks' inputs too)
 
 _AXES = "xyz"
 AXES_FRAMES = ("world", "local")
@@ -45,14 +46,6 @@ def check_axes_frame(axes_frame: str) -> bool:
     if axes_frame not in AXES_FRAMES:
         raise InvalidInput(f"axes_frame must be one of {AXES_FRAMES}, got {axes_frame!r}")
     return axes_frame == "local"
-
-
-def as_floats(value, what: str, must: str = "must be") -> np.ndarray:
-    """``value`` as a float array of any shape, or InvalidInput ("{what} {must} numbers")."""
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} {must} numbers, got {value!r}") from None
 
 
 def float_array(value, shape: int | tuple, what: str) -> np.ndarray:
@@ -254,11 +247,3 @@ def joint_dofs(robot, joints: Sequence[str] | None) -> np.ndarray:
     if len(set(dofs)) != len(dofs):
         raise InvalidInput(f"a joint is named twice in {list(joints)}")
     return np.array(sorted(dofs), dtype=int)
-
-
-def as_index(index: np.ndarray) -> slice | np.ndarray:
-    """A slice for consecutive indices (views, no fancy-index copies), else the array."""
-    index = np.asarray(index, dtype=int)
-    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
-        return slice(int(index[0]), int(index[0]) + len(index))
-    return index
