@@ -74,12 +74,6 @@ def warp_device(device: str | None):
     return wp.get_device(str(device))
 
 
-def _quiet() -> None:
-    """Warp logs a line per loaded module (and its banner) at its default level."""
-    wp.config.quiet = True
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-
-
 class WarpBackend(KinematicsBackend):
     """N worlds on a Warp device through MuJoCo Warp.
 
@@ -98,7 +92,8 @@ class WarpBackend(KinematicsBackend):
     name = "warp"
 
     def __init__(self, model: mujoco.MjModel, nworld: int, device: str | None = None):
-        _quiet()
+        # Warp logs a line per loaded module (and its banner) at its default level.
+        wp.config.quiet, wp.config.log_level = True, max(wp.config.log_level, wp.LOG_WARNING)
         self.model = model
         self.nworld = int(nworld)
         self.device = warp_device(device)
