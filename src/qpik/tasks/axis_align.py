@@ -34,8 +34,8 @@ class AxisAlignTask(FrameAxisTask):
     :meth:`set_target` changes it.
 
     Raises:
-        UnknownName: no frame of that type has this name.
-        InvalidInput: a zero or non-finite axis or direction, a bad gain or weight.
+        UnknownName, InvalidInput: as :class:`~qpik.tasks.look_at.LookAtTask` (the target
+            here a direction: a zero or non-finite one is refused).
     """
 
     name = "axis-align task"
