@@ -81,11 +81,14 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return _cholesky_solve_one(M[0], B, ratio, in_place)
     columns = B[..., None] if B.ndim == 2 else B
     Mt = worlds_last(M)
-    Lt, pivots = _cholesky_factor_last(Mt)
-    X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
-    with np.errstate(invalid="ignore", over="ignore"):  # inf · 0 where a world has no positive pivot: refused
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # a world not positive definite: NaN
+        Lt = _cholesky_factor_last(Mt)
+        X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
+        pivots = np.einsum("iin->in", Lt)  # (k, N), NaN (or 0) from the first non-positive one on
         ok = (pivots.min(axis=0) > 0.0) & (np.einsum("iin->in", Mt) <= ratio * ratio * pivots * pivots).all(axis=0)
     X = X[..., 0] if B.ndim == 2 else X
+    if not ok.all():
+        X[~ok] = 0.0  # finite, so that no caller's arithmetic warns on a refused world
     if in_place:
         B[...] = X
         X = B
@@ -128,25 +131,22 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 
 
-def _cholesky_factor_last(Mt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:
     """L (lower, L Lᵀ = M) of every world with the worlds along the last axis, Mt (k, k, N),
     one vector operation over the worlds per column (NumPy's stacked LAPACK call costs more
     on a step's small systems, and stops at the first world that is not positive
-    definite); and its pivots (k, N): 0 where the Schur complement is not positive (L's
-    diagonal is 1 there, so that the solves stay finite; the world is refused)."""
+    definite). Where a Schur complement is not positive the pivot is NaN (or 0), and so is
+    the rest of that world's L (the caller refuses it, under ``errstate``, and zeroes its
+    answer)."""
     n = Mt.shape[0]
     L = np.zeros_like(Mt)
-    pivots = np.empty((n, Mt.shape[2]))
     for j in range(n):
         d = Mt[j, j] - np.einsum("jn,jn->n", L[j, :j], L[j, :j]) if j else Mt[j, j]
-        positive = d > 0.0
-        root = np.sqrt(np.where(positive, d, 1.0))
-        pivots[j] = np.where(positive, root, 0.0)
-        L[j, j] = root
+        root = np.sqrt(d, out=L[j, j])
         if j + 1 < n:
             column = Mt[j + 1:, j] - np.einsum("ijn,jn->in", L[j + 1:, :j], L[j, :j]) if j else Mt[j + 1:, j]
-            L[j + 1:, j] = column / root
-    return L, pivots
+            np.divide(column, root, out=L[j + 1:, j])
+    return L
 
 
 def _substitute(Lt: np.ndarray, Bt: np.ndarray) -> np.ndarray:
