@@ -74,8 +74,10 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
         InvalidWorlds: (N worlds) the worlds whose value is not finite or too large.
     """
     if not robot.batched:
-        arr = float_array(value, shape, what)
-        if math.hypot(*arr.reshape(-1).tolist()) <= TARGET_MAGNITUDE_LIMIT:
+        arr = as_floats(value, what)
+        if arr.shape != shape:
+            raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
+        if math.hypot(*arr.ravel().tolist()) <= TARGET_MAGNITUDE_LIMIT:
             return arr[None]
         if not np.isfinite(arr).all():
             raise InvalidInput(f"{what} contains NaN or inf: {arr}")
