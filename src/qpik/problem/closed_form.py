@@ -127,6 +127,7 @@ class DampedLeastSquares:
             if met.all():
                 return self._everywhere
             correction, _ = cholesky_solve(K, self._fit)  # K δz = −residual (K as solved above)
+            correction[met] = 0.0  # only where the residual asks: each world's answer its own
             self.z -= correction
             self.x -= vecmat(correction, self.scaled, self._Rz)
             met = self._fits(R, rhs, REFINE_TOLERANCE)
