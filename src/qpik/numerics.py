@@ -81,8 +81,11 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return _cholesky_solve_one(M[0], B, ratio, in_place)
     columns = B[..., None] if B.ndim == 2 else B
     Mt = worlds_last(M)
-    Lt, pivots = _cholesky_factor_last(Mt)
-    X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
+    # A world whose solve overflows gets inf or NaN, silently, as LAPACK gives one robot
+    # (its caller's checks refuse it): no warning that its one-world run would not give.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        Lt, pivots = _cholesky_factor_last(Mt)
+        X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
     with np.errstate(invalid="ignore", over="ignore"):  # inf · 0 where a world has no positive pivot: refused
         ok = (pivots.min(axis=0) > 0.0) & (np.einsum("iin->in", Mt) <= ratio * ratio * pivots * pivots).all(axis=0)
     X = X[..., 0] if B.ndim == 2 else X
