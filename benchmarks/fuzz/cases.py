@@ -55,6 +55,12 @@ CLASSES = (
     ("nondeterministic", "another process gave a different q trajectory", True),
     ("stray_warning", "a warning other than GainWarning", True),
     ("hang", "a step over 100 ms of CPU time or a case past its time budget", True),
+    ("batch_same", "on N = 4 worlds (other states and targets), every world got its own one-world run's answer "
+                   "(q̇ to 1e-10; 10·nv·ε·κ on a step of condition number κ; OSQP, ProxQP: 1e-6) or the same typed "
+                   "error at the same step", False),
+    ("batch_same_minimum", "on N = 4 worlds, OSQP's or ProxQP's answers apart by more than 1e-6 but each the same "
+                           "minimum (each level's cost to 1e-6, hard rows, limits)", False),
+    ("batch_differs", "on N = 4 worlds, a world's q̇ or error differed from its own one-world run's", True),
 )
 DEFECTS = tuple(key for key, _, bad in CLASSES if bad)
 INVALID = ("posture_gain", "task_gain", "task_weight", "influence", "damper_rate", "limit_gain", "margin",
@@ -408,8 +414,10 @@ def _stray(records) -> list[str]:
     return [_warning_line(r) for r in records if not issubclass(r.category, GainWarning)]
 
 
-def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = None) -> dict:
+def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = None, batched: bool = False) -> dict:
     """Build and roll out case ``seed``; its classes, parameters, details and q hash.
+    ``batched``: then also its problem on N worlds against each world's own run
+    (:mod:`.batched`).
 
     A ProxQP case also records the configuration before each step (``q_steps``) and the
     cost of each level of its QP at each answer (``step_costs``); ``replay`` (another
@@ -434,12 +442,16 @@ def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = 
                 result["classes"].append("invalid_accepted")
                 result["details"]["outside_start"] = case.refusal_wrong[:300]
             _roll_out(case, result, steps, replay)
+        if batched:
+            from .batched import check_batched
+
+            check_batched(case, result, steps, DT)
         stray = _stray(records)
     if stray:
         result["classes"].append("stray_warning")
         result["details"]["warnings"] = sorted(set(stray))[:5]
     if not any(c in DEFECTS or c in ("typed", "rejected") for c in result["classes"]):
-        result["classes"].append("ok")
+        result["classes"].insert(0, "ok")
     return result
 
 

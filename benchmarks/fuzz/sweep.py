@@ -144,13 +144,13 @@ def same_run(first: dict, second: dict) -> bool:
     costs, again = first["step_costs"], second.get("step_costs", [])
     if len(costs) != len(again):
         return False
-    gap = max((_cost_gap(float(a), float(b)) for step, other in zip(costs, again) for a, b in zip(step, other)),
+    gap = max((cost_gap(float(a), float(b)) for step, other in zip(costs, again) for a, b in zip(step, other)),
               default=0.0)
     first["details"]["proxqp_cost_gap"] = gap
     return gap <= PROXQP_COST_TOLERANCE
 
 
-def _cost_gap(a: float, b: float) -> float:
+def cost_gap(a: float, b: float) -> float:
     """|a − b| / (1 + |a|); 0 for equal values (an infinite cost repeated included)."""
     return 0.0 if a == b else abs(a - b) / (1.0 + abs(a))
 
