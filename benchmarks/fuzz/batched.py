@@ -204,7 +204,7 @@ def _build_difference(batch, alone) -> dict | None:
         else:
             same = _same_error(error, own if at == where else None, w) and (at is None or at >= where)
         if not same:
-            return {"at": "build", "world": w, "batch": _name(error), "batch_step": where,
+            return {"at": "build", "world": w, "what": "error", "batch": _name(error), "batch_step": where,
                     "alone": _name(own), "alone_step": at}
     return None
 
@@ -233,8 +233,9 @@ def _roll_out(controller, robots, singles: list, steps: int, dt: float, record: 
             q_before = robot.q.copy()
             qdot, own = _step(alone)
             verdict = _world_verdict(qdots[w], failed.get(w), qdot, own, lambda a, b: judge(robot, a, b, q_before))
-            if isinstance(verdict, dict):
-                return {"at": f"step {step}", "world": w, **verdict}
+            if isinstance(verdict, dict):  # with the world's largest |q| (past MuJoCo's mjMAXVAL, 1e10,
+                # the batch's forward resets a world to qpos0, the one-world robot does not)
+                return {"at": f"step {step}", "world": w, **verdict, "largest_q": float(np.max(np.abs(q_before)))}
             if own is not None:
                 record["failed"][str(w)] = f"{type(own).__name__} at step {step}"
             elif np.all(np.isfinite(qdot)):
