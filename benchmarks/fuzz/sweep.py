@@ -213,8 +213,9 @@ def _batch_site(result: dict) -> str:
     label = params.get("controller", "?") + (f"/{params['solver']}" if isinstance(params.get("solver"), str) else "")
     where = "build" if difference.get("at") == "build" else "step"
     what = difference.get("what", "?")
-    size = difference.get("gap")
-    return f"{label} {where} {what}" + (f" ~1e{int(np.floor(np.log10(size)))}" if size else "")
+    size = float(difference.get("gap") or 0.0)  # (inf and nan stored as strings: see _jsonable)
+    return f"{label} {where} {what}" + (f" ~1e{int(np.floor(np.log10(size)))}" if np.isfinite(size) and size > 0
+                                        else f" {size}" if size else "")
 
 
 def _difference(difference: dict | None) -> str:

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import hashlib
 
+import numpy as np
 import pytest
 
 from benchmarks.fuzz import batched
 from benchmarks.fuzz.cases import DT, STEPS, Case, run_case
+from benchmarks.fuzz.sweep import _batch_site
 from qpik.errors import WorldsFailed
 
 # (seed, what it covers): every controller, the exact solvers, generated and third-party
@@ -118,3 +120,19 @@ def test_an_ill_conditioned_step_still_catches_a_world_apart(tmp_path, monkeypat
     result = run_case(137, tmp_path, batched=True)
     difference = result["details"]["batched"]["difference"]
     assert "batch_differs" in result["classes"] and (difference["at"], difference["world"]) == ("step 2", 1)
+
+
+def test_the_gap_of_answers_near_the_float_range_or_not_finite_warns_nothing():
+    """(The suite runs with warnings as errors; in a case, a warning of the harness's own
+    would count as the library's stray one.)"""
+    huge = np.array([1e308, -1e308, 1.0])
+    assert batched.gap(huge, -huge) == pytest.approx(2.0)
+    assert batched.gap(np.array([np.inf, 1.0]), np.array([np.inf, 1.0 + 1e-6])) == pytest.approx(1e-6 / 2)
+    assert batched.gap(np.array([np.inf, 1.0]), np.array([1.0, 1.0])) == np.inf
+    assert batched.gap(np.array([np.nan, 1.0]), np.array([-np.inf, 1.0])) == np.inf
+    assert batched.gap(np.array([3.0, 4.0]), np.zeros(2)) == 5.0
+    result = {"params": {"controller": "pinv"}, "details": {"batched": {"difference": {"at": "step 3", "what": "qdot",
+                                                                                       "gap": "inf"}}}}
+    assert _batch_site(result) == "pinv step qdot inf"
+    result["details"]["batched"]["difference"]["gap"] = 0.031
+    assert _batch_site(result) == "pinv step qdot ~1e-2"
