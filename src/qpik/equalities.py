@@ -1,14 +1,11 @@
 r"""MuJoCo's equality-constraint rows (``connect``, ``weld``, ``joint``, ``tendon``) of one
-MjData, alone: what :class:`qpik.EqualityTask` (serial) and :meth:`qpik.Robot.equality_rows`
-(the engine's, one world) both read.
+MjData, alone: what :meth:`qpik.Robot.equality_rows` (and so :class:`qpik.EqualityTask`) reads.
 
-``mj_makeConstraint`` writes the rows of every active constraint; :func:`make_equality_rows`
-runs it with contacts, joint limits and friction loss disabled for the call, so that
-``data.efc_*`` hold the equality rows only (``data.ne`` of them, in the order of the
-equalities' ids): a ``connect`` gives the 3 rows :math:`p_1 - p_2`, a ``weld`` 6
-(position, then orientation scaled by its ``torquescale``), a ``joint`` or ``tendon``
-coupling 1 (its polynomial residual). :class:`EqualityRows` reads the rows of chosen
-equalities into preallocated arrays (sparse Jacobians expanded with ``mju_sparse2dense``).
+:func:`make_equality_rows` runs ``mj_makeConstraint`` with every other constraint type
+disabled, so that ``data.efc_*`` hold the equality rows only, in the order of the
+equalities' ids (their layout: :class:`~qpik.tasks.equality.EqualityTask`);
+:class:`EqualityRows` reads the rows of chosen equalities into preallocated arrays
+(sparse Jacobians expanded with ``mju_sparse2dense``).
 """
 
 from __future__ import annotations
@@ -46,7 +43,7 @@ def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool
     """
     opt = model.opt if opt is None else opt
     disable, enable = opt.disableflags, opt.enableflags
-    opt.disableflags = (disable | _DISABLE) & ~_ENABLE
+    opt.disableflags = equality_rows_flags(disable)
     sleep = enable & _SLEEP  # the enable flags touched only when sleep is on (each access is a call)
     if sleep:
         opt.enableflags = enable & ~_SLEEP
@@ -58,6 +55,12 @@ def make_equality_rows(model: mujoco.MjModel, data: mujoco.MjData, tendons: bool
         opt.disableflags = disable
         if sleep:
             opt.enableflags = enable
+
+
+def equality_rows_flags(disableflags: int) -> int:
+    """``disableflags`` with contacts, joint limits and friction loss disabled and the
+    equalities enabled: the constraint rows MuJoCo then makes are the equalities' alone."""
+    return (disableflags | _DISABLE) & ~_ENABLE
 
 
 def active_equalities(model: mujoco.MjModel, data: mujoco.MjData) -> list[int]:

@@ -20,6 +20,8 @@ import numpy as np
 from scipy.linalg.lapack import dgesv, dposv
 
 MINVAL = 1e-15  # mjMINVAL
+_TINY = 5e-324  # the least positive float
+SMALL_DOT = 4096  # entries below which BLAS runs a dot product on one thread
 
 __all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
            "worlds_last"]
@@ -52,8 +54,13 @@ def both(*flags: np.ndarray) -> np.ndarray:
 
 
 def worlds_last(a: np.ndarray) -> np.ndarray:
-    """(N, ...) -> (..., N), contiguous."""
-    return np.ascontiguousarray(np.moveaxis(a, 0, -1))
+    """(N, ...) -> (..., N), contiguous (``transpose`` costs less than ``np.moveaxis``)."""
+    return a.transpose(*range(1, a.ndim), 0).copy()
+
+
+def worlds_first(a: np.ndarray) -> np.ndarray:
+    """(..., N) -> (N, ...), a view."""
+    return a.transpose(a.ndim - 1, *range(a.ndim - 1))
 
 
 # -- Cholesky solves ------------------------------------------------------------------
@@ -79,20 +86,24 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return (B if in_place else B.copy()), everywhere(len(M))
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
-    columns = B[..., None] if B.ndim == 2 else B
-    Mt = worlds_last(M)
-    # A world whose solve overflows gets inf or NaN, silently, as LAPACK gives one robot
-    # (its caller's checks refuse it): no warning that its one-world run would not give.
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        Lt, pivots = _cholesky_factor_last(Mt)
-        X = np.moveaxis(_substitute(Lt, worlds_last(columns)), -1, 0)
-    with np.errstate(invalid="ignore", over="ignore"):  # inf · 0 where a world has no positive pivot: refused
-        ok = (pivots.min(axis=0) > 0.0) & (np.einsum("iin->in", Mt) <= ratio * ratio * pivots * pivots).all(axis=0)
-    X = X[..., 0] if B.ndim == 2 else X
+    Mt, Xt = worlds_last(M), worlds_last(B[..., None] if B.ndim == 2 else B)  # (k, k, N), (k, m, N)
+    # A world not positive definite runs to NaN; one whose solve overflows gets inf or NaN,
+    # silently, as LAPACK gives one robot (its caller's checks refuse it): no warning that
+    # its one-world run would not give.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        Lt = _cholesky_factor_last(Mt)
+        _substitute(Lt, Xt)
+        # Every pivot within ratio (NaN fails; a zero pivot fails against the least positive M_jj).
+        pivots = np.einsum("iin->in", Lt)  # (k, N), NaN (or 0) from the first non-positive one on
+        ok = (ratio * ratio * pivots * pivots >= np.maximum(np.einsum("iin->in", Mt), _TINY)).all(axis=0)
+    X = worlds_first(Xt[:, 0] if B.ndim == 2 else Xt)
+    all_ok = ok.all()
+    if not all_ok:
+        X[~ok] = 0.0  # finite, so that no caller's arithmetic warns on a refused world
     if in_place:
         B[...] = X
         X = B
-    return X, (everywhere(len(ok)) if ok.all() else ok)
+    return X, (everywhere(len(ok)) if all_ok else ok)
 
 
 def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +129,8 @@ def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray,
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
     """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
-    factor, X, info = dposv(M, B[0], 0, 0, in_place and B.ndim == 2)  # (lower, overwrite_a, overwrite_b)
+    b = B[0]
+    factor, X, info = dposv(M, b, 0, 0, in_place and B.ndim == 2)  # (lower, overwrite_a, overwrite_b)
     ok = info == 0
     if ok and ratio < math.inf:  # M_jj <= ratio² L_jj² on every pivot, in floats
         square = ratio * ratio
@@ -126,46 +138,42 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
             if diagonal > square * pivot * pivot:
                 ok = False
                 break
-    if in_place and X is not B[0]:
-        B[0] = X
+    if in_place and X is not b:
+        b[...] = X
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
 
 
-def _cholesky_factor_last(Mt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:
     """L (lower, L Lᵀ = M) of every world with the worlds along the last axis, Mt (k, k, N),
     one vector operation over the worlds per column (NumPy's stacked LAPACK call costs more
     on a step's small systems, and stops at the first world that is not positive
-    definite); and its pivots (k, N): 0 where the Schur complement is not positive (L's
-    diagonal is 1 there, so that the solves stay finite; the world is refused)."""
+    definite). Where a Schur complement is not positive the pivot is NaN (or 0), and so is
+    the rest of that world's L (the caller refuses it, under ``errstate``, and zeroes its
+    answer)."""
     n = Mt.shape[0]
     L = np.zeros_like(Mt)
-    pivots = np.empty((n, Mt.shape[2]))
     for j in range(n):
         d = Mt[j, j] - np.einsum("jn,jn->n", L[j, :j], L[j, :j]) if j else Mt[j, j]
-        positive = d > 0.0
-        root = np.sqrt(np.where(positive, d, 1.0))
-        pivots[j] = np.where(positive, root, 0.0)
-        L[j, j] = root
+        root = np.sqrt(d, out=L[j, j])
         if j + 1 < n:
             column = Mt[j + 1:, j] - np.einsum("ijn,jn->in", L[j + 1:, :j], L[j, :j]) if j else Mt[j + 1:, j]
-            L[j + 1:, j] = column / root
-    return L, pivots
+            np.divide(column, root, out=L[j + 1:, j])
+    return L
 
 
-def _substitute(Lt: np.ndarray, Bt: np.ndarray) -> np.ndarray:
-    """X with L Lᵀ X = B in every world, by forward then back substitution with the worlds
-    along the last axis (one vector operation over the worlds per row): Lt (k, k, N), Bt
-    (k, m, N); X (k, m, N)."""
+def _substitute(Lt: np.ndarray, Xt: np.ndarray) -> None:
+    """Solve L Lᵀ X = B in every world in place (``Xt`` holds B, then X), by forward then
+    back substitution with the worlds along the last axis (one vector operation over the
+    worlds per row): Lt (k, k, N), Xt (k, m, N)."""
     n = Lt.shape[0]
-    Y = np.empty_like(Bt)
     for j in range(n):  # L Y = B
-        rest = Bt[j] - (Lt[j, :j, None] * Y[:j]).sum(axis=0) if j else Bt[j]
-        Y[j] = rest / Lt[j, j]
-    for j in range(n - 1, -1, -1):  # Lᵀ X = Y, in place from the last row up
+        if j:
+            Xt[j] -= (Lt[j, :j, None] * Xt[:j]).sum(axis=0)
+        Xt[j] /= Lt[j, j]
+    for j in range(n - 1, -1, -1):  # Lᵀ X = Y, from the last row up
         if j < n - 1:
-            Y[j] -= (Lt[j + 1:, j, None] * Y[j + 1:]).sum(axis=0)
-        Y[j] /= Lt[j, j]
-    return Y
+            Xt[j] -= (Lt[j + 1:, j, None] * Xt[j + 1:]).sum(axis=0)
+        Xt[j] /= Lt[j, j]
 
 
 # -- Rotations (MuJoCo's quaternion routines across worlds) ----------------------------
@@ -367,8 +375,12 @@ class ConfigurationDifference:
 
 
 def squared_norm(a: np.ndarray) -> float:
-    """The sum of squares of a 2-D array's entries, by NumPy's own loop: BLAS's dot (``vdot``)
-    wakes its threads past ~10,000 entries, which on a busy machine costs milliseconds."""
+    """The sum of squares of a contiguous array's entries: BLAS's dot on a small one, NumPy's
+    own loop on a large one (BLAS's dot wakes its threads past ~10,000 entries, which on a
+    busy machine costs milliseconds)."""
+    if a.size <= SMALL_DOT:
+        flat = a.reshape(-1)
+        return float(flat.dot(flat))
     return float(np.einsum("ij,ij->", a, a))
 
 
@@ -415,7 +427,7 @@ def outer_product(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> np.ndarray:
     if A.shape[1] * B.shape[1] > SMALL_PRODUCT:
         return np.matmul(A, B.transpose(0, 2, 1), out)
     At, Bt = worlds_last(A), worlds_last(B)  # (m, k, N), (p, k, N)
-    out[...] = np.moveaxis((At[:, None] * Bt[None]).sum(axis=2), -1, 0)
+    out[...] = worlds_first((At[:, None] * Bt[None]).sum(axis=2))
     return out
 
 

@@ -155,4 +155,7 @@ def test_vectorised_violations_equal_the_per_configuration_violation(q, shift):
     vectorised = limits.violations(rows)
     expected = [limits.violation(row) for row in rows]
     np.testing.assert_array_equal(vectorised, expected)
+    index = limits.qpos_index  # the definition, one configuration at a time (a NaN counts 0.0)
+    reference = [max(0.0, np.max(limits.lower - row[index]), np.max(row[index] - limits.upper)) for row in rows]
+    np.testing.assert_array_equal(vectorised, reference)
     assert not np.any(np.signbit(vectorised))

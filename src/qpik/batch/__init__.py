@@ -21,52 +21,20 @@ from __future__ import annotations
 
 import importlib
 
-_TASKS, _LIMITS, _CONTROLLERS = "qpik.tasks", "qpik.limits", "qpik.controllers"
-
-# Public name -> module that defines it. An engine class ported later is one line here.
-_EXPORTS = {
-    # the N worlds and their rollouts
-    "Robot": "qpik.batch.robot",
-    "Frame": "qpik.batch.robot",
-    "rollout": "qpik.batch.rollout",
-    # the engine's tasks
-    "Task": _TASKS,
-    "JointSpaceTask": _TASKS,
-    "PositionTask": _TASKS,
-    "OrientationTask": _TASKS,
-    "FrameTask": _TASKS,
-    "PostureTask": _TASKS,
-    "DampingTask": _TASKS,
-    "ManipulabilityTask": _TASKS,
-    "ManipulabilityMeasure": _TASKS,
-    "SigmaProxy": _TASKS,
-    "Yoshikawa": _TASKS,
-    "ComTask": _TASKS,
-    "EqualityTask": _TASKS,
-    "RelativeFrameTask": _TASKS,
-    "LookAtTask": _TASKS,
-    "AxisAlignTask": _TASKS,
-    "KineticEnergyRegularizationTask": _TASKS,
-    "DofFreezingTask": _TASKS,
-    # the engine's limits
-    "Limit": _LIMITS,
-    "JointPositionLimit": _LIMITS,
-    "JointVelocityLimit": _LIMITS,
-    "AccelerationLimit": _LIMITS,
-    "FloatingBaseVelocityLimit": _LIMITS,
-    "CollisionAvoidanceLimit": _LIMITS,
-    # the engine's controllers
-    "QPController": _CONTROLLERS,
-    "HierarchicalController": _CONTROLLERS,
-    "SNSController": _CONTROLLERS,
-    "PseudoinverseController": _CONTROLLERS,
-    "JacobianTransposeController": _CONTROLLERS,
-    # errors and warnings
-    "WorldsFailed": "qpik.errors",
-    "InvalidWorlds": "qpik.errors",
-    "HostStepWarning": "qpik.errors",
-    "NotBatched": "qpik.batch.errors",
-}
+# Public name -> module that defines it. An engine class ported later is one word here.
+_EXPORTS = {name: f"qpik.{module}" for module, names in (
+    ("batch.robot", "Robot Frame"),  # the N worlds and their rollouts
+    ("batch.rollout", "rollout"),
+    ("tasks", "Task JointSpaceTask PositionTask OrientationTask FrameTask PostureTask DampingTask ManipulabilityTask "
+              "ManipulabilityMeasure SigmaProxy Yoshikawa ComTask EqualityTask RelativeFrameTask LookAtTask "
+              "AxisAlignTask KineticEnergyRegularizationTask DofFreezingTask"),  # the engine's
+    ("limits", "Limit JointPositionLimit JointVelocityLimit AccelerationLimit FloatingBaseVelocityLimit "
+               "CollisionAvoidanceLimit"),
+    ("controllers", "QPController HierarchicalController SNSController PseudoinverseController "
+                    "JacobianTransposeController"),
+    ("errors", "WorldsFailed InvalidWorlds HostStepWarning"),  # errors and warnings
+    ("batch.errors", "NotBatched"),
+) for name in names.split()}
 
 __all__ = sorted(_EXPORTS)
 

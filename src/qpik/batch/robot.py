@@ -15,15 +15,17 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..equalities import equality_label, equality_row_ids
-from ..errors import InvalidInput, InvalidWorlds, ModelError, UnknownName, listed
-from ..robot import BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot
+from ..equalities import EqualityRows
+from ..errors import InvalidInput, InvalidWorlds, UnknownName, listed
+from ..robot import (BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot, as_floats, as_index, cached_rows,
+                     check_step, measure_pairs)
 from .errors import NotBatched
 
 BACKENDS = ("cpu", "warp")
 # What a batch robot answers as its template (one world of the same model) does.
 _TEMPLATE_NAMES = frozenset({"site_id", "body_id", "geom_id", "joint_id", "keyframe_id", "equality_id", "object_id",
-                             "joint_dofs", "dof_name", "joint_qpos_index", "joint_dof_index", "joint_names"})
+                             "joint_dofs", "dof_name", "joint_qpos_index", "joint_dof_index", "joint_names",
+                             "joint_limits", "velocity_limits"})
 
 
 def make_backend(name: str, model: mujoco.MjModel, n: int, **options):
@@ -95,9 +97,7 @@ class GeomDistances:
         geoms = sorted({g for pair in self.pairs for g in pair})
         n = robots.n
         self._poses = [robots.backend.frame_pose("geom", g) for g in geoms]
-        first = geoms[0]
-        self._geoms = slice(first, first + len(geoms)) if geoms == list(range(first, first + len(geoms))) \
-            else np.array(geoms)
+        self._geoms = as_index(geoms)
         self._positions, self._rotations = np.empty((n, len(geoms), 3)), np.empty((n, len(geoms), 3, 3))
         self._model, self._data = robots.model, mujoco.MjData(robots.model)
         self._xpos, self._xmat = self._data.geom_xpos, self._data.geom_xmat.reshape(-1, 3, 3)
@@ -114,8 +114,7 @@ class GeomDistances:
         model, data, xpos, xmat, geoms = self._model, self._data, self._xpos, self._xmat, self._geoms
         for positions, rotations, rows, limits, written in self._worlds:
             xpos[geoms], xmat[geoms] = positions, rotations
-            for p, (g1, g2, points) in enumerate(rows):
-                written[p] = mujoco.mj_geomDistance(model, data, g1, g2, limits[p], points)
+            measure_pairs(model, data, rows, limits, written)
 
 
 class Robot:
@@ -161,28 +160,14 @@ class Robot:
         """Load a bundled robot (``"arm"``, ``"hexapod"``), an MJCF/URDF path or a model,
         N worlds of it; ``keyframe`` as :meth:`qpik.Robot.load` (``"home"`` for a bundled
         robot by default)."""
-        serial = SerialRobot.load(scene, keyframe=keyframe, allow_outside_limits=True)
-        chosen = None
-        if keyframe is BUNDLED_HOME:
-            chosen = "home" if isinstance(scene, (str, Path)) and serial.name == str(scene) else None
-        elif keyframe is not None:
-            chosen = keyframe
-        return cls(serial.model, n, name=serial.name, keyframe=chosen, **kwargs)
+        serial = SerialRobot.load(scene, keyframe=keyframe, allow_outside_limits=True)  # the model, its name
+        if keyframe is BUNDLED_HOME:  # a bundled robot's serial.name is its name
+            keyframe = "home" if isinstance(scene, (str, Path)) and serial.name == str(scene) else None
+        return cls(serial.model, n, name=serial.name, keyframe=keyframe, **kwargs)
 
     # -- configuration -----------------------------------------------------------------
-    @property
-    def q(self) -> np.ndarray:
-        """The worlds' configurations (N, nq): the back-end's array (writing it moves
-        the worlds; the next step updates their kinematics)."""
-        return self.backend.qpos
-
-    @property
-    def joint_limits(self):
-        return self.template.joint_limits
-
-    @property
-    def velocity_limits(self) -> np.ndarray:
-        return self.template.velocity_limits
+    q = qpos = property(lambda self: self.backend.qpos, doc="The worlds' configurations (N, nq): the back-end's "
+                        "array (writing it moves the worlds; the next step updates their kinematics).")
 
     def set_q(self, q) -> None:
         """Set every world's configuration: an (N, nq) array, or one (nq,) for all.
@@ -192,10 +177,7 @@ class Robot:
             InvalidWorlds: NaN/inf in some worlds, or (unless ``allow_outside_limits``)
                 joints outside their ranges; ``worlds`` lists them. Nothing is written.
         """
-        try:
-            values = np.asarray(q, dtype=float)
-        except (TypeError, ValueError):
-            raise InvalidInput(f"configurations must be numbers, got {q!r}") from None
+        values = as_floats(q, "configurations")
         if values.shape == (self.nq,):
             values = np.broadcast_to(values, (self.n, self.nq))
         if values.shape != (self.n, self.nq):
@@ -212,10 +194,7 @@ class Robot:
         if self.allow_outside_limits:
             return
         limits = self.joint_limits
-        if not len(limits.names):
-            return
-        joint_q = values[:, limits.qpos_index]
-        excess = np.maximum(limits.lower - joint_q, joint_q - limits.upper)
+        excess = limits.excess(values)
         outside = np.flatnonzero((excess > KEYFRAME_TOLERANCE).any(axis=1))
         if len(outside):
             first = int(outside[0])
@@ -230,19 +209,14 @@ class Robot:
             InvalidInput: a wrong shape or a step that is not positive and finite.
             InvalidWorlds: non-finite velocities in some worlds (nothing is moved).
         """
-        try:
-            step = float(dt)
-        except (TypeError, ValueError):
-            raise InvalidInput(f"integration step dt must be a number, got {dt!r}") from None
-        if not (0.0 < step < math.inf):
-            raise InvalidInput(f"integration step dt must be positive and finite, got {dt!r}")
+        check_step(dt)
         velocity = np.asarray(qdot, dtype=float)
         if velocity.shape != (self.n, self.nv):
             raise InvalidInput(f"joint velocities must have shape ({self.n}, {self.nv}), got {velocity.shape}")
         if not math.isfinite(float(velocity.sum())):
             bad = np.flatnonzero(~np.isfinite(velocity).all(axis=1))
             raise InvalidWorlds(f"the joint velocities of worlds {listed(bad)} contain NaN or inf", bad)
-        self.backend.integrate(velocity, step)
+        self.backend.integrate(velocity, float(dt))
 
     # -- kinematics --------------------------------------------------------------------
     def frame(self, name: str, frame_type: str = "site") -> Frame:
@@ -278,11 +252,6 @@ class Robot:
         return self._world
 
     # -- the engine's interface (shared with qpik.Robot) ----------------------------------
-    @property
-    def qpos(self) -> np.ndarray:
-        """(N, nq) the worlds' configurations (the back-end's array)."""
-        return self.backend.qpos
-
     @staticmethod
     def present(array: np.ndarray) -> np.ndarray:
         """What a user reads of an engine array (N, ...): the array itself."""
@@ -314,10 +283,7 @@ class Robot:
         return filler
 
     def equality_rows(self, ids) -> tuple[np.ndarray, np.ndarray]:
-        """Every world's rows of the equalities ``ids`` (ascending, each active and acting
-        on a dof), in MuJoCo's layout and in the order of ``ids``, as
-        :meth:`qpik.Robot.equality_rows`: residual (N, m), Jacobian (N, m, nv), the robot's
-        arrays (overwritten by the next call for the same equalities).
+        """:meth:`qpik.Robot.equality_rows` in every world: residual (N, m), Jacobian (N, m, nv).
 
         Each equality's rows come from the back-end, batched, where it writes that type
         (the CPU back-end: ``connect`` and ``joint``, from the anchors' Jacobians and the
@@ -329,11 +295,7 @@ class Robot:
             ModelError: an id without rows (inactive, acting on no dof), or active
                 equalities changed since the first call for these ids.
         """
-        key = ids if isinstance(ids, tuple) else tuple(np.asarray(ids, dtype=int).reshape(-1).tolist())
-        rows = self._equality_rows.get(key)
-        if rows is None:
-            rows = self._equality_rows[key] = _EqualityRows(self, key)
-        return rows()
+        return cached_rows(self._equality_rows, ids, lambda key: _EqualityRows(self, key))
 
     def mass_matrix(self, out: np.ndarray) -> np.ndarray:
         """(N, nv, nv) joint-space inertia M(q) of every world into ``out``: the back-end's
@@ -348,7 +310,7 @@ class Robot:
         return out
 
     def __getattr__(self, name: str):
-        # Names and ids (joint_id, joint_dofs, dof_name, body_id, ...): the template's.
+        # Names, ids and limits (joint_id, joint_dofs, body_id, joint_limits, ...): the template's.
         if name in _TEMPLATE_NAMES:
             return getattr(self.template, name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
@@ -357,24 +319,12 @@ class Robot:
         return f"batch.Robot({self.name!r}, n={self.n}, nq={self.nq}, nv={self.nv}, backend={self.backend.name!r})"
 
 
-def _row_index(rows: list[int]) -> slice | np.ndarray:
-    """Row positions as a slice when consecutive (plain copies), else an index array."""
-    if rows and rows[-1] - rows[0] + 1 == len(rows):
-        return slice(rows[0], rows[-1] + 1)
-    return np.array(rows, dtype=np.int64)
-
-
 class _EqualityRows:
     """:meth:`Robot.equality_rows` of one set of equalities: which rows the back-end writes
     and which MuJoCo's C writes world by world, and the (N, m), (N, m, nv) outputs."""
 
     def __init__(self, robots: Robot, ids: tuple[int, ...]):
-        model = robots.model
-        efc_id = equality_row_ids(model, robots.world(0).data)
-        sizes = [int(np.count_nonzero(efc_id == i)) for i in ids]
-        if not ids or list(ids) != sorted(set(ids)) or 0 in sizes:
-            raise ModelError(f"equality rows need ascending ids of active equalities that act on a dof, got "
-                             f"{[equality_label(model, i) if 0 <= i < model.neq else i for i in ids]}")
+        sizes = EqualityRows(robots.model, robots.world(0).data, ids).sizes  # ModelError for bad ids
         self.robots, self.backend = robots, robots.backend
         batched, serial, batched_rows, serial_rows, start = [], [], [], [], 0
         for eq, size in zip(ids, sizes):
@@ -383,7 +333,7 @@ class _EqualityRows:
             (batched_rows if on_backend else serial_rows).extend(range(start, start + size))
             start += size
         self.batched, self.serial = np.array(batched, dtype=np.int64), tuple(serial)
-        self.batched_rows, self.serial_rows = _row_index(batched_rows), _row_index(serial_rows)
+        self.batched_rows, self.serial_rows = as_index(batched_rows), as_index(serial_rows)
         self.residual = np.zeros((robots.n, start))
         self.jacobian = np.zeros((robots.n, start, robots.nv))
 

@@ -88,18 +88,12 @@ class _Plant:
         self.substeps = substeps_per_control_step(robots.model, dt)
         self.actuation = Actuation(robots.model)
         self.ctrl = np.zeros((robots.n, robots.model.nu))
-        self._write(robots.q, np.zeros((robots.n, robots.nv)))
+        self.actuation.fill(self.ctrl, robots.q, np.zeros((robots.n, robots.nv)))
         robots.backend.physics_reset(robots.q, self.ctrl)
         self.qpos = robots.q.copy()
 
-    def _write(self, q: np.ndarray, qdot: np.ndarray) -> None:
-        a = self.actuation
-        self.ctrl[:, a.pos_act] = q[:, a.pos_q]
-        if len(a.vel_act):
-            self.ctrl[:, a.vel_act] = qdot[:, a.vel_dof]
-
     def step(self, qdot: np.ndarray) -> None:
-        self._write(self.robots.q, qdot)
+        self.actuation.fill(self.ctrl, self.robots.q, qdot)
         self.qpos, unstable = self.robots.backend.physics_step(self.ctrl, self.substeps)
         if unstable.any():
             reasons = {int(w): "physics simulation unstable (MuJoCo reset the world)" for w in np.flatnonzero(unstable)}

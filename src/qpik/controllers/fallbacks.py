@@ -105,7 +105,7 @@ def feasible_in_null_space(backend) -> bool:
     "infeasible"."""
     phase1 = NullSpaceBackend(backend.nv, backend.meq, backend.mineq)
     phase1.equality_tolerance = FEASIBILITY_TOLERANCE
-    _copy_constraints(backend, phase1)
+    copy_constraints(backend, phase1)
     try:
         phase1.solve(np.eye(backend.nv), np.zeros(backend.nv))
     except (InfeasibleProblem, SolverError):
@@ -128,7 +128,8 @@ def _hard_rows_unmet(backend) -> str:
             "soft or give it a lower priority")
 
 
-def _copy_constraints(source, target) -> None:
+def copy_constraints(source, target) -> None:
+    """A, b, G, h, lb, ub of ``source`` (a back-end, a :class:`~qpik.controllers.worlds.WorldQP`) into ``target``'s."""
     target.A[:], target.b[:] = source.A, source.b
     target.G[:], target.h[:] = source.G, source.h
     target.lb[:], target.ub[:] = source.lb, source.ub
@@ -250,7 +251,7 @@ class GuardedSolve:
             self._spares[name] = NullSpaceBackend(backend.nv, backend.meq, backend.mineq) if name == NULL_SPACE \
                 else make_backend(name, backend.nv, backend.meq, backend.mineq)
         spare = self._spares[name]
-        _copy_constraints(backend, spare)
+        copy_constraints(backend, spare)
         return spare
 
     def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:

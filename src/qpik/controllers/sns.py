@@ -25,9 +25,9 @@ import numpy as np
 
 from ..errors import DivergenceError, InvalidInput
 from ..limits import Limit
+from ..limits.limit import bound_values
 from ..problem import Problem, Stack, check_dt, group_levels
 from ..tasks import Task
-from ..tasks.inputs import float_array, positive
 from .sns_null_space import NullSpace, pseudoinverse
 from .worlds import solve_each
 
@@ -63,14 +63,8 @@ class BrakingBounds:
     """
 
     def __init__(self, robot, limits: Sequence[Limit], max_acceleration):
-        nv = robot.nv
-        what = f"max_acceleration (one number or shape ({nv},), positive; inf for none)"
-        amax = np.full(nv, float_array(max_acceleration, (), what)) if np.ndim(max_acceleration) == 0 else \
-            float_array(max_acceleration, nv, what).copy()
-        if not np.all(amax > 0):  # NaN fails too
-            raise InvalidInput(f"{what}, got {max_acceleration!r}")
+        amax = bound_values(max_acceleration, robot.nv, "max_acceleration", " (one per dof)")
         finite = np.isfinite(amax)
-        positive(amax[finite], int(finite.sum()), what)  # at most 1e12 where finite
         ranges = [lim.ranges for lim in limits if lim.ranges is not None]
         if not ranges:
             raise InvalidInput("max_acceleration needs a joint position limit among the limits "
@@ -240,10 +234,10 @@ class _Passes:
             pinv, rank = (self._eye if F is None else F if space.projector else F.dot(F.T)), space.free
         else:
             # The task's rows J F; ‖J‖ for the rank decisions (None: J itself, its largest
-            # singular value). Two rows in joint space or in a projector's: closed form.
+            # singular value).
             X = J if space.F is None else J.dot(space.F)
             size = None if space.F is None else math.sqrt(float(np.vdot(J, J)))
-            pinv, rank, vt = pseudoinverse(X, size, space.closed)
+            pinv, rank, vt = pseudoinverse(X, size)
             if rank == 0:  # the levels above took every direction this task moves
                 return above, 0.0, 0
             pinv = space.mapped(pinv)
@@ -307,7 +301,7 @@ class _Passes:
             # values as a rank and divided by them).
             if size is None:
                 size = math.sqrt(float(np.vdot(J, J)))
-            pinv, pass_rank, _ = pseudoinverse(rows, size, space.closed, _PASS_RANK_TOLERANCE)
+            pinv, pass_rank, _ = pseudoinverse(rows, size, _PASS_RANK_TOLERANCE)
             if pass_rank < rank:  # the saturations cost the task a direction: scale it
                 break
             pinv = space.mapped(pinv)

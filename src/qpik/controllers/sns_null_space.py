@@ -19,64 +19,33 @@ from ..errors import DivergenceError
 RANK_TOLERANCE = 1e-10  # singular values below this fraction of the largest count as zero
 
 
-def pseudoinverse(X: np.ndarray, scale: float | None, closed: bool,
+def pseudoinverse(X: np.ndarray, scale: float | None,
                   tolerance: float = RANK_TOLERANCE) -> tuple[np.ndarray, int, np.ndarray | None]:
     """(X⁺, X's rank, the Vᵀ of its SVD or None when none was made). Singular values below
     ``tolerance · scale`` count as zero (``scale`` the size of J itself, X being J Z or
     J P: a direction the levels above nearly took is kept; None: X's largest). One row:
-    xᵀ/‖x‖²; two rows when ``closed``: X⁺ = Xᵀ G⁻¹ (G = X Xᵀ) by a Gram-Schmidt step,
-    unless they are nearly dependent or conditioned worse than 1e2; else one SVD from
-    LAPACK directly (NumPy's wrapper costs more than the decomposition at these sizes).
+    xᵀ/‖x‖²; more: one SVD from LAPACK directly (NumPy's wrapper costs more than the
+    decomposition at these sizes).
 
     Raises:
         DivergenceError: X is not finite.
     """
-    m = X.shape[0]
-    if m == 1:  # one row x: x^# = xᵀ/‖x‖²
-        return _row_pseudoinverse(X, scale, tolerance)
-    if m == 2 and closed:
-        inverse = _two_row_gram_inverse(X, scale, tolerance)
-        if inverse is not None:
-            return X.T.dot(inverse), 2, None
+    if X.shape[0] == 1:  # one row x: x^# = xᵀ/‖x‖²
+        row = X[0]
+        norm_sq = float(row.dot(row))
+        if not math.isfinite(norm_sq):
+            raise DivergenceError("SNS: a task Jacobian is not finite")
+        rank = 1 if norm_sq > (tolerance * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
+        return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
     u, s, vt, info = dgesvd(X)
     largest = float(s[0])
     if info != 0 or not math.isfinite(largest):
         raise DivergenceError("SNS: the singular value decomposition failed (non-finite Jacobian)")
     threshold = tolerance * (largest if scale is None else scale)
     rank = len(s) if s[-1] > threshold else int(np.count_nonzero(s > threshold))
-    if rank == len(s) == m:  # full row rank, the usual case
+    if rank == len(s) == X.shape[0]:  # full row rank, the usual case
         return vt[:rank].T.dot(u.T / s[:, None]), rank, vt
     return vt[:rank].T.dot(u[:, :rank].T / s[:rank, None]), rank, vt
-
-
-def _row_pseudoinverse(X: np.ndarray, scale: float | None, tolerance: float):
-    row = X[0]
-    norm_sq = float(row.dot(row))
-    if not math.isfinite(norm_sq):
-        raise DivergenceError("SNS: a task Jacobian is not finite")
-    rank = 1 if norm_sq > (tolerance * (math.sqrt(norm_sq) if scale is None else scale)) ** 2 else 0
-    return (X.T / norm_sq if rank else 0.0 * X.T), rank, None
-
-
-def _two_row_gram_inverse(X: np.ndarray, scale: float | None, tolerance: float) -> np.ndarray | None:
-    """G⁻¹ of two rows' Gram matrix G = X Xᵀ, or None where they are nearly dependent,
-    conditioned worse than 1e2 or below the rank tolerance (the SVD decides then)."""
-    (n1, g12), (_, g22) = X.dot(X.T).tolist()
-    if not n1 > 0.0:
-        return None
-    c = g12 / n1
-    nr = g22 - c * g12  # ‖r‖², from G where that loses at most two digits
-    if not nr >= 0.01 * g22:
-        r = X[1] - c * X[0]
-        nr = float(r.dot(r))
-    det, trace = n1 * nr, n1 + g22  # σ1² ≤ trace, so σ2² ≥ det/trace, σ2²/σ1² ≥ det/trace²
-    if not (det > 1e-4 * trace * trace and (scale is None or det > 4.0 * (tolerance * scale) ** 2 * trace)):
-        return None
-    inverse = np.empty((2, 2))
-    inverse[1, 1] = i22 = 1.0 / nr
-    inverse[0, 1] = inverse[1, 0] = i12 = -c * i22
-    inverse[0, 0] = 1.0 / n1 - c * i12
-    return inverse
 
 
 class NullSpace:
@@ -86,14 +55,9 @@ class NullSpace:
     def __init__(self, nv: int):
         self.F, self.projector, self.free = None, False, nv
 
-    @property
-    def closed(self) -> bool:
-        """Whether one or two rows are solved in closed form here (joint space, or a projector's)."""
-        return self.F is None or self.projector
-
     def mapped(self, pinv: np.ndarray) -> np.ndarray:
         """(J Z)^# mapped back to joint space (Z (J Z)^#); as it is in joint space or a projector's."""
-        return pinv if self.closed else self.F.dot(pinv)
+        return pinv if self.F is None or self.projector else self.F.dot(pinv)
 
     def hold(self, critical: int, target: float, shifted: np.ndarray, rows: np.ndarray, held: list):
         """Joint ``critical`` held at ``target`` (``held``: the directions held before, appended
@@ -132,13 +96,10 @@ class NullSpace:
         """The null space left after a level of this ``rank`` (X = J F its rows, ``pinv``
         their pseudoinverse, ``vt`` their SVD's Vᵀ or None)."""
         self.free -= rank
-        if self.closed and vt is None:  # closed form: P_k = P_{k-1} − X⁺X, X = J P_{k-1}
+        if self.projector or (self.F is None and vt is None):  # P_k = P_{k-1} − X⁺X, X = J P_{k-1}
             self.F, self.projector = (eye if self.F is None else self.F) - pinv.dot(X), True
             return
-        if self.projector:
-            self.F = self.F - pinv.dot(X)
-            return
-        if vt is None:  # one row: decompose now
+        if vt is None:  # one row in a basis: decompose now
             vt = dgesvd(X)[2]
         null = vt[rank:].T
         self.F = null if self.F is None else self.F.dot(null)

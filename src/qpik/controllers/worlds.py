@@ -10,28 +10,18 @@ one :class:`~qpik.errors.WorldsFailed` after every other world is solved.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import namedtuple
 
 import numpy as np
 
 from ..controllers.labels import task_label
 from ..errors import InfeasibleProblem, InvalidInput, QpikError, WorldsFailed
 from ..solvers import make_backend
-from ..controllers.fallbacks import GuardedSolve
+from ..controllers.fallbacks import GuardedSolve, copy_constraints
 
 
-@dataclass
-class WorldQP:
-    """One world's QP as a solver sees it (views of the controller's arrays)."""
-
-    H: np.ndarray
-    c: np.ndarray
-    A: np.ndarray
-    b: np.ndarray
-    lb: np.ndarray
-    ub: np.ndarray
-    G: np.ndarray
-    h: np.ndarray
+WorldQP = namedtuple("WorldQP", "H c A b lb ub G h")
+WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h (views of the controller's arrays)."
 
 
 class WorldSolver:
@@ -51,10 +41,7 @@ class WorldSolver:
 
     def solve(self, world: int, qp: WorldQP, hessian_changed: bool = True) -> np.ndarray:
         """The checked minimiser of ``qp`` (typed errors as GuardedSolve raises them)."""
-        backend = self.backend
-        backend.A[:], backend.b[:] = qp.A, qp.b
-        backend.lb[:], backend.ub[:] = qp.lb, qp.ub
-        backend.G[:], backend.h[:] = qp.G, qp.h
+        copy_constraints(qp, self.backend)
         return self.guard(world).solve(qp.H, qp.c, hessian_changed=hessian_changed)
 
     @property

@@ -106,11 +106,9 @@ class CollisionAvoidanceLimit(Limit):
         # Views for one product per pair in every world: nᵀn, and nᵀ(J₂ − J₁) below.
         self._normal_rows, self._normal_columns = self._normals[:, :, None, :], self._normals[:, :, :, None]
         self._norm_squares, self._inverse_rows = self._norms[:, :, None, None], self._inverse[:, :, None]
-        self._active, self._ahead, self._near = (np.empty((n, count), dtype=bool) for _ in range(3))
-        self._inactive = np.empty((n, count), dtype=bool)
-        self._inactive_rows = self._inactive[:, :, None]
-        self._coincident = np.empty((n, count), dtype=bool)
-        self._coincident_rows = self._coincident[:, :, None]
+        self._active, self._ahead, self._near, self._inactive, self._coincident = (np.empty((n, count), dtype=bool)
+                                                                                  for _ in range(5))
+        self._inactive_rows, self._coincident_rows = self._inactive[:, :, None], self._coincident[:, :, None]
         self._margins, self._damped = np.empty((n, count)), np.empty((n, count))
         # Each pair's Jacobians at its closest points (those of a pair without a row: stale).
         self._jac1, self._jac2 = np.zeros((n, count, 3, robot.nv)), np.zeros((n, count, 3, robot.nv))

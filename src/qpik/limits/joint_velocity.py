@@ -8,8 +8,8 @@ import numpy as np
 
 from ..errors import InvalidInput, ModelError
 from ..robot import VELOCITY_LIMIT_PREFIX
-from ..tasks.inputs import PARAMETER_LIMIT
-from .limit import Limit
+from ..tasks.inputs import as_floats
+from .limit import Limit, checked_bounds
 
 
 class JointVelocityLimit(Limit):
@@ -49,29 +49,20 @@ class JointVelocityLimit(Limit):
             vmax = np.full(robot.nv, np.inf)
             for joint, value in values.items():
                 dofs = robot.joint_dofs(joint)
-                bound = _floats(value, f"speed limit of joint {joint!r}")
+                bound = as_floats(value, f"speed limit of joint {joint!r}")
                 if bound.ndim > 1 or bound.size not in (1, len(dofs)):
                     raise InvalidInput(f"speed limit of joint {joint!r}: one number or {len(dofs)} (one per dof), "
                                        f"got {value!r}")
                 vmax[dofs] = bound
         else:
-            vmax = _floats(values, "velocity limits").copy()
+            vmax = as_floats(values, "velocity limits").copy()
             if vmax.shape != (robot.nv,):
                 raise InvalidInput(f"velocity limits must be a dict of joint names or an array of shape "
                                    f"({robot.nv},), got shape {vmax.shape}")
-        if not np.all((vmax > 0) & ((vmax <= PARAMETER_LIMIT) | (vmax == np.inf))):  # also catches NaN
-            raise InvalidInput(f"velocity limits must be positive and at most {PARAMETER_LIMIT:g} (inf for none), "
-                               f"got {vmax}")
         self.robot = robot
-        self.max_velocity = vmax
+        self.max_velocity = checked_bounds(vmax, "velocity limits", vmax)
 
     def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
         np.maximum(lower, -self.max_velocity, out=lower)
         np.minimum(upper, self.max_velocity, out=upper)
 
-
-def _floats(value, what: str) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None

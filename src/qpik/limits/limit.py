@@ -56,6 +56,12 @@ def bound_values(value, size: int, what: str, entries: str = "") -> np.ndarray:
         bound = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy()
     except (TypeError, ValueError):
         raise InvalidInput(f"{what} must be a number or {size} numbers{entries}, got {value!r}") from None
-    if not np.all((bound > 0) & ((bound <= PARAMETER_LIMIT) | (bound == np.inf))):  # NaN fails
-        raise InvalidInput(f"{what} must be positive and at most {PARAMETER_LIMIT:g} (inf for none), got {value!r}")
+    return checked_bounds(bound, what, value)
+
+
+def checked_bounds(bound: np.ndarray, what: str, given) -> np.ndarray:
+    """``bound``, or InvalidInput (naming ``given``) for an entry that is not positive (NaN
+    fails) or is finite beyond :data:`PARAMETER_LIMIT` (+inf: no bound)."""
+    if not np.all((bound > 0) & ((bound <= PARAMETER_LIMIT) | (bound == np.inf))):
+        raise InvalidInput(f"{what} must be positive and at most {PARAMETER_LIMIT:g} (inf for none), got {given!r}")
     return bound

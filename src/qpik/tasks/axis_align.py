@@ -4,14 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidInput
 from ..numerics import skew
-from .inputs import feedback_gain
-from .look_at import FrameAxes, unit_axis, world_unit_vectors
-from .task import Task
+from .look_at import FrameAxisTask, world_unit_vectors
 
 
-class AxisAlignTask(Task):
+class AxisAlignTask(FrameAxisTask):
     r"""Align a frame's axis :math:`a` (its own coordinates) with a world direction
     :math:`t` (a surface normal, gravity), as mink's ``AxisAlignTask``: a
     :class:`~qpik.tasks.look_at.LookAtTask` at a point at infinity, the roll about
@@ -30,36 +27,23 @@ class AxisAlignTask(Task):
     there. Three rows of rank 2: keep the task soft.
 
     Args:
-        robot: the robot (one world or N).
-        frame: name of the site, body or geom.
-        frame_type: ``"site"``, ``"body"`` or ``"geom"``.
-        axis: the axis in the frame's own coordinates (normalised), default +z; one for
-            every world.
+        robot, frame, frame_type, axis: as for :class:`~qpik.tasks.look_at.LookAtTask`.
         gain, weight, hard, priority, lm_damping: as for :class:`~qpik.tasks.task.Task`.
 
     The target is the axis's current world direction at construction (met);
     :meth:`set_target` changes it.
 
     Raises:
-        UnknownName: no frame of that type has this name.
-        InvalidInput: a zero or non-finite axis or direction, a bad gain or weight.
+        UnknownName, InvalidInput: as :class:`~qpik.tasks.look_at.LookAtTask` (the target
+            here a direction: a zero or non-finite one is refused).
     """
 
     name = "axis-align task"
-    dim = 3
 
-    def __init__(self, robot, frame: str, frame_type: str = "site", axis=(0.0, 0.0, 1.0), **options):
-        super().__init__(robot, **options)
-        if self.gains is None:  # dead-beat by default, as every tracking task
-            self.set_gain(feedback_gain(None, self.dim, f"{self.name} gain"))
-        self.frame = robot.frame(frame, frame_type)
-        self.axis = unit_axis(axis, f"{self.name} axis")
-        robot.ensure_kinematics()
+    def _start(self, robot) -> None:
         self.directions = np.matmul(self.frame.rotations, self.axis)  # (N, 3)
         self.direction = robot.present(self.directions)
-        self._axes = FrameAxes(robot, self.frame)
         self._seen = np.zeros((robot.n, 3))  # x = Rᵀt
-        self._skew = np.zeros((robot.n, 3, 3))
 
     def set_target(self, direction, velocity=None) -> None:
         """The world direction (3,) to align the axis with (normalised), or (N, 3) one per world.
@@ -68,8 +52,7 @@ class AxisAlignTask(Task):
             InvalidInput: a wrong shape, NaN, inf or zero (InvalidWorlds: in some worlds),
                 or a feed-forward velocity.
         """
-        if velocity is not None:
-            raise InvalidInput(f"{self.name}: the target is a direction; it takes no velocity")
+        self._no_velocity(velocity, "a direction")
         self.directions[...] = world_unit_vectors(self.robot, direction, f"{self.name} target direction")
 
     def _seen_directions(self, rotations: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -80,8 +63,7 @@ class AxisAlignTask(Task):
     def measured(self, robot=None) -> np.ndarray:
         """x = Rᵀt, the target direction in the frame's axes (a copy), on the bound robot
         or another robot of the same model and number of worlds."""
-        frame = self.frame if robot is None or robot is self.robot else robot.frame(self.frame.name, self.frame.type)
-        robot = robot or self.robot
+        robot, frame = self._frame_on(robot)
         return robot.present(self._seen_directions(frame.rotations, np.zeros((robot.n, 3))))
 
     def measure_rows(self) -> None:

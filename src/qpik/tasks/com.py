@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ModelError
-from .inputs import as_index, axis_rows, feedback_gain, world_values
+from .inputs import as_index, axis_rows, feedback_gain
 from .task import Task
 
 
@@ -22,14 +22,11 @@ class ComTask(Task):
 
     Args:
         robot: the robot (one world or N).
-        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
-            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
-        weight: cost weight of a soft task, a scalar or one per row.
         subtree: a body name: the CoM of that body and its descendants (default: the
             whole model, the world body's subtree).
         axes: the world rows kept, a subset of ``"xyz"``.
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+        gain, weight, hard, lm_damping: K, dead-beat by default, and the rest as for
+            :class:`~qpik.tasks.task.Task`.
 
     Raises:
         UnknownName: ``subtree`` names no body (the closest are listed).
@@ -71,10 +68,7 @@ class ComTask(Task):
             InvalidInput: a wrong shape, NaN or inf, or a target so far away that the
                 feedback K·e would overflow (InvalidWorlds: in some worlds).
         """
-        target = world_values(self.robot, position, (self.dim,), "target CoM")
-        rate = None if velocity is None else world_values(self.robot, velocity, (self.dim,), "target CoM velocity")
-        self.targets[...] = target
-        self.rates[...] = 0.0 if rate is None else rate
+        super().set_target(position, velocity)  # into ``target``, a view of ``targets``
 
     def set_target_from_configuration(self) -> None:
         """Desired CoM: the CoM at the current configuration, in every world."""

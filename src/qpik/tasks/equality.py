@@ -11,10 +11,10 @@ import numpy as np
 from ..equalities import SUPPORTED, active_equalities, equality_label, equality_row_ids
 from ..errors import InvalidInput, ModelError
 from .inputs import feedback_gain, positive_scalar
-from .task import Task
+from .task import ScalarGain, Task
 
 
-class EqualityTask(Task):
+class EqualityTask(ScalarGain, Task):
     r"""The model's equality constraints (``connect``, ``weld``, ``joint``, ``tendon``) as rows
 
     .. math::
@@ -57,6 +57,7 @@ class EqualityTask(Task):
     """
 
     name = "equality task"
+    gain_label = "equality task gain"
 
     def __init__(self, robot, equalities: Sequence[str] | None = None, gain: float | None = None,
                  hard: bool = True, weight=1.0):
@@ -64,7 +65,7 @@ class EqualityTask(Task):
         world = robot.world(0)  # world 0 as a one-world robot (its MjData), kinematics current
         ids = self._chosen(robot, equalities, active_equalities(robot.model, world.data))
         if gain is not None:
-            gain = positive_scalar(gain, f"{self.name} gain", allow_zero=True)
+            gain = positive_scalar(gain, self.gain_label, allow_zero=True)
         efc_id = equality_row_ids(robot.model, world.data)  # where each equality's rows lie
         ids = self._acting(robot, ids, efc_id, named=equalities is not None)
         self.equalities = tuple(ids)  # model equality ids, in row order
@@ -112,20 +113,6 @@ class EqualityTask(Task):
             raise ModelError(f"{self.name}: model {robot.name!r} has no active equality constraint that acts "
                              "on a dof")
         return acting
-
-    # -- the gain: one number K, as the serial task's -----------------------------------
-    def set_gain(self, gain: np.ndarray) -> None:
-        self.gains = np.tile(gain, (self.robot.n, 1))
-
-    @property
-    def gain(self) -> float:
-        """K (1/s); NaN until a controller gives its period when dead-beat."""
-        return float(self.gains[0, 0])
-
-    @gain.setter
-    def gain(self, value) -> None:
-        # attach() writes the dead-beat 1/Δt here as a row of gains; a user, one number.
-        self.gains[...] = value if np.ndim(value) else positive_scalar(value, f"{self.name} gain", allow_zero=True)
 
     # -- every step -------------------------------------------------------------------------
     def measure_rows(self) -> None:

@@ -17,7 +17,63 @@ from .pose import PoseRows
 from .task import Task
 
 
-class FrameTask(Task):
+class PoseTask(Task):
+    """What :class:`FrameTask` and :class:`~qpik.tasks.relative_frame.RelativeFrameTask`
+    share: position rows then orientation rows, their gains, and a target pose and
+    feed-forward twist per world (a subclass measures the pose now: ``_pose_now``)."""
+
+    def _start_pose(self, positions, rotations, twist: np.ndarray, position_gain, orientation_gain, p: int) -> None:
+        """Gains K_p (``p`` rows) then K_o, targets copied from ``positions`` (N, 3) and
+        ``rotations`` (N, 3, 3), the feed-forward ``twist`` (N, 6), and the views a user reads."""
+        robot = self.robot
+        self.set_gain(np.concatenate([feedback_gain(position_gain, p, "position gain"),
+                                      feedback_gain(orientation_gain, self.dim - p, "orientation gain")]))
+        self.position_gain, self.orientation_gain = self.gain[..., :p], self.gain[..., p:]
+        self.target_positions, self.target_rotations, self._twist = np.array(positions), np.array(rotations), twist
+        self.target_position = robot.present(self.target_positions)
+        self.target_rotation = robot.present(self.target_rotations)
+        view = robot.present(twist)
+        self.target_linear_velocity, self.target_angular_velocity = view[..., :3], view[..., 3:]
+        self.position_error, self.orientation_error = self.error[..., :p], self.error[..., p:]
+
+    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
+        """Desired pose and feed-forward twist in the task's coordinates (the world's for a
+        :class:`FrameTask`, whatever ``axes_frame``; ``root``'s for a relative one): one for
+        every world, or (N, ...) one per world. ``rotation`` is a 3x3 rotation matrix or a
+        unit quaternion in MuJoCo's w-x-y-z order.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation
+                (InvalidWorlds: in some worlds).
+        """
+        robot = self.robot
+        position = world_values(robot, position, (3,), "target position")
+        rotation = world_rotations(robot, rotation)
+        linear = 0.0 if linear_velocity is None else world_values(robot, linear_velocity, (3,), "target linear velocity")
+        angular = 0.0 if angular_velocity is None else world_values(robot, angular_velocity, (3,),
+                                                                    "target angular velocity")
+        self.target_positions[...] = position  # every argument checked before any is written
+        self.target_rotations[...] = rotation
+        self._twist[:, :3], self._twist[:, 3:] = linear, angular
+
+    def set_target_from_configuration(self) -> None:
+        """Desired pose: the pose at the current configuration, in every world."""
+        self.robot.ensure_kinematics()
+        self.target_positions[...], self.target_rotations[...] = self._pose_now()
+        self._twist[...] = 0.0
+
+    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
+        """:meth:`set_target` from a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]] (one
+        for every world).
+
+        Raises:
+            InvalidInput: not a 4x4 homogeneous transform with a rotation block.
+        """
+        position, rotation = homogeneous_transform(transform)
+        self.set_target(position, rotation, linear_velocity, angular_velocity)
+
+
+class FrameTask(PoseTask):
     r"""Track a frame's pose: position rows, then orientation rows.
 
     .. math::
@@ -35,13 +91,9 @@ class FrameTask(Task):
         robot: the robot.
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
-        position_gain: :math:`K_p` (1/s), a scalar or one per position row; default
-            ``None``: dead-beat, 1/Δt of the controller the task is given to (see below).
-        orientation_gain: :math:`K_o` (1/s), a scalar or one per orientation row; default
-            ``None``: dead-beat as well.
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+        position_gain, orientation_gain: :math:`K_p`, :math:`K_o` (1/s), a scalar or one per
+            position (orientation) row; default ``None``: dead-beat (see below).
+        weight, hard, lm_damping: as for :class:`~qpik.tasks.task.Task`.
         position_axes: the position rows kept, a subset of ``"xyz"``.
         orientation_axes: the orientation rows kept, a subset of ``"xyz"``.
         axes_frame: ``"world"`` or ``"local"``: the axes the rows, masks, gains and
@@ -75,17 +127,8 @@ class FrameTask(Task):
         self._pose = PoseRows(robot, self.frame, self.position_rows, self.orientation_rows, local)
         n_position = len(self.position_rows)
         super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
-        self.set_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
-                                      feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
-        self.position_gain, self.orientation_gain = self.gain[..., :n_position], self.gain[..., n_position:]
-        self.target_positions = np.array(self.frame.positions)  # (N, 3)
-        self.target_rotations = np.array(self.frame.rotations)  # (N, 3, 3)
-        self._twist = np.zeros((robot.n, 6))  # the feed-forward, world axes
-        self.target_position, self.target_rotation = robot.present(self.target_positions), \
-            robot.present(self.target_rotations)
-        twist = robot.present(self._twist)
-        self.target_linear_velocity, self.target_angular_velocity = twist[..., :3], twist[..., 3:]
-        self.position_error, self.orientation_error = self.error[..., :n_position], self.error[..., n_position:]
+        self._start_pose(self.frame.positions, self.frame.rotations, np.zeros((robot.n, 6)), position_gain,
+                         orientation_gain, n_position)
         # Every world axis: MuJoCo fills the task's own Jacobian rows, the feed-forward is
         # the twist itself, the errors are views: no copies.
         self._whole = self._pose.whole_rows()
@@ -95,44 +138,12 @@ class FrameTask(Task):
             self.target_rate = robot.present(self.rates)
             self._position_errors, self._orientation_errors = self.errors[:, :3], self.errors[:, 3:]
 
-    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``:
-        one for every world, or (N, ...) one per world. ``rotation`` is a 3x3 rotation
-        matrix or a unit quaternion in MuJoCo's w-x-y-z order.
-
-        Raises:
-            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation
-                (InvalidWorlds: in some worlds).
-        """
-        robot = self.robot
-        position = world_values(robot, position, (3,), "target position")
-        rotation = world_rotations(robot, rotation)
-        linear = 0.0 if linear_velocity is None else world_values(robot, linear_velocity, (3,), "target linear velocity")
-        angular = 0.0 if angular_velocity is None else world_values(robot, angular_velocity, (3,),
-                                                                    "target angular velocity")
-        self.target_positions[...] = position  # every argument checked before any is written
-        self.target_rotations[...] = rotation
-        self._twist[:, :3], self._twist[:, 3:] = linear, angular
-
-    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]] (one world).
-
-        Raises:
-            InvalidInput: not a 4x4 homogeneous transform with a rotation block.
-        """
-        position, rotation = homogeneous_transform(transform)
-        self.set_target(position, rotation, linear_velocity, angular_velocity)
-
     def set_target_from_mocap(self, body: str) -> None:
         """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now."""
         self.set_target(*mocap_pose(self.robot, body))
 
-    def set_target_from_configuration(self) -> None:
-        """Desired world pose: the frame's pose at the current configuration, in every world."""
-        self.robot.ensure_kinematics()
-        self.target_positions[...] = self.frame.positions
-        self.target_rotations[...] = self.frame.rotations
-        self._twist[...] = 0.0
+    def _pose_now(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.frame.positions, self.frame.rotations
 
     def measure_rows(self) -> None:
         pose = self._pose

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from ..errors import InvalidInput, InvalidWorlds, listed
+from ..robot import as_floats, as_index  # noqa: F401 (the tasks' inputs too)
 
 _AXES = "xyz"
 AXES_FRAMES = ("world", "local")
@@ -50,10 +51,7 @@ def check_axes_frame(axes_frame: str) -> bool:
 def float_array(value, shape: int | tuple, what: str) -> np.ndarray:
     """``value`` as a float array of ``shape`` (its entries not checked), or InvalidInput."""
     shape = (shape,) if isinstance(shape, int) else tuple(shape)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+    arr = as_floats(value, what)
     if arr.shape != shape:
         raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
     return arr
@@ -67,22 +65,6 @@ def finite_vector(value, size: int, what: str) -> np.ndarray:
     return arr
 
 
-def target_vector(value, size: int, what: str) -> np.ndarray:
-    """:func:`finite_vector`, and InvalidInput for an entry beyond
-    :data:`TARGET_MAGNITUDE_LIMIT` (the feedback K·e would overflow)."""
-    arr = float_array(value, size, what)
-    if not math.hypot(*arr.tolist()) <= TARGET_MAGNITUDE_LIMIT:
-        _name_bad_target(arr, what)
-    return arr
-
-
-def _name_bad_target(arr: np.ndarray, what: str) -> None:
-    if not np.isfinite(arr).all():
-        raise InvalidInput(f"{what} contains NaN or inf: {arr}")
-    raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
-                       "square) would overflow; give a target the robot could reach")
-
-
 def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
     """``value`` as (N, *shape) floats: one value for every world, or (for N worlds) one per
     world, each finite and within :data:`TARGET_MAGNITUDE_LIMIT`.
@@ -92,23 +74,25 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
         InvalidWorlds: (N worlds) the worlds whose value is not finite or too large.
     """
     if not robot.batched:
-        arr = float_array(value, shape, what)
-        if not math.hypot(*arr.reshape(-1).tolist()) <= TARGET_MAGNITUDE_LIMIT:
-            _name_bad_target(arr, what)
-        return arr[None]
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None
+        arr = as_floats(value, what)
+        if arr.shape != shape:
+            raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
+        if math.hypot(*arr.ravel().tolist()) <= TARGET_MAGNITUDE_LIMIT:
+            return arr[None]
+        if not np.isfinite(arr).all():
+            raise InvalidInput(f"{what} contains NaN or inf: {arr}")
+        raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
+                           "square) would overflow; give a target the robot could reach")
+    arr = as_floats(value, what)
     if arr.shape == shape:
         arr = np.broadcast_to(arr, (robot.n,) + shape)
     if arr.shape != (robot.n,) + shape:
         raise InvalidInput(f"{what} must have shape {shape} or {(robot.n,) + shape}, got {arr.shape}")
+    if np.abs(arr).max(initial=0.0) <= TARGET_MAGNITUDE_LIMIT:  # the usual call: one comparison (NaN fails)
+        return arr
     magnitude = np.abs(arr).reshape(robot.n, -1).max(axis=1, initial=0.0)
     bad = np.flatnonzero(~(magnitude <= TARGET_MAGNITUDE_LIMIT))
-    if len(bad):
-        raise InvalidWorlds(f"{what} of worlds {listed(bad)}: NaN, inf or beyond {TARGET_MAGNITUDE_LIMIT:g}", bad)
-    return arr
+    raise InvalidWorlds(f"{what} of worlds {listed(bad)}: NaN, inf or beyond {TARGET_MAGNITUDE_LIMIT:g}", bad)
 
 
 def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
@@ -265,11 +249,3 @@ def joint_dofs(robot, joints: Sequence[str] | None) -> np.ndarray:
     if len(set(dofs)) != len(dofs):
         raise InvalidInput(f"a joint is named twice in {list(joints)}")
     return np.array(sorted(dofs), dtype=int)
-
-
-def as_index(index: np.ndarray) -> slice | np.ndarray:
-    """A slice for consecutive indices (views, no fancy-index copies), else the array."""
-    index = np.asarray(index, dtype=int)
-    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
-        return slice(int(index[0]), int(index[0]) + len(index))
-    return index

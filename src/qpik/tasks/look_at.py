@@ -77,7 +77,36 @@ class Sight:
         return self
 
 
-class LookAtTask(Task):
+class FrameAxisTask(Task):
+    """What :class:`LookAtTask` and :class:`~qpik.tasks.axis_align.AxisAlignTask` share: a
+    frame's axis (its own coordinates, normalised), its Jacobians in its own axes and a
+    dead-beat gain by default, as every tracking task's; a subclass sets its target up in ``_start``."""
+
+    dim = 3
+
+    def __init__(self, robot, frame: str, frame_type: str = "site", axis=(0.0, 0.0, 1.0), **options):
+        super().__init__(robot, **options)
+        if self.gains is None:
+            self.set_gain(feedback_gain(None, self.dim, f"{self.name} gain"))
+        self.frame = robot.frame(frame, frame_type)
+        self.axis = unit_axis(axis, f"{self.name} axis")
+        robot.ensure_kinematics()
+        self._axes = FrameAxes(robot, self.frame)
+        self._skew = np.zeros((robot.n, 3, 3))
+        self._start(robot)
+
+    def _frame_on(self, robot) -> tuple:
+        """(robot, the task's frame on it): the bound robot (None) or another of the same model."""
+        if robot is None or robot is self.robot:
+            return self.robot, self.frame
+        return robot, robot.frame(self.frame.name, self.frame.type)
+
+    def _no_velocity(self, velocity, target: str) -> None:
+        if velocity is not None:
+            raise InvalidInput(f"{self.name}: the target is {target}; it takes no velocity")
+
+
+class LookAtTask(FrameAxisTask):
     r"""Point a frame's axis :math:`a` (its own coordinates) at a target point :math:`p^*`,
     as mink's ``LookAtTask``: only where the axis points is constrained (rank 2), the
     roll about it is left to other tasks.
@@ -115,21 +144,12 @@ class LookAtTask(Task):
     """
 
     name = "look-at task"
-    dim = 3
 
-    def __init__(self, robot, frame: str, frame_type: str = "site", axis=(0.0, 0.0, 1.0), **options):
-        super().__init__(robot, **options)
-        if self.gains is None:  # dead-beat by default, as every tracking task
-            self.set_gain(feedback_gain(None, self.dim, f"{self.name} gain"))
-        self.frame = robot.frame(frame, frame_type)
-        self.axis = unit_axis(axis, f"{self.name} axis")
-        robot.ensure_kinematics()
+    def _start(self, robot) -> None:
         self.points = self.frame.positions + np.matmul(self.frame.rotations, self.axis)  # (N, 3)
         self.point = robot.present(self.points)
-        self._axes = FrameAxes(robot, self.frame)
         self._sight = Sight(robot.n)
         n, nv = robot.n, robot.nv
-        self._skew = np.zeros((n, 3, 3))
         self._crossed, self._projected = np.zeros((n, 3, nv)), np.zeros((n, 3, nv))
         self._along = np.zeros((n, 1, nv))  # d̂ᵀ(J_v − [r]× J_ω)
         self._negative_norm = np.zeros((n, 1, 1))
@@ -141,15 +161,13 @@ class LookAtTask(Task):
             InvalidInput: a wrong shape, NaN or inf (InvalidWorlds: in some worlds), or a
                 feed-forward velocity (a point has none here: move the point instead).
         """
-        if velocity is not None:
-            raise InvalidInput(f"{self.name}: the target is a point to look at; it takes no velocity")
+        self._no_velocity(velocity, "a point to look at")
         self.points[...] = world_values(self.robot, point, (3,), f"{self.name} target point")
 
     def measured(self, robot=None) -> np.ndarray:
         """x = d̂, the unit direction to the target in the frame's axes (a copy), on the
         bound robot or another robot of the same model and number of worlds."""
-        frame = self.frame if robot is None or robot is self.robot else robot.frame(self.frame.name, self.frame.type)
-        robot = robot or self.robot
+        robot, frame = self._frame_on(robot)
         sight = Sight(robot.n)(self.points, frame.positions, frame.rotations)
         return robot.present(sight.direction)
 

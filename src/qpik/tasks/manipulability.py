@@ -14,6 +14,8 @@ from .inputs import as_index, positive_scalar
 from .task import JointSpaceTask
 
 _ROTATING = (int(mujoco.mjtJoint.mjJNT_BALL), int(mujoco.mjtJoint.mjJNT_FREE))
+OVERFLOWED = ("the manipulability gradient overflowed (the configuration diverged, e.g. an unlimited joint "
+              "extending): add joint limits")
 
 
 class ManipulabilityMeasure(Protocol):
@@ -127,5 +129,4 @@ class ManipulabilityTask(JointSpaceTask):
         part = gradient[:, self._dofs] if isinstance(self._dofs, slice) else gradient.take(self._dofs, 1)
         np.multiply(part, self._k, self.target_velocities)
         if not all_finite(self.target_velocities):
-            raise DivergenceError(f"{self.name}: the manipulability gradient overflowed (the configuration "
-                                  "diverged, e.g. an unlimited joint extending): add joint limits")
+            raise DivergenceError(f"{self.name}: {OVERFLOWED}")

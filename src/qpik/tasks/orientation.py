@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .inputs import axis_rows, check_axes_frame, feedback_gain, mocap_pose, world_rotations, world_values
-from .pose import PoseRows
-from .task import Task
+from .inputs import mocap_pose, world_rotations, world_values
+from .pose import MaskedFrameTask
 
 
-class OrientationTask(Task):
+class OrientationTask(MaskedFrameTask):
     r"""Track a frame's orientation on selected axes.
 
     .. math::
@@ -21,16 +20,9 @@ class OrientationTask(Task):
     :math:`R_d`'s does while leaving the rotation about it free (to first order).
 
     Args:
-        robot: the robot.
-        frame: name of the site, body or geom.
-        frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
-        axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
-            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
-        axes_frame: ``"world"`` or ``"local"`` (the frame's own axes).
+        robot, frame, frame_type, axes, axes_frame: as for :class:`~qpik.PositionTask`.
+        gain, weight, hard, lm_damping: K, dead-beat by default, and the rest as for
+            :class:`~qpik.tasks.task.Task`.
 
     Raises:
         UnknownName: no frame of that type has this name (the closest are listed).
@@ -38,16 +30,9 @@ class OrientationTask(Task):
     """
 
     name = "orientation task"
+    block = "orientation"
 
-    def __init__(self, robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
-                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
-        self.rows = axis_rows(axes)
-        self.axes_frame = axes_frame
-        local = check_axes_frame(axes_frame)
-        self.frame = robot.frame(frame, frame_type)
-        self._pose = PoseRows(robot, self.frame, None, self.rows, local)
-        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
-        self.set_gain(feedback_gain(gain, self.dim, "orientation gain"))
+    def _start(self, robot) -> None:
         self.target_rotations = np.array(self.frame.rotations)
         self.target_angular_velocities = np.zeros((robot.n, 3))
         self.target_rotation = robot.present(self.target_rotations)

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..numerics import RotationError
-from .inputs import as_index
+from .inputs import as_index, axis_rows, check_axes_frame, feedback_gain
+from .task import Task
 
 
 class PoseRows:
@@ -101,3 +102,24 @@ class PoseRows:
         task.errors[...] = self.errors(target_position, target_rotation)[:, rows]
         if linear is not None or angular is not None:
             task.rates[...] = self.feedforward(linear, angular)[:, rows]
+
+
+class MaskedFrameTask(Task):
+    """What :class:`~qpik.PositionTask` and :class:`~qpik.OrientationTask` share: the rows
+    ``rows`` of a mask ``axes`` of one block of a frame's pose (``block``), in world or
+    local axes, and one gain K; a subclass sets its targets up in ``_start``."""
+
+    block = "position"
+
+    def __init__(self, robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
+                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
+        self.rows = axis_rows(axes)
+        self.axes_frame = axes_frame
+        self.local = check_axes_frame(axes_frame)
+        self.frame = robot.frame(frame, frame_type)
+        position = self.block == "position"
+        self._pose = PoseRows(robot, self.frame, self.rows if position else None, None if position else self.rows,
+                              self.local)
+        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
+        self.set_gain(feedback_gain(gain, self.dim, f"{self.block} gain"))
+        self._start(robot)

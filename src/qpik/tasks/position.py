@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .inputs import axis_rows, check_axes_frame, feedback_gain, mocap_pose, world_values
-from .pose import PoseRows
-from .task import Task
+from .inputs import mocap_pose, world_values
+from .pose import MaskedFrameTask
 
 
-class PositionTask(Task):
+class PositionTask(MaskedFrameTask):
     r"""Track a frame's position on selected axes (the arm's task uses ``"xy"``).
 
     .. math::
@@ -30,10 +29,7 @@ class PositionTask(Task):
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
         axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
-            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
+        gain, weight, hard: K, dead-beat by default, and the rest as for :class:`~qpik.tasks.task.Task`.
         lm_damping: μ above.
         axes_frame: ``"world"`` or ``"local"`` (the frame's own axes).
 
@@ -44,15 +40,7 @@ class PositionTask(Task):
 
     name = "position task"
 
-    def __init__(self, robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
-                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
-        self.rows = axis_rows(axes)
-        self.axes_frame = axes_frame
-        self.local = check_axes_frame(axes_frame)
-        self.frame = robot.frame(frame, frame_type)
-        self._pose = PoseRows(robot, self.frame, self.rows, None, self.local)
-        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
-        self.set_gain(feedback_gain(gain, self.dim, "position gain"))
+    def _start(self, robot) -> None:
         start = self.frame.positions if self.local else self.frame.positions[:, self.rows]
         self.targets = np.array(start)  # (N, target_dim)
         self.target = robot.present(self.targets)

@@ -8,10 +8,10 @@ import numpy as np
 
 from ..numerics import ConfigurationDifference
 from .inputs import as_index, positive_scalar, world_values
-from .task import JointSpaceTask
+from .task import JointSpaceTask, ScalarGain
 
 
-class PostureTask(JointSpaceTask):
+class PostureTask(ScalarGain, JointSpaceTask):
     """Joint-space task toward a reference configuration: v = K (q_ref ⊖ q) on its dofs.
 
     Args:
@@ -28,10 +28,11 @@ class PostureTask(JointSpaceTask):
     """
 
     name = "posture task"
+    gain_label = "posture gain"
 
     def __init__(self, robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
-        self.set_gain(np.full(self.dim, positive_scalar(gain, "posture gain", allow_zero=True)))
+        self.set_gain(np.full(self.dim, positive_scalar(gain, self.gain_label, allow_zero=True)))
         self.targets = np.array(robot.qpos) if target is None else \
             np.array(world_values(robot, target, (robot.nq,), "posture target"))
         self.target = robot.present(self.targets)
@@ -41,18 +42,6 @@ class PostureTask(JointSpaceTask):
         if isinstance(self._dofs, slice):  # the error is a view of the difference: no copy per step
             self.errors = self._velocity[:, self._dofs]
             self.error = robot.present(self.errors)
-
-    @property
-    def gain(self) -> float:
-        return float(self.gains[0, 0])
-
-    @gain.setter
-    def gain(self, value) -> None:
-        if self.gains is not None:
-            self.gains[...] = positive_scalar(value, "posture gain", allow_zero=True)
-
-    def set_gain(self, gain: np.ndarray) -> None:
-        self.gains = np.tile(gain, (self.robot.n, 1))
 
     def set_target(self, target) -> None:
         """The reference configuration (nq,), or (N, nq) one per world."""

@@ -6,11 +6,10 @@ import numpy as np
 
 from ..errors import InvalidInput
 from ..numerics import RotationError, skew
-from .inputs import feedback_gain, homogeneous_transform, world_rotations, world_values
-from .task import Task
+from .frame import PoseTask
 
 
-class RelativeFrameTask(Task):
+class RelativeFrameTask(PoseTask):
     r"""Track the pose of ``frame`` in the coordinates of ``root`` (both move).
 
     With :math:`d = p_f - p_r`, the relative pose is :math:`p = R_r^T d`,
@@ -31,12 +30,9 @@ class RelativeFrameTask(Task):
         root: name of the site, body or geom whose coordinates the pose is taken in.
         frame_type: type of ``frame``: ``"site"``, ``"body"`` or ``"geom"``.
         root_type: type of ``root``.
-        position_gain: :math:`K_p` (1/s), a scalar or one per axis; default ``None``:
-            dead-beat, 1/Δt of the controller the task is given to (K·Δt = 1).
-        orientation_gain: :math:`K_o` (1/s), a scalar or one per axis; default dead-beat.
-        weight: cost weight of a soft task, a scalar or one per row (6).
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+        position_gain, orientation_gain: :math:`K_p`, :math:`K_o` (1/s), a scalar or one
+            per axis each; default ``None``: dead-beat, as a :class:`~qpik.tasks.task.Task`'s.
+        weight, hard, lm_damping: as for :class:`~qpik.tasks.task.Task` (6 rows).
 
     Raises:
         UnknownName: a frame name unknown for its type (the closest are listed).
@@ -55,28 +51,18 @@ class RelativeFrameTask(Task):
         self.root = robot.frame(root, root_type)
         if (self.frame.type, self.frame.id) == (self.root.type, self.root.id):
             raise InvalidInput(f"{self.name}: frame and root are the same {frame_type} {frame!r}")
-        self.set_gain(np.concatenate([feedback_gain(position_gain, 3, "position gain"),
-                                      feedback_gain(orientation_gain, 3, "orientation gain")]))
-        self.position_gain, self.orientation_gain = self.gain[..., :3], self.gain[..., 3:]
         n, nv = robot.n, robot.nv
         self._jac_frame, self._jac_root = np.zeros((n, 6, nv)), np.zeros((n, 6, nv))
-        self._moved = np.zeros((n, 3, nv))
-        self._crossed = np.zeros((n, 3, nv))
+        self._moved, self._crossed = np.zeros((n, 3, nv)), np.zeros((n, 3, nv))
         self._offset = np.zeros((n, 3))  # d
         self._skew = np.zeros((n, 3, 3))  # [d]×
         self._root_transposed = self.root.rotations.transpose(0, 2, 1)  # R_rᵀ of every world (a view)
         self.positions = np.zeros((n, 3))  # the relative pose, refreshed by every update
         self.rotations = np.zeros((n, 3, 3))
         self._relative_pose()
-        self.target_positions = self.positions.copy()
-        self.target_rotations = self.rotations.copy()
+        self._start_pose(self.positions, self.rotations, self.rates, position_gain, orientation_gain, 3)
         self._rotation_error = RotationError(n)
         self.position, self.rotation = robot.present(self.positions), robot.present(self.rotations)
-        self.target_position, self.target_rotation = robot.present(self.target_positions), \
-            robot.present(self.target_rotations)
-        twist = robot.present(self.rates)  # the feed-forward, root coordinates
-        self.target_linear_velocity, self.target_angular_velocity = twist[..., :3], twist[..., 3:]
-        self.position_error, self.orientation_error = self.error[..., :3], self.error[..., 3:]
 
     def _relative_pose(self) -> None:
         """p = R_rᵀ d (as the row dᵀR_r) and R = R_rᵀ R_f in every world."""
@@ -84,37 +70,9 @@ class RelativeFrameTask(Task):
         np.matmul(self._offset[:, None, :], self.root.rotations, self.positions[:, None, :])
         np.matmul(self._root_transposed, self.frame.rotations, self.rotations)
 
-    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired pose of ``frame`` in ``root`` coordinates (``rotation`` a 3x3 matrix or
-        a w-x-y-z unit quaternion), and its feed-forward twist (root coordinates): one for
-        every world, or (N, ...) one per world.
-
-        Raises:
-            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation
-                (InvalidWorlds: in some worlds).
-        """
-        robot = self.robot
-        position = world_values(robot, position, (3,), "target position")
-        rotation = world_rotations(robot, rotation)
-        linear = 0.0 if linear_velocity is None else world_values(robot, linear_velocity, (3,), "target linear velocity")
-        angular = 0.0 if angular_velocity is None else world_values(robot, angular_velocity, (3,),
-                                                                    "target angular velocity")
-        self.target_positions[...] = position  # every argument checked before any is written
-        self.target_rotations[...] = rotation
-        self.rates[:, :3], self.rates[:, 3:] = linear, angular
-
-    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired pose in ``root`` coordinates as a homogeneous 4x4 transform (one for every world)."""
-        position, rotation = homogeneous_transform(transform)
-        self.set_target(position, rotation, linear_velocity, angular_velocity)
-
-    def set_target_from_configuration(self) -> None:
-        """Desired pose: the relative pose at the current configuration, in every world."""
-        self.robot.ensure_kinematics()
+    def _pose_now(self) -> tuple[np.ndarray, np.ndarray]:
         self._relative_pose()
-        self.target_positions[...] = self.positions
-        self.target_rotations[...] = self.rotations
-        self.rates[...] = 0.0
+        return self.positions, self.rotations
 
     def measure_rows(self) -> None:
         jf, jr, moved = self._jac_frame, self._jac_root, self._moved

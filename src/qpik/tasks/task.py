@@ -36,7 +36,7 @@ import warnings
 import numpy as np
 
 from ..errors import GainWarning, InvalidInput
-from .inputs import feedback_gain, joint_dofs, positive, positive_scalar, world_values
+from .inputs import as_floats, feedback_gain, joint_dofs, positive, positive_scalar, world_values
 
 
 def _row_count(dim, name: str) -> int:
@@ -49,10 +49,7 @@ def _row_count(dim, name: str) -> int:
 
 def _checked_rows(value, shape: tuple, name: str, method: str) -> np.ndarray:
     """What a user task's method returned, as finite floats of the promised shape."""
-    try:
-        rows = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{name}.{method} must return numbers, got {value!r}") from None
+    rows = as_floats(value, f"{name}.{method}", "must return")
     if rows.shape != shape:
         raise InvalidInput(f"{name}.{method} must return shape {shape}, got {rows.shape}")
     if not math.isfinite(float(rows.sum())):
@@ -106,9 +103,8 @@ class Task:
         self.priority = priority
         self.lm_damping = positive_scalar(lm_damping, f"{self.name} lm_damping", allow_zero=True)
         n = robot.n
-        self.errors = np.zeros((n, self.dim))
-        self.target_velocities = np.zeros((n, self.dim))
-        self.rates = np.zeros((n, self.dim))  # the feed-forward ẋ_d
+        # e, v and the feed-forward ẋ_d of every world
+        self.errors, self.target_velocities, self.rates = (np.zeros((n, self.dim)) for _ in range(3))
         self._allocate_jacobians()
         self.error, self.target_velocity = robot.present(self.errors), robot.present(self.target_velocities)
         self.target_rate = robot.present(self.rates)
@@ -148,8 +144,7 @@ class Task:
         return self.error.copy()
 
     def compute_jacobian(self, robot) -> np.ndarray:
-        """The Jacobian J = ∂x/∂q on ``robot`` as a user reads it ((dim, nv) for one robot):
-        a user's task defines it; a built-in task measures its rows on its own robot (a copy).
+        """The Jacobian J = ∂x/∂q ((dim, nv) for one robot), as :meth:`compute_error` the error.
 
         Raises:
             InvalidInput: a robot other than the task's.
@@ -317,6 +312,24 @@ class Task:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, hard={self.hard})"
+
+
+class ScalarGain:
+    """A mixin for a task with one gain K (1/s) for every row: ``gain`` reads it (NaN
+    until a controller gives its period, when dead-beat) and sets it (a number >= 0)."""
+
+    gain_label = "gain"  # the gain's name in messages
+
+    def set_gain(self, gain: np.ndarray) -> None:
+        self.gains = np.tile(gain, (self.robot.n, 1))
+
+    @property
+    def gain(self) -> float:
+        return float(self.gains[0, 0])
+
+    @gain.setter
+    def gain(self, value) -> None:
+        self.gains[...] = positive_scalar(value, self.gain_label, allow_zero=True)
 
 
 class JointSpaceTask(Task):

@@ -8,8 +8,8 @@ import numpy as np
 from ..errors import DivergenceError, InvalidInput
 from ..numerics import all_finite
 from .inputs import as_index, optional_rows
+from .manipulability import _ROTATING, OVERFLOWED
 
-_ROTATING = (int(mujoco.mjtJoint.mjJNT_BALL), int(mujoco.mjtJoint.mjJNT_FREE))
 # Jacobian columns smaller than this (their norm over every world) cannot overflow the
 # gradient's products (the fifth power of J's entries at most, summed over a few dofs).
 TAME = 1e50
@@ -138,8 +138,7 @@ class Yoshikawa:
             with np.errstate(over="ignore", invalid="ignore"):
                 self._gradients()
         if not all_finite(self._gradient):
-            raise DivergenceError(f"{self.label}: the manipulability gradient overflowed (the configuration "
-                                  "diverged, e.g. an unlimited joint extending): add joint limits")
+            raise DivergenceError(f"{self.label}: {OVERFLOWED}")
         return self._gradient
 
     def _gradients(self) -> None:
@@ -237,51 +236,25 @@ def _sum_starts(model: mujoco.MjModel) -> np.ndarray | None:
 
 
 class _Gram:
-    r"""A = JJᵀ (N, m, m) of every world, its adjugate adj(A) = det(A) A⁻¹ (defined when A
-    is singular) and det(A), for m from 1 to 6.
-
-    For m = 2 and 3, A is written into a doubled array G (G[i, j] = A[i mod m, j mod m],
-    (N, 2m − 1, 2m − 1)), in which each cofactor is a product of shifted blocks (views):
-    for m = 3, :math:`C_{ij} = A_{i+1,j+1}A_{i+2,j+2} - A_{i+1,j+2}A_{i+2,j+1}` (indices mod 3);
-    for m = 2, :math:`C_{ij} = \pm A_{i+1,j+1}`. det(A) is then A's first row times adj(A)'s
-    first column. Larger: cofactors through the SVD, adj(A) = V diag(Π_{j≠i} s_j) Uᵀ det(UVᵀ).
-    """
+    r"""A = JJᵀ (N, m, m) of every world, det(A) and its adjugate adj(A) = det(A) A⁻¹, defined
+    when A is singular too: from the SVD A = U diag(s) Vᵀ, adj(A) = V diag(Π_{j≠i} s_j) Uᵀ
+    det(UVᵀ). A world whose A overflowed gets NaN (the others are decomposed as usual)."""
 
     def __init__(self, n: int, m: int):
-        self.m = m
-        size = 2 * m - 1 if m in (2, 3) else m
-        G = self._doubled = np.zeros((n, size, size))
-        self.gram = G[:, :m, :m]
-        self.adjugate = np.ones((n, m, m))  # m = 1: adj(A) = 1
-        self._product = np.zeros((n, m, m))
-        self._det = np.zeros((n, 1, 1))
-        self._first_row, self._first_column = self.gram[:, :1], self.adjugate[:, :, :1]
-        # The views each step reads, taken once: the doubling copies and the shifted blocks.
-        self._copies = [(G[:, m:, :m], G[:, :m - 1, :m]), (G[:, :, m:], G[:, :, :m - 1])] if m in (2, 3) else []
-        self._blocks = (G[:, 1:4, 1:4], G[:, 2:5, 2:5], G[:, 1:4, 2:5], G[:, 2:5, 1:4]) if m == 3 else None
-        self._block, self._sign = G[:, 1:3, 1:3], np.array([[1.0, -1.0], [-1.0, 1.0]])
+        self.gram, self.adjugate, self._det = np.zeros((n, m, m)), np.zeros((n, m, m)), np.zeros((n, 1, 1))
+        self._others = [np.delete(np.arange(m), i) for i in range(m)]  # the singular values each product takes
 
     def __call__(self, J: np.ndarray, Jt: np.ndarray) -> np.ndarray:
         """A = J Jᵀ and its adjugate (``adjugate``); returns det(A) (N, 1, 1)."""
-        np.matmul(J, Jt, self.gram)
-        for destination, source in self._copies:
-            np.copyto(destination, source)
-        if self.m == 3:
-            a, b, c, d = self._blocks
-            np.multiply(a, b, self.adjugate)
-            np.subtract(self.adjugate, np.multiply(c, d, self._product), self.adjugate)
-        elif self.m == 2:
-            np.multiply(self._block, self._sign, self.adjugate)
-        elif self.m > 3:
-            self._svd_adjugate()
-            self._det[:, 0, 0] = np.linalg.det(self.gram)
-            return self._det
-        return np.matmul(self._first_row, self._first_column, self._det)
-
-    def _svd_adjugate(self) -> None:
-        u, s, vt = np.linalg.svd(self.gram)
-        m = self.m
-        products = np.stack([np.prod(np.delete(s, i, axis=1), axis=1) for i in range(m)], axis=1)
-        sign = np.linalg.det(np.matmul(u, vt))
+        gram = np.matmul(J, Jt, self.gram)
+        overflowed = None if all_finite(gram) else ~np.isfinite(gram).all(axis=(1, 2))
+        if overflowed is not None:
+            gram = np.where(overflowed[:, None, None], 0.0, gram)
+        u, s, vt = np.linalg.svd(gram)
+        products = np.stack([s[:, others].prod(axis=1) for others in self._others], axis=1)
+        products *= np.linalg.det(np.matmul(u, vt))[:, None]
         np.matmul(vt.transpose(0, 2, 1) * products[:, None, :], u.transpose(0, 2, 1), self.adjugate)
-        self.adjugate *= sign[:, None, None]
+        self._det[:, 0, 0] = np.linalg.det(gram)
+        if overflowed is not None:
+            self._det[overflowed], self.adjugate[overflowed] = np.nan, np.nan
+        return self._det

@@ -113,15 +113,34 @@ class KinematicsBackend(ABC):
             else new arrays. Equal to ``mj_jac`` of each world to rounding.
         """
 
+    def _field(self, name: str) -> np.ndarray:
+        """A MjData field of every world on the host, ``(N, ...)`` float64, current after
+        every :meth:`forward` (read by the methods written here once for every back-end)."""
+        raise NotImplementedError
+
     @abstractmethod
     def subtree_com(self, body: int) -> np.ndarray:
         """``(N, 3)`` centre of mass of ``body``'s subtree (``data.subtree_com``), owned
         by the back-end, read-only."""
 
-    @abstractmethod
     def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
         """``(N, 3, nv)`` Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``), into
-        ``out`` when given."""
+        ``out`` when given: the mass-weighted :meth:`jacobian` of each massive body's
+        centre of mass in the subtree (``_field("xipos")``, ``_subtrees`` a dict)."""
+        m, n = self.model, self.nworld
+        if body not in self._subtrees:
+            members = [b for b in range(body, m.nbody) if _descends(m, b, body)]
+            self._subtrees[body] = [b for b in members if m.body_mass[b] > 0.0]
+        xipos = self._field("xipos").reshape(n, -1, 3)
+        total = np.zeros((n, 3, m.nv)) if out is None else out
+        total.fill(0.0)
+        jacp, jacr = np.empty((n, 3, m.nv)), np.empty((n, 3, m.nv))
+        for b in self._subtrees[body]:
+            self.jacobian(b, xipos[:, b], jacp, jacr)
+            jacp *= m.body_mass[b]
+            total += jacp
+        total *= 1.0 / m.body_subtreemass[body]
+        return total
 
     @abstractmethod
     def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,11 +160,11 @@ class KinematicsBackend(ABC):
         """
 
     # -- state -------------------------------------------------------------------------
-    @abstractmethod
     def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
         """``qpos ← qpos ⊕ qvel·dt`` on the configuration manifold, as
         ``mj_integratePos`` (quaternions of ball and free joints integrated and
-        normalised), in place.
+        normalised), in place, on the host (``_integration``: the model's
+        :class:`~qpik.batch.backends.cpu._Integration`).
 
         Args:
             qvel: ``(N, nv)``, or ``(len(ids), nv)`` with ``ids``; finite (the caller
@@ -153,6 +172,12 @@ class KinematicsBackend(ABC):
             dt: the step, positive and finite.
             ids: the worlds to move, or None for all.
         """
+        if ids is None:
+            self._integration.apply(self.qpos, qvel, dt)
+        else:
+            qpos = self.qpos[ids]
+            self._integration.apply(qpos, qvel, dt)
+            self.qpos[ids] = qpos
 
     # -- physics -----------------------------------------------------------------------
     @abstractmethod
@@ -172,3 +197,8 @@ class KinematicsBackend(ABC):
             world, so its state means nothing).
         """
 
+
+def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > ancestor:
+        body = int(model.body_parentid[body])
+    return body == ancestor

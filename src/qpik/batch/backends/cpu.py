@@ -34,6 +34,7 @@ and the caller's callback (``mujoco.get_mjcb_time()``) is put back after each ca
 from __future__ import annotations
 
 import contextlib
+import copy
 import ctypes
 import os
 
@@ -41,7 +42,9 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
+from ...equalities import equality_label
 from ...numerics import mul, quat2mat, quat_integrate
+from ...robot import FRAMES, as_index
 from ..errors import NotBatched
 from .base import KinematicsBackend
 
@@ -49,7 +52,6 @@ _D = mujoco.mjtDisableBit
 # The kinematic copy computes no contact and no constraint: a forward to the position
 # stage then skips collision detection and constraint assembly.
 _KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
-_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat")}
 _SAME = mujoco.mjtSameFrame
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
@@ -99,20 +101,7 @@ def default_threads(nworld: int) -> int:
     return max(1, min(cpus, nworld // WORLDS_PER_THREAD))
 
 
-class HostIntegration:
-    """:meth:`KinematicsBackend.integrate` for a back-end whose ``qpos`` lives on the host
-    (``_integration``: an :class:`_Integration` of its model)."""
-
-    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
-        if ids is None:
-            self._integration.apply(self.qpos, qvel, dt)
-        else:
-            qpos = self.qpos[ids]
-            self._integration.apply(qpos, qvel, dt)
-            self.qpos[ids] = qpos
-
-
-class CpuBackend(HostIntegration, KinematicsBackend):
+class CpuBackend(KinematicsBackend):
     """N worlds on ``mujoco.batch.Batch``.
 
     Args:
@@ -127,7 +116,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         self.model = model
         self.nworld = int(nworld)
         self.nthread = default_threads(self.nworld) if nthread is None else int(nthread)
-        kinematic = _copy(model)
+        kinematic = copy.deepcopy(model)
         kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
         kinematic.body_geomnum[:] = 0  # no geom poses: see _geom_pose
         self._batch = mujoco.batch.Batch(kinematic, self.nworld, self.nthread, persistent=False)
@@ -138,7 +127,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cdof_components = None
         self._chains: dict[int, np.ndarray] = {}
-        self._subtrees: dict[int, np.ndarray] = {}
+        self._subtrees: dict[int, list[int]] = {}
         self._physics = None
         self._integration = _Integration(model)
 
@@ -167,7 +156,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
                 self._geom_pose(frame_id, *pose)
                 self._geoms[frame_id] = pose
             return self._geoms[frame_id]
-        position, rotation = _FRAME_FIELDS[frame_type]
+        position, rotation = FRAMES[frame_type][1:3]
         xpos = self._field(position).reshape(self.nworld, -1, 3)
         xmat = self._field(rotation).reshape(self.nworld, -1, 3, 3)
         return xpos[:, frame_id], xmat[:, frame_id]
@@ -209,15 +198,6 @@ class CpuBackend(HostIntegration, KinematicsBackend):
             self._chains[body] = np.array(sorted(dofs), dtype=np.int64)
         return self._chains[body]
 
-    def _columns(self, dofs: np.ndarray):
-        """``dofs`` as an index of a Jacobian's columns: None for all, a slice when
-        consecutive, else the array."""
-        if len(dofs) == self.model.nv:
-            return None
-        if len(dofs) and dofs[-1] - dofs[0] == len(dofs) - 1:
-            return slice(int(dofs[0]), int(dofs[-1]) + 1)
-        return dofs
-
     def _cdof_by_component(self) -> np.ndarray:
         """``cdof`` as (6, nv, N), worlds along the last axis (each operation below is
         then one pass over contiguous memory, whatever dofs a chain selects): made once
@@ -244,10 +224,10 @@ class CpuBackend(HostIntegration, KinematicsBackend):
 
     def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
-        on ``body``'s chain (``columns`` as :meth:`_columns`; None and None for a body
-        on no dof, jacr None unless ``rotational``)."""
+        on ``body``'s chain (``columns``: None for all, else as :func:`as_index`; None and
+        None for a body on no dof, jacr None unless ``rotational``)."""
         dofs = self.chain(body)
-        columns = self._columns(dofs)
+        columns = None if len(dofs) == self.model.nv else as_index(dofs)
         if not len(dofs):
             return columns, None, None
         root = int(self.model.body_rootid[body])
@@ -266,25 +246,6 @@ class CpuBackend(HostIntegration, KinematicsBackend):
     def subtree_com(self, body: int) -> np.ndarray:
         return self._subtree_com[:, body]
 
-    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
-        m = self.model
-        if body not in self._subtrees:
-            members = [body] + [b for b in range(body + 1, m.nbody) if _descends(m, b, body)]
-            self._subtrees[body] = np.array(members, dtype=np.int64)
-        xipos = self._field("xipos").reshape(self.nworld, -1, 3)
-        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
-        total.fill(0.0)
-        jacp = np.zeros((self.nworld, 3, m.nv))
-        jacr = np.zeros((self.nworld, 3, m.nv))
-        for b in self._subtrees[body]:
-            if m.body_mass[b] == 0.0:
-                continue
-            self.jacobian(int(b), xipos[:, b], jacp, jacr)
-            jacp *= m.body_mass[b]
-            total += jacp
-        total *= 1.0 / m.body_subtreemass[body]
-        return total
-
     def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         equalities = [int(eq) for eq in np.asarray(equalities, dtype=np.int64)]
         sizes = [self._equality_size(eq) for eq in equalities]
@@ -293,10 +254,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         row = 0
         for eq, size in zip(equalities, sizes):
             rows = slice(row, row + size)
-            if size == 3:
-                self._connect_rows(eq, residual[:, rows], jacobian[:, rows])
-            else:
-                self._joint_rows(eq, residual[:, rows], jacobian[:, rows])
+            (self._connect_rows if size == 3 else self._joint_rows)(eq, residual[:, rows], jacobian[:, rows])
             row += size
         return residual, jacobian
 
@@ -308,10 +266,9 @@ class CpuBackend(HostIntegration, KinematicsBackend):
             return 3
         if kind == int(_EQ.mjEQ_JOINT):
             return 1
-        name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, eq) or f"#{eq}"
-        raise NotBatched(f"equality {name!r} is a {_EQ(kind).name}: the batched engine writes rows for "
-                         "connect and joint equalities only (weld and tendon equalities run in the serial "
-                         "qpik.EqualityTask)")
+        raise NotBatched(f"equality {equality_label(self.model, eq)!r} is a {_EQ(kind).name}: the batched engine "
+                         "writes rows for connect and joint equalities only (weld and tendon equalities run in the "
+                         "serial qpik.EqualityTask)")
 
     def _anchor(self, eq: int, side: int) -> tuple[int, np.ndarray]:
         """(body, world point) of one side of a connect equality (as mj_makeConstraint)."""
@@ -335,10 +292,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
             if jacp is None:
                 continue
             columns = slice(None) if columns is None else columns
-            if sign > 0:
-                jacobian[:, :, columns] += jacp  # 0 + J0 = J0: then J0 − J1 as one subtraction
-            else:
-                jacobian[:, :, columns] -= jacp
+            jacobian[:, :, columns] += sign * jacp  # 0 + J0 = J0, then J0 + (−J1): J0 − J1 exactly
 
     def _joint_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         m = self.model
@@ -377,18 +331,6 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         unstable = (counts != self._warnings).any(axis=1)
         self._warnings = counts.copy()
         return self._physics_qpos, unstable
-
-
-def _copy(model: mujoco.MjModel) -> mujoco.MjModel:
-    import copy
-
-    return copy.deepcopy(model)
-
-
-def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
-    while body > ancestor:
-        body = int(model.body_parentid[body])
-    return body == ancestor
 
 
 class _Integration:

@@ -22,23 +22,22 @@ Install with the ``gpu`` extra: ``pip install -e ".[gpu]"``.
 
 from __future__ import annotations
 
+import copy
+
 import mujoco
 import numpy as np
 
+from ...equalities import equality_label, equality_row_ids, equality_rows_flags
 from ...errors import InvalidInput, ModelError
 from ...extras import require
+from ...robot import FRAMES
 from ..errors import NotBatched
 from .base import KinematicsBackend
-from .cpu import HostIntegration, _Integration
+from .cpu import _Integration
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 mjw = require("mujoco_warp", "the warp batch back-end", extra="gpu")
 
-_D = mujoco.mjtDisableBit
-# The kinematic copy makes equality rows only: no contact, joint-limit or friction rows.
-_KINEMATIC_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)
-_KINEMATIC_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
-_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
 _EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
 
 
@@ -57,9 +56,9 @@ def equality_row_index(kind: np.ndarray, ids: np.ndarray, equalities: np.ndarray
         mask = (kind == _EQUALITY_ROW) & (ids == eq)
         counts = mask.sum(axis=1)
         if counts.min() == 0 or counts.max() != counts.min():
-            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_EQUALITY, int(eq)) or f"#{int(eq)}"
             raise ModelError(f"MuJoCo Warp made {sorted(set(counts.tolist()))} constraint rows for equality "
-                             f"{name!r} across the worlds (inactive, or acting on no dof, somewhere)")
+                             f"{equality_label(model, eq)!r} across the worlds (inactive, or acting on no dof, "
+                             "somewhere)")
         blocks.append(np.nonzero(mask)[1].reshape(len(kind), int(counts[0])))  # row-major: each world's in order
     return np.concatenate(blocks, axis=1)
 
@@ -75,33 +74,7 @@ def warp_device(device: str | None):
     return wp.get_device(str(device))
 
 
-def _quiet() -> None:
-    """Warp logs a line per loaded module (and its banner) at its default level."""
-    wp.config.quiet = True
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-
-
-def _kinematic_copy(model: mujoco.MjModel) -> mujoco.MjModel:
-    import copy
-
-    kinematic = copy.deepcopy(model)
-    flags = int(kinematic.opt.disableflags)
-    kinematic.opt.disableflags = (flags | _KINEMATIC_DISABLE) & ~_KINEMATIC_ENABLE
-    return kinematic
-
-
-def _equality_row_count(model: mujoco.MjModel) -> int:
-    """MuJoCo's own count of the kinematic copy's constraint rows (equalities only)."""
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
-    if model.ntendon:
-        mujoco.mj_tendon(model, data)
-    mujoco.mj_makeConstraint(model, data)
-    return int(data.nefc)
-
-
-class WarpBackend(HostIntegration, KinematicsBackend):
+class WarpBackend(KinematicsBackend):
     """N worlds on a Warp device through MuJoCo Warp.
 
     Args:
@@ -119,12 +92,17 @@ class WarpBackend(HostIntegration, KinematicsBackend):
     name = "warp"
 
     def __init__(self, model: mujoco.MjModel, nworld: int, device: str | None = None):
-        _quiet()
+        # Warp logs a line per loaded module (and its banner) at its default level.
+        wp.config.quiet, wp.config.log_level = True, max(wp.config.log_level, wp.LOG_WARNING)
         self.model = model
         self.nworld = int(nworld)
         self.device = warp_device(device)
-        kinematic = _kinematic_copy(model)
-        self._nefc = _equality_row_count(kinematic)
+        kinematic = copy.deepcopy(model)  # it makes equality rows only: no contact, joint-limit or friction rows
+        kinematic.opt.disableflags = equality_rows_flags(int(kinematic.opt.disableflags))
+        data = mujoco.MjData(kinematic)
+        mujoco.mj_kinematics(kinematic, data)
+        mujoco.mj_comPos(kinematic, data)
+        self._nefc = len(equality_row_ids(kinematic, data))  # MuJoCo's own count of the copy's rows
         with wp.ScopedDevice(self.device):
             try:
                 self._m = mjw.put_model(kinematic)
@@ -141,6 +119,7 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         self._host: dict[str, np.ndarray] = {}  # device field -> float64 host mirror
         self._rows_current = False
         self._integration = _Integration(model)
+        self._subtrees: dict[int, list[int]] = {}
         self._physics = None
 
     # -- kinematics ------------------------------------------------------------------
@@ -153,7 +132,7 @@ class WarpBackend(HostIntegration, KinematicsBackend):
             host.reshape(self.nworld, -1)[:] = getattr(self._d, name).numpy().reshape(self.nworld, -1)
         self._rows_current = False
 
-    def _mirror(self, name: str) -> np.ndarray:
+    def _field(self, name: str) -> np.ndarray:
         """The float64 host copy of a device field, refreshed by every :meth:`forward` (and
         filled at once by one, as the CPU back-end's fields: current at ``qpos`` when a
         task reads its start from it)."""
@@ -164,8 +143,8 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         return self._host[name]
 
     def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
-        position, rotation = _FRAME_FIELDS[frame_type]
-        return self._mirror(position)[:, frame_id], self._mirror(rotation)[:, frame_id]
+        position, rotation = FRAMES[frame_type][1:3]
+        return self._field(position)[:, frame_id], self._field(rotation)[:, frame_id]
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
                  out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -180,21 +159,7 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         return jacp, jacr
 
     def subtree_com(self, body: int) -> np.ndarray:
-        return self._mirror("subtree_com")[:, body]
-
-    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
-        m = self.model
-        xipos = self._mirror("xipos")
-        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
-        total.fill(0.0)
-        jacp = np.empty((self.nworld, 3, m.nv))
-        jacr = np.empty((self.nworld, 3, m.nv))
-        for b in _subtree(m, body):
-            if m.body_mass[b] > 0.0:
-                self.jacobian(b, xipos[:, b], jacp, jacr)
-                total += m.body_mass[b] * jacp
-        total *= 1.0 / m.body_subtreemass[body]
-        return total
+        return self._field("subtree_com")[:, body]
 
     def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         equalities = np.asarray(equalities, dtype=np.int64)
@@ -248,15 +213,4 @@ class WarpBackend(HostIntegration, KinematicsBackend):
 def _inner(field) -> tuple:
     """The shape of one element of a Warp array (vec3 -> (3,), mat33 -> (3, 3))."""
     return tuple(getattr(field.dtype, "_shape_", ()))
-
-
-def _subtree(model: mujoco.MjModel, body: int) -> list[int]:
-    members = []
-    for b in range(body, model.nbody):
-        a = b
-        while a > body:
-            a = int(model.body_parentid[a])
-        if a == body:
-            members.append(b)
-    return members
 
