@@ -87,7 +87,10 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
     Mt, Xt = worlds_last(M), worlds_last(B[..., None] if B.ndim == 2 else B)  # (k, k, N), (k, m, N)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # a world not positive definite: NaN
+    # A world not positive definite runs to NaN; one whose solve overflows gets inf or NaN,
+    # silently, as LAPACK gives one robot (its caller's checks refuse it): no warning that
+    # its one-world run would not give.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         Lt = _cholesky_factor_last(Mt)
         _substitute(Lt, Xt)
         # Every pivot within ratio (NaN fails; a zero pivot fails against the least positive M_jj).

@@ -82,3 +82,16 @@ def test_the_ratio_is_lapacks_factor_against_the_diagonal(n):
         for w in range(n):
             _, ok = cholesky_solve(M, np.ones((n, 5)), ratio=ratios[w] * factor)
             assert bool(np.asarray(ok)[w]) is expected
+
+
+def test_a_world_whose_solve_overflows_is_silent_as_its_one_world_solve():
+    """World 1's right-hand side (1e306 against pivots of 1e-2) overflows in the
+    substitution: N worlds give it LAPACK's non-finite answer without a RuntimeWarning
+    (which the suite turns into an error), as its own one-world solve does, and world 0
+    its own answer (the any-robot fuzz's batched path found the warning)."""
+    M = np.tile(np.array([[1e-4, 0.5e-4, 0.0], [0.5e-4, 1e-4, 0.5e-4], [0.0, 0.5e-4, 1e-4]]), (2, 1, 1))
+    b = np.array([[1.0, 2.0, 3.0], [1e306, -1e306, 1e306]])
+    X, _ = cholesky_solve(M, b)
+    alone = [cholesky_solve(M[w:w + 1], b[w:w + 1])[0][0] for w in range(2)]
+    np.testing.assert_allclose(X[0], alone[0], rtol=ROUNDING, atol=ROUNDING * np.abs(alone[0]).max())
+    assert not np.isfinite(X[1]).all() and not np.isfinite(alone[1]).all()
