@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from .equalities import EqualityRows
-from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
+from .errors import InvalidInput, InvalidWorlds, ModelError, OutsideJointLimits, UnknownName, listed
 from .scenes import SCENES
 
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
@@ -54,6 +54,9 @@ _DOF_COUNT = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL
 # A keyframe may sit this far (joint units) outside a range: the rounding of a range
 # written in degrees and a keyframe written in radians, not a start outside the limits.
 KEYFRAME_TOLERANCE = 1e-9
+# MuJoCo's mjMAXVAL: past it a simulation (and a batch's forward) resets the configuration
+# to qpos0, so no frame of the kinematics would be at q.
+MAX_CONFIGURATION = 1e10
 
 
 def check_model(model: mujoco.MjModel, label: str = "model") -> None:
@@ -147,6 +150,29 @@ def name_hint(name: str, names, label: str = "") -> str:
     if len(names) <= 12:
         return f"known: {names}"
     return f"no close match among its {len(names)} {label} names".replace("  ", " ")
+
+
+def check_configurations(model: mujoco.MjModel, qpos: np.ndarray, batched: bool) -> None:
+    """Refuse configurations (N, nq) with an entry that is not finite or beyond
+    ``MAX_CONFIGURATION``, naming the worlds (batched) and the first one's joint.
+
+    Raises:
+        InvalidInput: one robot's; InvalidWorlds: some of N worlds'.
+    """
+    if float(np.einsum("ij,ij->", qpos, qpos)) <= MAX_CONFIGURATION * MAX_CONFIGURATION:  # the usual call (NaN fails)
+        return
+    bad = np.flatnonzero(~(np.abs(qpos) <= MAX_CONFIGURATION).all(axis=1))
+    if not len(bad):
+        return
+    first = int(bad[0])
+    index = int(np.flatnonzero(~(np.abs(qpos[first]) <= MAX_CONFIGURATION))[0])
+    joint = int(np.searchsorted(model.jnt_qposadr, index, side="right")) - 1
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"#{joint}"
+    detail = f"joint {name} at {qpos[first, index]:g}"
+    where = f" in worlds {listed(bad)} (world {first}: {detail})" if batched else f" ({detail})"
+    message = (f"configuration is not finite or beyond {MAX_CONFIGURATION:g}, where MuJoCo resets a simulation"
+               f"{where}; give configurations within it")
+    raise InvalidWorlds(message, bad) if batched else InvalidInput(message)
 
 
 def as_floats(value, what: str, must: str = "must be") -> np.ndarray:
@@ -448,7 +474,12 @@ class Robot:
 
     def update_kinematics(self, state: bytes | None = None) -> None:
         """The one kinematics update per control step: frames and Jacobian data
-        (``state``: the configuration's bytes, when the caller has them already)."""
+        (``state``: the configuration's bytes, when the caller has them already).
+
+        Raises:
+            InvalidInput: a configuration not finite or beyond ``MAX_CONFIGURATION``.
+        """
+        self._check_magnitude()
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
         self._kinematics_state = self._state_bytes() if state is None else state
@@ -470,9 +501,16 @@ class Robot:
             self._start_unchecked = False
         state = self._state_bytes() if self._has_mocap else self._qpos.tobytes()
         if state != self._kinematics_state:  # update_kinematics, inline (every step)
+            self._check_magnitude()
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_comPos(self.model, self.data)
             self._kinematics_state = state
+
+    def _check_magnitude(self) -> None:
+        """:func:`check_configurations` of q: one MuJoCo dot product on the usual call (NaN
+        fails it; |q| <= MAX_CONFIGURATION in norm is within it entry by entry)."""
+        if not mujoco.mju_dot(self._qpos, self._qpos) <= MAX_CONFIGURATION * MAX_CONFIGURATION:
+            check_configurations(self.model, self.qpos, False)
 
     def _state_bytes(self) -> bytes:
         if self._has_mocap:

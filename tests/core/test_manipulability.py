@@ -142,7 +142,9 @@ def test_a_diverged_configuration_is_a_divergence_error_not_a_warning():
     """Gradient ascent on w with an unlimited slide joint (the any-robot fuzz: the
     pseudoinverse law, no limits) extends the joint without end; once JJᵀ overflowed the
     task warned (RuntimeWarning from the determinant) on every step. A DivergenceError
-    now, with no warning; a long but finite extension still gives a finite gradient."""
+    now, with no warning; a long but finite extension still gives a finite gradient. The
+    configuration itself is refused past 1e10 (where MuJoCo resets one), so the overflow
+    comes from a site 1e200 out."""
     from qpik import DivergenceError
 
     xml = """<mujoco><worldbody><body><joint name="h" axis="0 0 1"/><geom size="0.05" mass="1"/>
@@ -154,7 +156,12 @@ def test_a_diverged_configuration_is_a_divergence_error_not_a_warning():
     robot.update_kinematics()
     task.update()
     assert np.all(np.isfinite(task.target_velocity)) and np.abs(task.target_velocity).max() > 0
-    robot.set_q([0.3, 1e200])
+    robot.set_q([0.3, 1e200])  # refused past 1e10, where MuJoCo resets a configuration
+    with pytest.raises(InvalidInput, match=r"beyond 1e\+10.*joint s at 1e\+200"):
+        robot.update_kinematics()
+    robot = Robot(mujoco.MjModel.from_xml_string(xml.replace('pos="0.5 0 0"', 'pos="1e200 0 0"')))
+    task = ManipulabilityTask(robot, Yoshikawa(robot, "tip", "site", axes="xy"))
+    robot.set_q([0.3, 1.0])
     robot.update_kinematics()
     with pytest.raises(DivergenceError, match="overflowed"):
         task.update()

@@ -206,8 +206,8 @@ def test_a_users_measure_on_one_robot_and_on_four_worlds(jaco_path):
 def test_an_overflowing_gradient_is_a_divergence_error():
     """Once JJᵀ overflows the measure raises (no RuntimeWarning: the suite runs with
     warnings as errors); a long but finite extension still gives a finite gradient, in
-    every world. (On N worlds MuJoCo's batch resets a world whose q passes 1e10 before
-    the measure sees it, so the overflow is shown on one robot.)"""
+    every world. A configuration is refused past 1e10 (where MuJoCo resets one), so the
+    overflow comes from a site 1e200 out on one robot."""
     model = mujoco.MjModel.from_xml_string(SLIDE)
     robots = support.worlds(model, n=4)
     robots.q[:] = [[0.3, 1e3], [0.1, 1e6], [0.2, 1e9], [0.4, 1.0]]
@@ -215,7 +215,9 @@ def test_an_overflowing_gradient_is_a_divergence_error():
     task = engine.ManipulabilityTask(robots, engine.Yoshikawa(robots, "tip", axes="xy"))
     task.update()
     assert np.all(np.isfinite(task.target_velocity)) and np.all(np.abs(task.target_velocity).max(axis=1) > 0)
-    robot = support.one_robot(model, [0.3, 1e200])
+    with pytest.raises(InvalidInput, match=r"beyond 1e\+10"):
+        support.one_robot(model, [0.3, 1e200])
+    robot = support.one_robot(mujoco.MjModel.from_xml_string(SLIDE.replace('pos="0.5 0 0"', 'pos="1e200 0 0"')), [0.3, 1.0])
     task = engine.ManipulabilityTask(robot, engine.Yoshikawa(robot, "tip", axes="xy"))
     with pytest.raises(DivergenceError, match="overflowed"):
         task.update()

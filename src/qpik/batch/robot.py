@@ -18,7 +18,7 @@ import numpy as np
 from ..equalities import EqualityRows
 from ..errors import InvalidInput, InvalidWorlds, UnknownName, listed
 from ..robot import (BUNDLED_HOME, KEYFRAME_TOLERANCE, Robot as SerialRobot, as_floats, as_index, cached_rows,
-                     check_step, measure_pairs)
+                     check_configurations, check_step, measure_pairs)
 from .errors import NotBatched
 
 BACKENDS = ("cpu", "warp")
@@ -228,7 +228,13 @@ class Robot:
         self._snapshot = None
 
     def update_kinematics(self) -> None:
-        """Every world's kinematics at its current q (one back-end call)."""
+        """Every world's kinematics at its current q (one back-end call).
+
+        Raises:
+            InvalidWorlds: configurations not finite or beyond ``MAX_CONFIGURATION`` (which
+                MuJoCo's forward would reset to qpos0).
+        """
+        check_configurations(self.model, self.backend.qpos, True)
         self.backend.forward()
         self._snapshot = self.backend.qpos.copy()
 
