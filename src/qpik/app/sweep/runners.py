@@ -97,8 +97,8 @@ class RayRunner:
             while queue or pending:
                 while queue and len(pending) < self.slots:
                     chunk = queue.pop(0)
+                    submitted[chunk] = time.perf_counter()  # before the call: the task may start within it
                     pending[task.remote(chunk)] = chunk
-                    submitted[chunk] = time.perf_counter()
                 refs = list(pending)
                 ray.wait(refs, num_returns=1)  # one ready, then every other already ready too
                 ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
