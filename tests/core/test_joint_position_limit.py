@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qpik import InvalidInput, JointPositionLimit, Robot, batch
+from qpik import DampingTask, InvalidInput, JointPositionLimit, QPController, Robot, batch
 
 DT = 0.002
 
@@ -129,11 +129,13 @@ def test_an_empty_incoming_box_stays_empty(scene, influence, n):
 
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
 def test_non_finite_position_is_an_error(value):
+    """Refused by the step's kinematics update, before any limit reads q."""
     robot = Robot.load("arm")
-    limit = JointPositionLimit(robot)
+    controller = QPController(robot, [DampingTask(robot)], [JointPositionLimit(robot)], dt=DT)
+    controller.compute_velocity()  # (the first step also checks the start against the ranges)
     robot.q[1] = value
-    with pytest.raises(InvalidInput, match="theta2"):
-        limit.apply(DT, np.full((1, 4), -1.0), np.full((1, 4), 1.0))
+    with pytest.raises(InvalidInput, match="not finite.*joint theta2"):
+        controller.compute_velocity()
 
 
 @pytest.mark.parametrize("argument, value", [

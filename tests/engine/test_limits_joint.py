@@ -80,12 +80,14 @@ def test_position_limit_refuses_bad_parameters(parameters, match):
         JointPositionLimit(arm(), **parameters)
 
 
-def test_position_limit_names_a_non_finite_joint():
+def test_a_non_finite_joint_is_named_before_a_limit_reads_it():
+    """The step's kinematics update refuses it, naming the world and the joint."""
     robots = batch.Robot.load("arm", n=3)
-    limit = JointPositionLimit(robots)
+    controller = QPController(robots, [DampingTask(robots)], [JointPositionLimit(robots)], dt=DT)
+    controller.compute_velocity()  # (the first step also checks the start against the ranges)
     robots.q[2, 1] = np.nan
-    with pytest.raises(InvalidInput, match="theta2 has a non-finite position in world 2"):
-        limit.apply(DT, *speed_box(robots, 3))
+    with pytest.raises(InvalidInput, match=r"not finite .* in worlds 2 \(world 2: joint theta2 at nan\)"):
+        controller.compute_velocity()
 
 
 def test_velocity_box_is_the_bounds_given_in_every_world():
