@@ -342,6 +342,9 @@ class _EqualityRows:
         self.batched_rows, self.serial_rows = as_index(batched_rows), as_index(serial_rows)
         self.residual = np.zeros((robots.n, start))
         self.jacobian = np.zeros((robots.n, start, robots.nv))
+        # The back-end writes its rows in place where they are consecutive (no copy).
+        rows = self.batched_rows
+        self._in_place = (self.residual[:, rows], self.jacobian[:, rows]) if isinstance(rows, slice) else None
 
     def _batched(self, equality: int) -> bool:
         """Whether the back-end writes this equality's rows (it raises NotBatched if not)."""
@@ -352,7 +355,9 @@ class _EqualityRows:
         return True
 
     def __call__(self) -> tuple[np.ndarray, np.ndarray]:
-        if len(self.batched):
+        if self._in_place is not None and len(self.batched):
+            self.backend.equality_rows(self.batched, self._in_place)
+        elif len(self.batched):
             residual, jacobian = self.backend.equality_rows(self.batched)
             self.residual[:, self.batched_rows] = residual
             self.jacobian[:, self.batched_rows] = jacobian

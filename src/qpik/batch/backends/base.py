@@ -143,7 +143,7 @@ class KinematicsBackend(ABC):
         return total
 
     @abstractmethod
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and Jacobians of equality constraints, in MuJoCo's row layout
         (``efc_pos``, ``efc_J`` of ``mj_makeConstraint``): 3 rows per ``connect``, 6 per
         ``weld`` (position, then orientation scaled by its torquescale), 1 per
@@ -151,9 +151,11 @@ class KinematicsBackend(ABC):
 
         Args:
             equalities: ``int64`` equality ids, ascending.
+            out: ``(residual, jacobian)`` to write into (the Jacobian's entries off the
+                equalities' dofs left as they are: zeros the caller made once), or None.
 
         Returns:
-            ``(residual (N, m), jacobian (N, m, nv))``, new arrays.
+            ``(residual (N, m), jacobian (N, m, nv))``: ``out``, or new arrays.
 
         Raises:
             qpik.batch.NotBatched: an equality type the back-end cannot write rows for.

@@ -246,11 +246,11 @@ class CpuBackend(KinematicsBackend):
     def subtree_com(self, body: int) -> np.ndarray:
         return self._subtree_com[:, body]
 
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         equalities = [int(eq) for eq in np.asarray(equalities, dtype=np.int64)]
         sizes = [self._equality_size(eq) for eq in equalities]
         n, nv = self.nworld, self.model.nv
-        residual, jacobian = np.empty((n, sum(sizes))), np.zeros((n, sum(sizes), nv))
+        residual, jacobian = (np.empty((n, sum(sizes))), np.zeros((n, sum(sizes), nv))) if out is None else out
         row = 0
         for eq, size in zip(equalities, sizes):
             rows = slice(row, row + size)
@@ -283,10 +283,12 @@ class CpuBackend(KinematicsBackend):
 
     def _connect_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         """The anchors' difference and the difference of their Jacobians, written into
-        ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros."""
+        ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros off the anchors'
+        chains (the columns on them are zeroed here: an output written every step)."""
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
         np.subtract(point0, point1, out=residual)
+        jacobian[:, :, np.union1d(self.chain(body0), self.chain(body1))] = 0.0
         for body, point, sign in ((body0, point0, 1.0), (body1, point1, -1.0)):
             columns, jacp, _ = self._chain_jacobian(body, point, rotational=False)
             if jacp is None:

@@ -161,7 +161,7 @@ class WarpBackend(KinematicsBackend):
     def subtree_com(self, body: int) -> np.ndarray:
         return self._field("subtree_com")[:, body]
 
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         equalities = np.asarray(equalities, dtype=np.int64)
         self._make_rows()
         index = equality_row_index(self._efc_type[:, : self._nefc], self._efc_id[:, : self._nefc], equalities,
@@ -169,7 +169,10 @@ class WarpBackend(KinematicsBackend):
         residual = np.take_along_axis(self._d.efc.pos.numpy()[:, : self._nefc], index, axis=1)
         jacobian = np.take_along_axis(self._d.efc.J.numpy()[:, : self._nefc, : self.model.nv], index[:, :, None],
                                       axis=1)
-        return residual.astype(np.float64), jacobian.astype(np.float64)
+        if out is None:
+            return residual.astype(np.float64), jacobian.astype(np.float64)
+        out[0][...], out[1][...] = residual, jacobian
+        return out
 
     def _make_rows(self) -> None:
         """MuJoCo Warp's constraint rows at the current kinematics (once per forward)."""
