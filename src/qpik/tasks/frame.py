@@ -30,6 +30,7 @@ class PoseTask(Task):
                                       feedback_gain(orientation_gain, self.dim - p, "orientation gain")]))
         self.position_gain, self.orientation_gain = self.gain[..., :p], self.gain[..., p:]
         self.target_positions, self.target_rotations, self._twist = np.array(positions), np.array(rotations), twist
+        self._linear_twist, self._angular_twist = twist[:, :3], twist[:, 3:]
         self.target_position = robot.present(self.target_positions)
         self.target_rotation = robot.present(self.target_rotations)
         view = robot.present(twist)
@@ -54,7 +55,8 @@ class PoseTask(Task):
                                                                     "target angular velocity")
         self.target_positions[...] = position  # every argument checked before any is written
         self.target_rotations[...] = rotation
-        self._twist[:, :3], self._twist[:, 3:] = linear, angular
+        np.copyto(self._linear_twist, linear)
+        np.copyto(self._angular_twist, angular)
 
     def set_target_from_configuration(self) -> None:
         """Desired pose: the pose at the current configuration, in every world."""
@@ -148,7 +150,7 @@ class FrameTask(PoseTask):
     def measure_rows(self) -> None:
         pose = self._pose
         if not self._whole:
-            pose.write(self, self.target_positions, self.target_rotations, self._twist[:, :3], self._twist[:, 3:])
+            pose.write(self, self.target_positions, self.target_rotations, self._linear_twist, self._angular_twist)
             return
         self._fill()
         np.subtract(self.target_positions, self.frame.positions, self._position_errors)

@@ -77,7 +77,7 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
         arr = as_floats(value, what)
         if arr.shape != shape:
             raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
-        if math.hypot(*arr.ravel().tolist()) <= TARGET_MAGNITUDE_LIMIT:
+        if math.hypot(*(arr.tolist() if arr.ndim == 1 else arr.ravel().tolist())) <= TARGET_MAGNITUDE_LIMIT:
             return arr[None]
         if not np.isfinite(arr).all():
             raise InvalidInput(f"{what} contains NaN or inf: {arr}")
@@ -150,8 +150,10 @@ def world_rotations(robot, value, what: str = "target rotation") -> np.ndarray:
         InvalidInput: a wrong shape, or one bad rotation.
         InvalidWorlds: (N worlds) the worlds whose rotation is bad.
     """
+    if not robot.batched:
+        return rotation_matrix(value, what)[None]
     shape = np.shape(value)
-    if shape in ((3, 3), (4,)) or not robot.batched:
+    if shape in ((3, 3), (4,)):
         return rotation_matrix(value, what)[None]
     arr = float_array(value, (robot.n,) + shape[1:] if shape[1:] in ((3, 3), (4,)) else (robot.n, 3, 3), what)
     if arr.shape[1:] == (4,):
