@@ -20,7 +20,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from qpik.errors import GainWarning, QpikError, SolverError
+from qpik.errors import GainWarning, InvalidInput, QpikError, SolverError
 
 from .checks import box_and_rows, crossing, hard_residual, lp_feasible, velocity_excess
 from .models import _log_uniform, random_mjcf, short_name, third_party_models
@@ -499,7 +499,12 @@ def _roll_out(case: Case, result: dict, steps: int, replay: list | None = None) 
         if record:
             result.setdefault("step_costs", []).append(level_costs(case.levels, qdot))
         robot.integrate(qdot, DT)
-        robot.update_kinematics()
+        try:
+            robot.update_kinematics()
+        except InvalidInput as exc:  # the step took q past MuJoCo's range: the next has no answer
+            details.update(error=f"{type(exc).__name__}: {str(exc)[:300]}", at=f"step {step + 1}")
+            result["classes"].append("typed")
+            break
         digest.update(robot.q.tobytes())
     else:
         if case.injected:

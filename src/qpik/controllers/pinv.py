@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import DivergenceError, InvalidInput
 from ..numerics import cholesky_solve, everywhere
 from ..problem import Problem, Stack
+from ..problem.closed_form import SINGULAR_RATIO
 from ..tasks import Task
 from ..tasks.inputs import as_index, positive_scalar
 from .worlds import solve_each
@@ -119,7 +120,9 @@ class PseudoinverseController(_StackedTasks):
         np.matmul(J, J.transpose(0, 2, 1), self._gram)
         if self._squared_damping:
             self._gram_diagonal += self._squared_damping
-        y, self._solved = cholesky_solve(self._gram, rhs)
+        # Singular within SINGULAR_RATIO, not at an exactly zero pivot: whether a Schur
+        # complement of a singular J Jᵀ rounds to +ε or −ε is no decision to act on.
+        y, self._solved = cholesky_solve(self._gram, rhs, SINGULAR_RATIO)
         np.matmul(y[:, None, :], J, self._qdot_rows)
         if self.secondary is not None:
             self.qdots += self._qdot0
@@ -138,7 +141,7 @@ class PseudoinverseController(_StackedTasks):
     def _diverged(self, world: int) -> np.ndarray:
         """The error of a world whose law diverged (``solve_each`` names it)."""
         if not self._solved[world]:
-            raise DivergenceError("pseudoinverse: J Jᵀ is singular (the arm is at a singularity)")
+            raise DivergenceError("pseudoinverse: J Jᵀ is singular (the arm is at a singularity: condition past 1e12)")
         raise DivergenceError(f"pseudoinverse produced a joint velocity beyond {DIVERGED_SPEED:g} or not "
                               "finite (singularity): give the law some damping")
 

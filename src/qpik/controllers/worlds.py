@@ -26,23 +26,27 @@ WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h 
 
 class WorldSolver:
     """The solver ``solver`` for QPs of nv variables, meq equalities and mineq rows, world by
-    world (see the module's description)."""
+    world (see the module's description). Each world has a workspace of its own: an
+    iterative solver warm-starts from that world's last answer, as its one-world run does,
+    not from the world solved before it."""
 
     def __init__(self, solver: str, nv: int, meq: int, mineq: int, native: bool = True, **settings):
         self.name = solver
-        self.backend = make_backend(solver, nv, meq, mineq, native=native, **settings)
+        self._backend = lambda: make_backend(solver, nv, meq, mineq, native=native, **settings)
+        self.backend = self._backend()  # world 0's (and what any world's is: exact or not)
         self.exact = self.backend.exact
         self._guards: dict[int, GuardedSolve] = {}
 
     def guard(self, world: int) -> GuardedSolve:
         if world not in self._guards:
-            self._guards[world] = GuardedSolve(self.backend, self.name)
+            self._guards[world] = GuardedSolve(self.backend if world == 0 else self._backend(), self.name)
         return self._guards[world]
 
     def solve(self, world: int, qp: WorldQP, hessian_changed: bool = True) -> np.ndarray:
         """The checked minimiser of ``qp`` (typed errors as GuardedSolve raises them)."""
-        copy_constraints(qp, self.backend)
-        return self.guard(world).solve(qp.H, qp.c, hessian_changed=hessian_changed)
+        guard = self.guard(world)
+        copy_constraints(qp, guard.backend)
+        return guard.solve(qp.H, qp.c, hessian_changed=hessian_changed)
 
     @property
     def fallbacks(self) -> int:
