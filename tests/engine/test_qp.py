@@ -29,7 +29,7 @@ ARM_START = np.array([np.pi / 2, 0.0, 0.0, 0.5])
 RANGES = {"theta2": (-1.0, 1.0), "theta3": (-1.0, 1.0)}  # the σ gradient pushes past them: limits bind
 
 
-def arm_problem(robot, ranges=None, start=ARM_START, extra_limits=()):
+def arm_problem(robot, ranges=None, start=ARM_START, extra_limits=(), solver="daqp"):
     robot.set_q(start)
     robot.update_kinematics()
     position = engine_tasks.PositionTask(robot, "end_effector", axes="xy", gain=500.0, hard=True)
@@ -37,7 +37,7 @@ def arm_problem(robot, ranges=None, start=ARM_START, extra_limits=()):
     joint_limits = robot.joint_limits.tightened(ranges or {})
     bounds = [engine_limits.JointPositionLimit(robot, joint_limits, influence=0.8, damper_rate=2.0),
               engine_limits.JointVelocityLimit(robot), *extra_limits]
-    return position, QPController(robot, [position, sigma], bounds, solver="daqp", dt=DT)
+    return position, QPController(robot, [position, sigma], bounds, solver=solver, dt=DT)
 
 
 def follow_the_path(position):
@@ -167,6 +167,26 @@ def test_a_users_limit_binds_and_each_world_is_its_own_run():
         assert np.abs(together[:, w] - alone).max() <= 1e-10 * np.abs(alone).max()
     bound = np.isclose(np.array(answers).sum(axis=2), 0.5, rtol=1e-9).any(axis=0)
     assert 0 < bound.sum() < 4, bound  # the row did bind, in some worlds
+
+
+@pytest.mark.parametrize("solver", ["osqp", "proxqp"])
+def test_an_iterative_solver_in_each_world_is_its_own_run(solver):
+    """An iterative solver stops where its residuals pass its tolerance (1e-8), so where it
+    ends depends on where it starts: each world warm-starts from its own last answer, as
+    its one-world run does, and over 200 steps of the path with the ranges binding each
+    world's q̇ equals its own run's to 1e-10 relative (the data agree to rounding)."""
+    pytest.importorskip({"osqp": "osqp", "proxqp": "proxsuite"}[solver])
+    starts = ARM_START + np.random.default_rng(3).uniform(-0.3, 0.3, (4, 4)) * [1.0, 1.0, 1.0, 0.5]
+    position, qp = arm_problem(Robots.load("arm", n=4), RANGES, starts, solver=solver)
+    together = []
+    rollout(qp.robot, position, qp, 200, together)
+    assert qp.solver_calls > 0
+    for w in range(4):
+        one, single = arm_problem(Robot.load("arm"), RANGES, starts[w], solver=solver)
+        alone = []
+        rollout(single.robot, one, single, 200, alone)
+        gap = np.linalg.norm(np.array(together)[:, w] - alone, axis=1)
+        assert np.all(gap <= 1e-10 * (1.0 + np.linalg.norm(alone, axis=1))), gap.max()
 
 
 def test_a_users_limit_in_one_world_gives_its_qps_minimisers(lockstep):
