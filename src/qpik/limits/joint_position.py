@@ -57,20 +57,15 @@ class JointPositionLimit(Limit):
         # Worlds last (NumPy's loops run along the worlds, not along a few joints): the lower
         # then upper bound, pulled in by the margin, and the step to each (2, k, N).
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])[:, :, None]
-        qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
-        # The limited joints' positions: a view of the configurations where they are consecutive.
-        self._gather = None if isinstance(qpos, slice) else qpos
-        self._positions = robot.qpos[:, qpos] if isinstance(qpos, slice) else np.empty((n, k))
+        self._qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
         self._steps, self._factor = np.empty((2, k, n)), np.empty((2, k, n))
         self._near = np.empty((2, k, n), dtype=bool)
-        self._box = None  # (the box it was last given, its rows on the limited dofs)
 
     def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lower, upper] (N, nv) in place."""
         steps = self._steps  # the step to each bound, row 0 <= 0, row 1 >= 0 inside the range
-        if self._gather is not None:
-            np.take(self.robot.qpos, self._gather, 1, self._positions)
-        np.subtract(self._bounds, self._positions.T, steps)  # q is finite: the kinematics update refuses it otherwise
+        # q (a view where the joints are consecutive) is finite: the kinematics update refuses it otherwise.
+        np.subtract(self._bounds, self.robot.qpos[:, self._qpos].T, steps)
         rate = self.gain / dt
         if self.influence > 0.0:
             # Within the influence of a bound: rate x distance, never more than the step bound.
@@ -80,7 +75,8 @@ class JointPositionLimit(Limit):
             np.multiply(steps, self._factor, steps)
         else:
             np.multiply(steps, rate, steps)
-        speed_lower, speed_upper = self._speed_box(lower, upper)
+        # The box's columns of the limited dofs (k, N): views where they are consecutive, else copies.
+        speed_lower, speed_upper = lower[:, self._dofs].T, upper[:, self._dofs].T
         low, high = steps
         # Recovery from outside the range never asks for more than the speed box.
         np.minimum(low, speed_upper, low)
@@ -89,12 +85,3 @@ class JointPositionLimit(Limit):
         np.minimum(speed_upper, high, speed_upper)
         if not isinstance(self._dofs, slice):
             lower[:, self._dofs], upper[:, self._dofs] = speed_lower.T, speed_upper.T
-
-    def _speed_box(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The box's columns of the limited dofs, worlds last (k, N): views where they are
-        consecutive (kept while the controller gives the same arrays), else copies."""
-        if not isinstance(self._dofs, slice):
-            return lower[:, self._dofs].T, upper[:, self._dofs].T
-        if self._box is None or self._box[0] is not lower:
-            self._box = (lower, lower[:, self._dofs].T, upper[:, self._dofs].T)
-        return self._box[1], self._box[2]

@@ -53,6 +53,7 @@ _D = mujoco.mjtDisableBit
 # stage then skips collision detection and constraint assembly.
 _KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
 _SAME = mujoco.mjtSameFrame
+ALL = slice(None)  # a chain on every dof
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
 
@@ -184,9 +185,9 @@ class CpuBackend(KinematicsBackend):
         else:
             rotation[:] = self._fields["ximat"].reshape(n, -1, 3, 3)[:, body]
 
-    def chain(self, body: int) -> tuple[slice | np.ndarray | None, int]:
-        """The columns of the dofs on ``body``'s chain to the world (``mj_jac``'s loop): None
-        for all, else as :func:`as_index`; and how many there are."""
+    def chain(self, body: int) -> slice | np.ndarray:
+        """The columns of the dofs on ``body``'s chain to the world (``mj_jac``'s loop), as
+        :func:`as_index` gives them (``ALL`` for every dof)."""
         if body not in self._chains:
             m, link, dofs = self.model, body, []
             while link and not m.body_dofnum[link]:
@@ -196,7 +197,7 @@ class CpuBackend(KinematicsBackend):
                 while dof >= 0:
                     dofs.append(dof)
                     dof = int(m.dof_parentid[dof])
-            self._chains[body] = (None if len(dofs) == m.nv else as_index(sorted(dofs)), len(dofs))
+            self._chains[body] = ALL if len(dofs) == m.nv else as_index(sorted(dofs))
         return self._chains[body]
 
     def _cdof_by_component(self) -> np.ndarray:
@@ -216,31 +217,22 @@ class CpuBackend(KinematicsBackend):
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
         jacr = np.empty((n, 3, nv)) if out_r is None else out_r
         columns, chain_p, chain_r = self._chain_jacobian(body, points)
-        if columns is None:
-            jacp[:], jacr[:] = chain_p, chain_r
-            return jacp, jacr
-        jacp.fill(0.0)
-        jacr.fill(0.0)
-        if chain_p is not None:
-            jacp[:, :, columns] = chain_p
-            jacr[:, :, columns] = chain_r
+        if columns is not ALL:  # zeros off the chain
+            jacp.fill(0.0)
+            jacr.fill(0.0)
+        jacp[:, :, columns], jacr[:, :, columns] = chain_p, chain_r
         return jacp, jacr
 
     def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
-        on ``body``'s chain (``columns``: None for all, else as :func:`as_index`; None and
-        None for a body on no dof, jacr None unless ``rotational``)."""
-        columns, k = self.chain(body)
-        if not k:
-            return columns, None, None
-        root = int(self.model.body_rootid[body])
+        on ``body``'s chain (``columns`` as :meth:`chain` gives them; jacr None unless
+        ``rotational``)."""
+        columns = self.chain(body)
         offset = np.empty((5, self.nworld))  # o = points − com, then o₀ and o₁ again
-        np.subtract(points.T, self._subtree_com[:, root].T, offset[:3])
+        np.subtract(points.T, self._subtree_com[:, int(self.model.body_rootid[body])].T, offset[:3])
         offset[3:] = offset[:2]
-        cdof = self._cdof_by_component()
-        if columns is not None:
-            cdof = cdof[:, columns]
-        jacp, cross = np.empty((2, 3, k, self.nworld))
+        cdof = self._cdof_by_component()[:, columns]
+        jacp, cross = np.empty((2, 3) + cdof.shape[1:])
         o = offset[:, None, :]
         # v + mju_cross(ω, o), every component at once: ω_a o_b − ω_b o_a, (a, b) = (i + 1, i + 2) mod 3
         np.multiply(cdof[4:7], o[2:5], jacp)
@@ -298,17 +290,12 @@ class CpuBackend(KinematicsBackend):
         np.subtract(point0, point1, out=residual)
         (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, rotational=False)
                                                       for body, point in ((body0, point0), (body1, point1))]
-        columns0, columns1 = (slice(None) if c is None else c for c in (columns0, columns1))
         difference = self._difference  # J0 − J1 (3, nv, N) on the chains' columns
-        if jacp1 is not None:
-            difference[:, columns1] = 0.0
-        if jacp0 is not None:
-            difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave
-        if jacp1 is not None:
-            difference[:, columns1] -= jacp1.transpose(1, 2, 0)
-        for columns, jacp in ((columns0, jacp0), (columns1, jacp1)):
-            if jacp is not None:
-                jacobian[:, :, columns] = difference[:, columns].transpose(2, 0, 1)
+        difference[:, columns1] = 0.0
+        difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave
+        difference[:, columns1] -= jacp1.transpose(1, 2, 0)
+        for columns in (columns0, columns1):
+            jacobian[:, :, columns] = difference[:, columns].transpose(2, 0, 1)
 
     def _joint_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         m = self.model
