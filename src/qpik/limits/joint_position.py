@@ -59,13 +59,14 @@ class JointPositionLimit(Limit):
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])[:, :, None]
         self._qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
         self._steps, self._factor = np.empty((2, k, n)), np.empty((2, k, n))
-        self._near = np.empty((2, k, n), dtype=bool)
+        self._near, self._rows = np.empty((2, k, n), dtype=bool), tuple(self._steps)  # rows: low, high
+        self._kept = None  # (the box it was given, _views' views of q and of the box), while consecutive
 
     def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lower, upper] (N, nv) in place."""
         steps = self._steps  # the step to each bound, row 0 <= 0, row 1 >= 0 inside the range
-        # q (a view where the joints are consecutive) is finite: the kinematics update refuses it otherwise.
-        np.subtract(self._bounds, self.robot.qpos[:, self._qpos].T, steps)
+        q, speed_lower, speed_upper = self._views(lower, upper)
+        np.subtract(self._bounds, q, steps)  # q is finite: the kinematics update refuses it otherwise
         rate = self.gain / dt
         if self.influence > 0.0:
             # Within the influence of a bound: rate x distance, never more than the step bound.
@@ -75,9 +76,7 @@ class JointPositionLimit(Limit):
             np.multiply(steps, self._factor, steps)
         else:
             np.multiply(steps, rate, steps)
-        # The box's columns of the limited dofs (k, N): views where they are consecutive, else copies.
-        speed_lower, speed_upper = lower[:, self._dofs].T, upper[:, self._dofs].T
-        low, high = steps
+        low, high = self._rows
         # Recovery from outside the range never asks for more than the speed box.
         np.minimum(low, speed_upper, low)
         np.maximum(high, speed_lower, high)
@@ -85,3 +84,13 @@ class JointPositionLimit(Limit):
         np.minimum(speed_upper, high, speed_upper)
         if not isinstance(self._dofs, slice):
             lower[:, self._dofs], upper[:, self._dofs] = speed_lower.T, speed_upper.T
+
+    def _views(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """q and the box's columns of the limited joints, worlds last (k, N): views where they
+        are consecutive (kept while the controller gives the same box), else copies."""
+        if self._kept is not None and self._kept[0] is lower:
+            return self._kept[1:]
+        views = self.robot.qpos[:, self._qpos].T, lower[:, self._dofs].T, upper[:, self._dofs].T
+        if isinstance(self._qpos, slice) and isinstance(self._dofs, slice):
+            self._kept = (lower, *views)
+        return views
