@@ -86,7 +86,8 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         return (B if in_place else B.copy()), everywhere(len(M))
     if len(M) == 1:
         return _cholesky_solve_one(M[0], B, ratio, in_place)
-    Mt, Xt = worlds_last(M), worlds_last(B[..., None] if B.ndim == 2 else B)  # (k, k, N), (k, m, N)
+    # (k, k, N) (a view where M is stored worlds last: it is only read), (k, m, N)
+    Mt, Xt = np.ascontiguousarray(M.transpose(1, 2, 0)), worlds_last(B[..., None] if B.ndim == 2 else B)
     # A world not positive definite runs to NaN; one whose solve overflows gets inf or NaN,
     # silently, as LAPACK gives one robot (its caller's checks refuse it): no warning that
     # its one-world run would not give.
@@ -423,11 +424,10 @@ def outer_product(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out`` (N, m, p) = A Bᵀ in every world, A (N, m, k), B (N, p, k)."""
     if len(A) == 1:
         A[0].dot(B[0].T, out[0])
-        return out
-    if A.shape[1] * B.shape[1] > SMALL_PRODUCT:
-        return np.matmul(A, B.transpose(0, 2, 1), out)
-    At, Bt = worlds_last(A), worlds_last(B)  # (m, k, N), (p, k, N)
-    out[...] = worlds_first((At[:, None] * Bt[None]).sum(axis=2))
+    elif A.shape[1] * B.shape[1] > SMALL_PRODUCT:  # a new array, copied (matmul writes a strided out slowly)
+        out[...] = np.matmul(A, B.transpose(0, 2, 1))
+    else:  # (m, k, N) times (p, k, N), worlds last
+        (worlds_last(A)[:, None] * worlds_last(B)[None]).sum(axis=2, out=out.transpose(1, 2, 0))
     return out
 
 

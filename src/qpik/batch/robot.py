@@ -217,6 +217,7 @@ class Robot:
             bad = np.flatnonzero(~np.isfinite(velocity).all(axis=1))
             raise InvalidWorlds(f"the joint velocities of worlds {listed(bad)} contain NaN or inf", bad)
         self.backend.integrate(velocity, float(dt))
+        self._snapshot = None  # q moved: the next ensure_kinematics updates without comparing
 
     # -- kinematics --------------------------------------------------------------------
     def frame(self, name: str, frame_type: str = "site") -> Frame:
@@ -234,9 +235,10 @@ class Robot:
             InvalidWorlds: configurations not finite or beyond ``MAX_CONFIGURATION`` (which
                 MuJoCo's forward would reset to qpos0).
         """
-        check_configurations(self.model, self.backend.qpos, True)
+        snapshot = self.backend.qpos.copy()  # checked here: one pass over contiguous memory
+        check_configurations(self.model, snapshot, True)
         self.backend.forward()
-        self._snapshot = self.backend.qpos.copy()
+        self._snapshot = snapshot
 
     def ensure_kinematics(self) -> None:
         """Update the kinematics if some world's q changed since the last update; the first

@@ -54,23 +54,19 @@ class JointPositionLimit(Limit):
         self.robot, self.gain, self.influence, self.damper_rate, self.margin = robot, gain, influence, damper_rate, \
             margin
         n, k = robot.n, len(self.limits.names)
-        # Lower then upper bound, pulled in by the margin, at the operand's full shape.
-        self._bounds = np.tile(np.stack([self.limits.lower + margin, self.limits.upper - margin]), (n, 1, 1))
-        qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
-        # The limited joints' positions: a view of the configurations where they are consecutive.
-        self._gather = None if isinstance(qpos, slice) else qpos
-        self._positions = robot.qpos[:, None, qpos] if isinstance(qpos, slice) else np.empty((n, 1, k))
-        self._steps, self._factor = np.empty((n, 2, k)), np.empty((n, 2, k))
-        self._low, self._high = self._steps[:, 0], self._steps[:, 1]
-        self._near = np.empty((n, 2, k), dtype=bool)
-        self._box = None  # (the box it was last given, its rows on the limited dofs)
+        # Worlds last (NumPy's loops run along the worlds, not along a few joints): the lower
+        # then upper bound, pulled in by the margin, and the step to each (2, k, N).
+        self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])[:, :, None]
+        self._qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
+        self._steps, self._factor = np.empty((2, k, n)), np.empty((2, k, n))
+        self._near, self._rows = np.empty((2, k, n), dtype=bool), tuple(self._steps)  # rows: low, high
+        self._kept = None  # (the box it was given, _views' views of q and of the box), while consecutive
 
     def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lower, upper] (N, nv) in place."""
         steps = self._steps  # the step to each bound, row 0 <= 0, row 1 >= 0 inside the range
-        if self._gather is not None:
-            np.take(self.robot.qpos, self._gather, 1, self._positions[:, 0])
-        np.subtract(self._bounds, self._positions, steps)  # q is finite: the kinematics update refuses it otherwise
+        q, speed_lower, speed_upper = self._views(lower, upper)
+        np.subtract(self._bounds, q, steps)  # q is finite: the kinematics update refuses it otherwise
         rate = self.gain / dt
         if self.influence > 0.0:
             # Within the influence of a bound: rate x distance, never more than the step bound.
@@ -80,21 +76,21 @@ class JointPositionLimit(Limit):
             np.multiply(steps, self._factor, steps)
         else:
             np.multiply(steps, rate, steps)
-        speed_lower, speed_upper = self._speed_box(lower, upper)
-        low, high = self._low, self._high
+        low, high = self._rows
         # Recovery from outside the range never asks for more than the speed box.
         np.minimum(low, speed_upper, low)
         np.maximum(high, speed_lower, high)
         np.maximum(speed_lower, low, speed_lower)
         np.minimum(speed_upper, high, speed_upper)
         if not isinstance(self._dofs, slice):
-            lower[:, self._dofs], upper[:, self._dofs] = speed_lower, speed_upper
+            lower[:, self._dofs], upper[:, self._dofs] = speed_lower.T, speed_upper.T
 
-    def _speed_box(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The box's columns of the limited dofs: views where they are consecutive (kept
-        while the controller gives the same arrays), else copies."""
-        if not isinstance(self._dofs, slice):
-            return lower[:, self._dofs], upper[:, self._dofs]
-        if self._box is None or self._box[0] is not lower:
-            self._box = (lower, lower[:, self._dofs], upper[:, self._dofs])
-        return self._box[1], self._box[2]
+    def _views(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """q and the box's columns of the limited joints, worlds last (k, N): views where they
+        are consecutive (kept while the controller gives the same box), else copies."""
+        if self._kept is not None and self._kept[0] is lower:
+            return self._kept[1:]
+        views = self.robot.qpos[:, self._qpos].T, lower[:, self._dofs].T, upper[:, self._dofs].T
+        if isinstance(self._qpos, slice) and isinstance(self._dofs, slice):
+            self._kept = (lower, *views)
+        return views

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from ..numerics import (all_finite, both, cholesky_solve, everywhere, lu_solve, matvec, nowhere, outer_product,
-                        squared_norm, vecmat)
+                        squared_norm, vecmat, worlds_first)
 
 # The system is treated as singular (dependent hard rows) when its Cholesky factor's
 # diagonal spans more than this ratio (its condition number is the square of it: 1e12).
@@ -56,7 +56,8 @@ class DampedLeastSquares:
     def __init__(self, n: int, nv: int, soft_rows: int, rows: int):
         m = soft_rows + rows
         self.soft_rows, self.rows = soft_rows, rows
-        self.scaled, self.K = np.empty((n, m, nv)), np.empty((n, m, m))  # R D⁻¹, R D⁻¹ Rᵀ + diag(I, 0)
+        # R D⁻¹, and R D⁻¹ Rᵀ + diag(I, 0) stored worlds last (as the products and solves form it)
+        self.scaled, self.K = np.empty((n, m, nv)), worlds_first(np.empty((m, m, n)))
         self._soft_diagonal = np.einsum("nii->ni", self.K)[:, :soft_rows]  # a writable view
         self.z, self._Rv, self._fit = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
         self.x, self._held_inverse = np.empty((n, nv)), np.empty((n, nv))

@@ -66,6 +66,7 @@ class SigmaProxy:
         self.dof_index = np.array([robot.model.jnt_dofadr[i] for i in ids], dtype=int)
         self._gradient = np.zeros((robot.n, robot.nv))  # zero off the measure's dofs
         self._angles = np.zeros((robot.n, len(ids)))
+        self._qpos, self._dofs = as_index(self.qpos_index), as_index(self.dof_index)  # slices where consecutive
 
     def values(self, qpos: np.ndarray) -> np.ndarray:
         """σ of configurations (N, nq), (N,)."""
@@ -81,11 +82,10 @@ class SigmaProxy:
         """∂σ/∂q (N, nv) of every world: ½ sin 2q_j on the measure's joints (an array of the
         measure's, overwritten by the next call)."""
         angles = self._angles
-        np.take(self.robot.qpos, self.qpos_index, 1, angles)
-        np.multiply(angles, 2.0, angles)
+        np.multiply(self.robot.qpos[:, self._qpos], 2.0, angles)
         np.sin(angles, angles)
         np.multiply(angles, 0.5, angles)
-        self._gradient[:, self.dof_index] = angles
+        self._gradient[:, self._dofs] = angles
         return self._gradient
 
 

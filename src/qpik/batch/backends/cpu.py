@@ -53,6 +53,7 @@ _D = mujoco.mjtDisableBit
 # stage then skips collision detection and constraint assembly.
 _KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
 _SAME = mujoco.mjtSameFrame
+ALL = slice(None)  # a chain on every dof
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
 
@@ -126,6 +127,7 @@ class CpuBackend(KinematicsBackend):
         self._fields: dict[str, np.ndarray] = {}
         self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cdof_components = None
+        self._difference = np.zeros((3, model.nv, self.nworld))  # a connect's rows, worlds last
         self._chains: dict[int, np.ndarray] = {}
         self._subtrees: dict[int, list[int]] = {}
         self._physics = None
@@ -183,27 +185,30 @@ class CpuBackend(KinematicsBackend):
         else:
             rotation[:] = self._fields["ximat"].reshape(n, -1, 3, 3)[:, body]
 
-    def chain(self, body: int) -> np.ndarray:
-        """The dofs on ``body``'s chain to the world (``mj_jac``'s loop), ascending."""
+    def chain(self, body: int) -> slice | np.ndarray:
+        """The columns of the dofs on ``body``'s chain to the world (``mj_jac``'s loop), as
+        :func:`as_index` gives them (``ALL`` for every dof)."""
         if body not in self._chains:
-            m = self.model
-            while body and not m.body_dofnum[body]:
-                body = int(m.body_parentid[body])
-            dofs = []
-            if body:
-                dof = int(m.body_dofadr[body] + m.body_dofnum[body] - 1)
+            m, link, dofs = self.model, body, []
+            while link and not m.body_dofnum[link]:
+                link = int(m.body_parentid[link])
+            if link:
+                dof = int(m.body_dofadr[link] + m.body_dofnum[link] - 1)
                 while dof >= 0:
                     dofs.append(dof)
                     dof = int(m.dof_parentid[dof])
-            self._chains[body] = np.array(sorted(dofs), dtype=np.int64)
+            self._chains[body] = ALL if len(dofs) == m.nv else as_index(sorted(dofs))
         return self._chains[body]
 
     def _cdof_by_component(self) -> np.ndarray:
-        """``cdof`` as (6, nv, N), worlds along the last axis (each operation below is
-        then one pass over contiguous memory, whatever dofs a chain selects): made once
-        per forward and shared by every Jacobian of the step."""
+        """``cdof`` as (8, nv, N), worlds last: v, ω, then ω₀ and ω₁ again (ω turned by one or
+        two components is a slice; each operation below is one pass over contiguous
+        memory): made once per forward and shared by every Jacobian of the step."""
         if self._cdof_components is None:
-            self._cdof_components = np.ascontiguousarray(self._cdof.transpose(2, 1, 0))
+            cdof = self._cdof.transpose(2, 1, 0)  # (6, nv, N): ω, v
+            components = self._cdof_components = np.empty((8,) + cdof.shape[1:])
+            components[:3], components[3:6] = cdof[3:], cdof[:3]
+            components[6:] = components[3:5]
         return self._cdof_components
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
@@ -212,35 +217,29 @@ class CpuBackend(KinematicsBackend):
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
         jacr = np.empty((n, 3, nv)) if out_r is None else out_r
         columns, chain_p, chain_r = self._chain_jacobian(body, points)
-        if columns is None:
-            jacp[:], jacr[:] = chain_p, chain_r
-            return jacp, jacr
-        jacp.fill(0.0)
-        jacr.fill(0.0)
-        if chain_p is not None:
-            jacp[:, :, columns] = chain_p
-            jacr[:, :, columns] = chain_r
+        if columns is not ALL:  # zeros off the chain
+            jacp.fill(0.0)
+            jacr.fill(0.0)
+        jacp[:, :, columns], jacr[:, :, columns] = chain_p, chain_r
         return jacp, jacr
 
     def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
-        on ``body``'s chain (``columns``: None for all, else as :func:`as_index`; None and
-        None for a body on no dof, jacr None unless ``rotational``)."""
-        dofs = self.chain(body)
-        columns = None if len(dofs) == self.model.nv else as_index(dofs)
-        if not len(dofs):
-            return columns, None, None
-        root = int(self.model.body_rootid[body])
-        offset = (points - self._subtree_com[:, root]).T  # (3, N)
-        cdof = self._cdof_by_component()  # [ω; v] per dof
-        if columns is not None:
-            cdof = cdof[:, columns]
-        jacp = np.empty((3, len(dofs), self.nworld))
+        on ``body``'s chain (``columns`` as :meth:`chain` gives them; jacr None unless
+        ``rotational``)."""
+        columns = self.chain(body)
+        offset = np.empty((5, self.nworld))  # o = points − com, then o₀ and o₁ again
+        np.subtract(points.T, self._subtree_com[:, int(self.model.body_rootid[body])].T, offset[:3])
+        offset[3:] = offset[:2]
+        cdof = self._cdof_by_component()[:, columns]
+        jacp, cross = np.empty((2, 3) + cdof.shape[1:])
         o = offset[:, None, :]
-        for i in range(3):  # v + mju_cross(ω, offset), component by component
-            a, b = (i + 1) % 3, (i + 2) % 3
-            jacp[i] = cdof[3 + i] + (cdof[a] * o[b] - cdof[b] * o[a])
-        jacr = cdof[:3].transpose(2, 0, 1) if rotational else None
+        # v + mju_cross(ω, o), every component at once: ω_a o_b − ω_b o_a, (a, b) = (i + 1, i + 2) mod 3
+        np.multiply(cdof[4:7], o[2:5], jacp)
+        np.multiply(cdof[5:8], o[1:4], cross)
+        np.subtract(jacp, cross, jacp)
+        np.add(cdof[:3], jacp, jacp)
+        jacr = cdof[3:6].transpose(2, 0, 1) if rotational else None
         return columns, jacp.transpose(2, 0, 1), jacr  # (N, 3, k) views
 
     def subtree_com(self, body: int) -> np.ndarray:
@@ -284,17 +283,19 @@ class CpuBackend(KinematicsBackend):
     def _connect_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         """The anchors' difference and the difference of their Jacobians, written into
         ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros off the anchors'
-        chains (the columns on them are zeroed here: an output written every step)."""
+        chains. The difference is formed worlds last, then copied onto each chain's columns
+        (a copy across layouts costs less than arithmetic across them)."""
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
         np.subtract(point0, point1, out=residual)
-        jacobian[:, :, np.union1d(self.chain(body0), self.chain(body1))] = 0.0
-        for body, point, sign in ((body0, point0, 1.0), (body1, point1, -1.0)):
-            columns, jacp, _ = self._chain_jacobian(body, point, rotational=False)
-            if jacp is None:
-                continue
-            columns = slice(None) if columns is None else columns
-            jacobian[:, :, columns] += sign * jacp  # 0 + J0 = J0, then J0 + (−J1): J0 − J1 exactly
+        (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, rotational=False)
+                                                      for body, point in ((body0, point0), (body1, point1))]
+        difference = self._difference  # J0 − J1 (3, nv, N) on the chains' columns
+        difference[:, columns1] = 0.0
+        difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave
+        difference[:, columns1] -= jacp1.transpose(1, 2, 0)
+        for columns in (columns0, columns1):
+            jacobian[:, :, columns] = difference[:, columns].transpose(2, 0, 1)
 
     def _joint_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         m = self.model
