@@ -275,6 +275,30 @@ def test_a_world_is_refined_only_where_its_own_residual_asks():
     np.testing.assert_array_equal(x[1:], expected)  # exactly: the same operations on the same numbers
 
 
+def test_the_hard_rows_are_judged_at_their_own_scale_beside_far_soft_targets(monkeypatch):
+    """A soft row's target 1e9 away must not excuse a hard row's miss: the first Cholesky
+    solve is made to miss by 1e-6 in the hard row (as rounding can on an ill-conditioned
+    step); the residual check, which judges the hard rows against their own right side,
+    refines, and the answer returned meets the hard row to 1e-10 (1 + |r₂|). Judged
+    against the whole right side (1e9), the miss passed unrefined."""
+    real, calls = closed_form.cholesky_solve, []
+
+    def first_misses(M, B, *args, **kwargs):
+        X, ok = real(M, B, *args, **kwargs)
+        if not calls:
+            X[:, 1] += 1e-6
+        calls.append(1)
+        return X, ok
+
+    monkeypatch.setattr(closed_form, "cholesky_solve", first_misses)
+    R = np.array([[[1.0, 0.5, 0.0], [0.0, 1.0, 1.0]]])  # a soft row, then a hard row
+    rhs = np.array([[1e9, 2.0]])
+    form = DampedLeastSquares(1, 3, 1, 1)
+    x, _, ok = form.solve(np.ones((1, 3)), R, rhs, np.zeros((1, 3)))
+    assert ok.all() and len(calls) > 1  # refined
+    assert abs(R[0, 1] @ x[0] - rhs[0, 1]) <= 1e-10 * (1.0 + abs(rhs[0, 1]))
+
+
 @pytest.mark.parametrize("solver", ["daqp", "quadprog"])
 def test_a_far_target_gets_the_solvers_capped_cost(solver):
     """A posture target 1e12 rad away makes c ~1e14: the closed form leaves the step to the

@@ -135,12 +135,14 @@ class DampedLeastSquares:
         return met if met.all() else self._fits(R, rhs, EQUALITY_TOLERANCE)
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
-        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual; the
-        hard rows' miss is its second part), leaving the miss in ``_fit``."""
-        fit = matvec(R, self.x, self._fit)
-        if self.soft_rows:
-            fit[:, :self.soft_rows] += self.z[:, :self.soft_rows]
-        return rows_met(fit, rhs, tolerance)
+        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual), its
+        soft part and its hard rows' part each at its own scale (a soft target far away must
+        not excuse a hard row's miss), leaving the miss in ``_fit``."""
+        fit, m = matvec(R, self.x, self._fit), self.soft_rows
+        if not m:
+            return rows_met(fit, rhs, tolerance)
+        fit[:, :m] += self.z[:, :m]
+        return both(rows_met(fit[:, :m], rhs[:, :m], tolerance), rows_met(fit[:, m:], rhs[:, m:], tolerance))
 
     def gradient(self, damping, R, c) -> np.ndarray:
         """Dx + c − Rᵀz of the last solve (D = ``damping``, c None for zero): zero on the

@@ -329,9 +329,16 @@ def skew(v: wp.vec3d) -> wp.mat33d:
 def rows_met(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), w: int, tolerance: F64) -> int:
     """``closed_form.rows_met``: 1 where |Ax − b| <= tolerance (1 + |b|) (Euclidean norms,
     compared squared; NaN fails)."""
+    return _rows_met(Ax, b, w, tolerance, 0, b.shape[1])
+
+
+@wp.func
+def _rows_met(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), w: int, tolerance: F64, start: int,
+              stop: int) -> int:
+    """:func:`rows_met` of the rows start … stop − 1."""
     miss = F64(0.0)
     scale = F64(0.0)
-    for i in range(b.shape[1]):
+    for i in range(start, stop):
         d = Ax[w, i] - b[w, i]
         miss = miss + d * d
         scale = scale + b[w, i] * b[w, i]
@@ -401,11 +408,13 @@ def _add(y: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64), w: int, sign: F64):
 def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, tolerance: F64,
           arrays: DampedLeastSquaresArrays) -> int:
     """``DampedLeastSquares._fits``: whether R x + [z₁; 0] meets rhs to ``tolerance``
-    (:func:`rows_met`), the miss left in ``fit``."""
+    (:func:`rows_met`), the soft part and the hard rows each at its own scale, the miss
+    left in ``fit``."""
     matvec(R, arrays.x, w, arrays.fit)
     for i in range(arrays.soft_rows):
         arrays.fit[w, i] = arrays.fit[w, i] + arrays.z[w, i]
-    met = rows_met(arrays.fit, rhs, w, tolerance)
+    met = _rows_met(arrays.fit, rhs, w, tolerance, 0, arrays.soft_rows) * \
+        _rows_met(arrays.fit, rhs, w, tolerance, arrays.soft_rows, rhs.shape[1])
     _add(arrays.fit, rhs, w, F64(-1.0))
     return met
 
