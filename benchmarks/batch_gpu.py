@@ -10,23 +10,21 @@ velocity limits, its joint-range bug under mujoco 4.0 patched as there).
 
 Contestants, per N, block-interleaved in one process (benchmarks/timing.py):
 
-- ``qpik warp``: ``batch.Robot.load(..., backend="warp", device=D)`` and
-  ``batch.QPController.step()``: where every task and limit has a device kernel (the
-  pusher, the hexapod) the device-resident step — kinematics, rows, QP (float64,
-  exact), check and integration on the device, one CUDA graph per step on a GPU;
-  otherwise (the arm's manipulability task) the host path below; the path that ran is
-  in the results;
-- ``qpik warp host``: the same back-end stepped by ``compute_velocity()`` and
-  ``robots.integrate``: MuJoCo Warp kinematics, Jacobians and loop rows on the device
-  (float32), the tasks on the host (NumPy), the QP on the device;
+- ``qpik warp``: ``batch.Robot.load(..., backend="warp", device=D)`` stepped by the
+  engine's ``compute_velocity()`` and ``robots.integrate``: MuJoCo Warp's kinematics and
+  Jacobians on the device (float32), the engine's step (the tasks' rows, the limits, the
+  QP) on the host in NumPy — until the engine's primitives have device mirrors (the
+  controller says so with a ``HostStepWarning``, silenced here);
 - ``qpik cpu``: the same problem on the CPU back-end (this machine's CPUs), for scale;
 - ``mink-warp dls`` / ``mink-warp constrained`` (pusher), on the same device.
+
+The hexapod is skipped, with a message, while ``qpik.batch`` has no ``EqualityTask``.
 
 Also: the latency at N = 1 (median step), and the compile time: a fresh process with an
 empty Warp kernel cache builds each contestant and takes its first step.
 
-Exactness beside speed: every qpik warp world's q̇ (from the path that ran) against the
-CPU back-end's exact step at the same state (float64 kinematics), after the run.
+Exactness beside speed: every qpik warp world's q̇ against the CPU back-end's exact step
+at the same state (float64 kinematics), after the run.
 
 mink-warp is installed into a throwaway virtual environment, with this repository's
 constraints (so that MuJoCo Warp and Warp are the versions qpik uses); the measurement
@@ -84,35 +82,24 @@ class _BatchOn:
 
 
 class QpikRun:
-    """One qpik problem; ``host=True`` steps by compute_velocity + integrate, else by
-    ``QPController.step()`` (the device-resident step where the tasks allow it)."""
+    """One qpik problem on a back-end, stepped as a user's loop does."""
 
     failures = ()
 
-    def __init__(self, name: str, n: int, steps: int, host: bool = False, **backend):
+    def __init__(self, name: str, n: int, steps: int, **backend):
         from qpik import batch
 
         self.robots, tasks, limits, self.mover = bt.build(_BatchOn(**backend), name, n)
         self.controller = batch.QPController(self.robots, tasks, limits, dt=bt.DT)
         self.offset, self.velocity = bt.circle(n, steps, bt.RADIUS[name], axes=(0, 2) if name == "pusher" else (0, 1))
-        self.steps, self.host = steps, host
+        self.steps = steps
 
     def step(self, k: int) -> None:
         self.mover(self.offset[k], self.velocity[k])
-        if self.host:
-            self.robots.integrate(self.controller.compute_velocity(), bt.DT)
-        else:
-            self.controller.step()
+        self.robots.integrate(self.controller.compute_velocity(), bt.DT)
 
     def last_qdot(self) -> np.ndarray:
-        device = self.controller.device_step
-        return self.controller.qdot if self.host or device is None else device.qdot()
-
-    def path(self) -> dict:
-        c = self.controller
-        device = c.device_step
-        return {"step_path": c.step_path if not self.host else "host", "host_step_reason": c.host_step_reason,
-                "cuda_graph": bool(device is not None and device.captured)}
+        return self.controller.qdot
 
     def after(self, k: int) -> None:
         pass
@@ -153,7 +140,6 @@ def contestants(robot: str, n: int, steps: int, device: str, mink_warp: bool):
     from timing import Contestant
 
     out = [Contestant("qpik warp", lambda: QpikRun(robot, n, steps, backend="warp", device=device)),
-           Contestant("qpik warp host", lambda: QpikRun(robot, n, steps, host=True, backend="warp", device=device)),
            Contestant("qpik cpu", lambda: QpikRun(robot, n, steps))]
     if mink_warp and robot == "pusher":
         out += [Contestant("mink-warp dls", lambda: MinkWarpRun("dls", n, steps, device)),
@@ -181,8 +167,8 @@ def throughput(robot: str, sizes, repeats: int, device: str, mink_warp: bool) ->
 
 def target_cost(robot: str, sizes, device: str, calls: int = 20) -> dict:
     """Microseconds per step that qpik's step spends in ``set_target`` on the host (the
-    targets' checks), inside each timed step above: on a GPU, where the device step is
-    short, this share says how much of a step the host's target API takes."""
+    targets' checks), inside each timed step above: the share of a step the host's target
+    API takes."""
     out = {}
     for n in sizes:
         run = QpikRun(robot, n, calls, backend="warp", device=device)
@@ -194,9 +180,8 @@ def target_cost(robot: str, sizes, device: str, calls: int = 20) -> dict:
 
 
 def exactness(robot: str, n: int, device: str, steps: int = 50) -> dict:
-    """After ``steps`` warp steps (``QPController.step``): each world's q̇ of the next
-    step against the CPU back-end's exact step at the same state and targets (float64
-    kinematics)."""
+    """After ``steps`` warp steps: each world's q̇ of the next step against the CPU
+    back-end's exact step at the same state and targets (float64 kinematics)."""
     run = QpikRun(robot, n, steps + 1, backend="warp", device=device)
     for k in range(steps):
         run.step(k)
@@ -212,8 +197,7 @@ def exactness(robot: str, n: int, device: str, steps: int = 50) -> dict:
     q = run.robots.q[:, limits.qpos_index]
     return {"worlds": n, "steps": steps, "max_qdot_difference": float(np.abs(qdot - exact).max()),
             "relative": float(np.abs(qdot - exact).max() / scale),
-            "max_beyond_range": float(max((limits.lower - q).max(), (q - limits.upper).max())),
-            "device_qp": type(run.controller.qp).__name__, **run.path()}
+            "max_beyond_range": float(max((limits.lower - q).max(), (q - limits.upper).max())), "step": "host"}
 
 
 def latency(robot: str, device: str, mink_warp: bool, repeats: int) -> dict:
@@ -280,11 +264,9 @@ def markdown(results: dict) -> str:
         lat = ", ".join(f"{k} {v['median_us']:.0f} µs" for k, v in data["latency"].items())
         comp = ", ".join(f"{k} {v['cold_s']:.1f} s (cached {v['cached_s']:.1f} s)" for k, v in data["compile"].items())
         ex = data["exactness"]
-        path = ("the device-resident step" + (" (one CUDA graph per step)" if ex["cuda_graph"] else
-                                              " (kernels launched one by one: no CUDA graph)")
-                if ex["step_path"] == "device" else f"the host path ({ex['host_step_reason']})")
         cost = ", ".join(f"{us:.0f} µs at N = {n}" for n, us in data.get("set_target_us", {}).items())
-        lines += ["", f"qpik warp ran {path}.", f"Of each qpik step, set_target on the host took {cost}.",
+        lines += ["", "qpik warp: kinematics on the device, the engine's step on the host.",
+                  f"Of each qpik step, set_target on the host took {cost}.",
                   f"Latency at N = 1 (median step): {lat}.",
                   f"First step in a fresh process: {comp}.",
                   f"qpik warp against the CPU back-end's exact step at the same states ({ex['worlds']} worlds, after "
@@ -292,6 +274,7 @@ def markdown(results: dict) -> str:
                   f"float32 kinematics); farthest beyond a joint range {ex['max_beyond_range']:.2g}.", ""]
     if results.get("mink_warp_skipped"):
         lines += [f"mink-warp not measured: {results['mink_warp_skipped']}", ""]
+    lines += [f"{why}." for why in results.get("skipped", {}).values()]
     return "\n".join(lines)
 
 
@@ -299,7 +282,7 @@ def main_inside(args) -> None:
     import warp as wp
     from qpik import batch
 
-    warnings.simplefilter("ignore", batch.HostStepWarning)  # the path that ran is in the results
+    warnings.simplefilter("ignore", batch.HostStepWarning)  # the step on the host: said in the results
 
     device = args.device or ("cuda:0" if wp.get_cuda_device_count() else "cpu")
     sizes = args.sizes or (GPU_SIZES if device.startswith("cuda") else CPU_SIZES)
@@ -314,6 +297,11 @@ def main_inside(args) -> None:
                "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load_before": bt.load()},
                "robots": {}, "mink_warp_skipped": skipped}
     for robot in args.robots:
+        skipped = bt.unbatched(robot)
+        if skipped:
+            print(skipped, file=sys.stderr, flush=True)
+            results.setdefault("skipped", {})[robot] = skipped
+            continue
         results["robots"][robot] = {
             "compile": compile_times(robot, device, mink_warp),
             "throughput": throughput(robot, sizes, args.repeats, device, mink_warp),

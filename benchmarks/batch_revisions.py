@@ -4,7 +4,9 @@ serial loop (benchmarks/timing.py), on batch_throughput.py's problems.
 
 The other revision's package is exported from git and imported under another name
 (timing.import_revision), so that both run on the same machine at the same moments: a
-before/after of a change to the batched engine measured in the same conditions.
+before/after of a change to the batched engine measured in the same conditions. The
+hexapod is skipped, with a message, while this checkout's ``qpik.batch`` has no
+``EqualityTask``.
 
     python benchmarks/batch_revisions.py REVISION [--robots arm pusher hexapod]
                                           [--sizes 1024 4096 16384] [--repeats 3]
@@ -63,11 +65,20 @@ def measure(libs: dict, robot: str, n: int, repeats: int) -> dict:
     robots = {"serial": min(n, bt.SERIAL_ROBOTS), "serial (1 robot)": bt.SERIAL_ROBOTS}
     per_robot = {c.label: c.repeat_medians_us / robots.get(c.label, n) for c in timing.contestants.values()}
     row = {"robot": robot, "n": n, "robot_steps_per_s": {k: float(np.median(1e6 / v)) for k, v in per_robot.items()}}
+    first, second = libs
+    for suffix in ("", " (1 thread)"):  # repeat by repeat: both revisions ran in the same moments
+        ratios = per_robot[second + suffix] / per_robot[first + suffix]
+        row[f"{first} / {second}{suffix}"] = {"median": float(np.median(ratios)), "min": float(ratios.min()),
+                                              "max": float(ratios.max())}
     for label in per_robot:
         if not label.startswith("serial"):
             row[f"{label} vs serial"] = float(np.median(per_robot["serial"] / per_robot[label]))
             row[f"{label} vs serial (1 robot)"] = float(np.median(per_robot["serial (1 robot)"] / per_robot[label]))
     return row
+
+
+def _ratio(ratio: dict) -> str:
+    return f"{ratio['median']:.2f} ({ratio['min']:.2f}–{ratio['max']:.2f})"
 
 
 def markdown(results: dict) -> str:
@@ -76,17 +87,18 @@ def markdown(results: dict) -> str:
              f"`{results['command']}` — {results['cpus']} CPUs, load average before {results['load_before']}, "
              f"after {results['load_after']}. Robot-steps/s (median over repeats); speed-ups are medians of "
              "per-repeat ratios, against qpik's serial loop over 32 robots and a warm one-robot loop; the "
-             "ratio of the two revisions is that of their medians.", "",
+             "two revisions' ratio is the median (range) of their per-repeat ratios.", "",
              "| robot | N | " + " | ".join(f"{x}, {y}" for x in (first, second) for y in ("default", "1 thread"))
-             + f" | {first} / {second} | {first} vs serial loop | {first} vs 1 robot | {second} vs serial loop "
-               f"| {second} vs 1 robot |",
-             "|---" * 11 + "|"]
+             + f" | {first} / {second} | {first} / {second}, 1 thread | {first} vs serial loop | {first} vs 1 robot "
+               f"| {second} vs serial loop | {second} vs 1 robot |",
+             "|---" * 12 + "|"]
     for row in results["rows"]:
         rate = row["robot_steps_per_s"]
         cells = [f"{rate[label]:.3g}" for x in (first, second) for label in (x, f"{x} (1 thread)")]
-        cells.append(f"{rate[first] / rate[second]:.2f}")
+        cells += [_ratio(row[f"{first} / {second}{suffix}"]) for suffix in ("", " (1 thread)")]
         cells += [f"{row[f'{x} vs {base}']:.1f}" for x in (first, second) for base in ("serial", "serial (1 robot)")]
         lines.append(f"| {row['robot']} | {row['n']} | " + " | ".join(cells) + " |")
+    lines += ["", *(f"{why}." for why in results.get("skipped", {}).values())] if results.get("skipped") else []
     return "\n".join(lines) + "\n"
 
 
@@ -106,8 +118,13 @@ def main() -> None:
     libs = dict(zip(labels, (batch, other)))
     load = lambda: " ".join(f"{x:.2f}" for x in os.getloadavg())  # noqa: E731
     results = {"command": "python benchmarks/batch_revisions.py " + " ".join(sys.argv[1:]), "cpus": os.cpu_count(),
-               "labels": labels, "load_before": load(), "rows": []}
+               "labels": labels, "load_before": load(), "rows": [], "skipped": {}}
     for robot in args.robots:
+        skipped = bt.unbatched(robot)
+        if skipped:
+            print(skipped, file=sys.stderr, flush=True)
+            results["skipped"][robot] = skipped
+            continue
         for n in args.sizes:
             results["rows"].append(measure(libs, robot, n, args.repeats))
             print(json.dumps(results["rows"][-1]), file=sys.stderr, flush=True)

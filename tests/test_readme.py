@@ -96,8 +96,8 @@ def _fuzz() -> str:
     from benchmarks.fuzz.cases import DEFECTS
 
     counts = _recorded("fuzz_any_robot.json")["counts"]
-    assert not any(counts.get(key, 0) for key in DEFECTS)
-    return str(counts["cases"])
+    defects = sum(counts.get(key, 0) for key in DEFECTS)
+    return f"{counts['cases']} cases, {defects} defects"
 
 
 # A headline's table (its anchor on docs/results.md) -> its number as the recording gives it.

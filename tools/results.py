@@ -85,6 +85,10 @@ SECTIONS = (
             ("peers_seed-redundant.json",), ("python benchmarks/compare_peers.py --repeats 3 --solvers daqp",),
             "Every contestant's step through `qpik compare`'s mapping of the scenario (the peers' step holds that "
             "glue), and how far each ends from the QP."),
+    Section("peers-joint-limits", "Beside mink and placo: the arm's limits binding",
+            partial(tables.peers_table, scenario="joint-limits"), ("peers_joint-limits.json",),
+            ("python benchmarks/compare_peers.py --repeats 3 --solvers daqp",),
+            "As above, on the arm's joint-limits scenario, where narrowed ranges bind on most steps."),
     Section("peers-hexapod", "Beside mink and placo: the hexapod",
             partial(tables.peers_table, scenario="hexapod-circle"), ("peers_hexapod-circle.json",),
             ("python benchmarks/compare_peers.py --repeats 3 --solvers daqp",),

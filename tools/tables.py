@@ -255,12 +255,16 @@ def fuzz_table(results: Path) -> str:
 
 
 def fuzz_any_robot_table(results: Path) -> str:
-    """The any-robot fuzz's cases per class (defects in bold; benchmarks/fuzz_any_robot.py)."""
+    """The any-robot fuzz's cases per class (defects in bold; benchmarks/fuzz_any_robot.py);
+    the N-world classes where the recording ran cases on N worlds (``--batched``)."""
     from benchmarks.fuzz.cases import CLASSES
+    from benchmarks.fuzz.sweep import BATCH_CLASSES
 
-    counts = recorded(results, "fuzz_any_robot.json")["counts"]
+    data = recorded(results, "fuzz_any_robot.json")
+    counts = data["counts"]
+    shown = [c for c in CLASSES if c[0] not in BATCH_CLASSES or data["meta"].get("batched_every")]
     lines = ["| class | cases |", "|---|---:|", f"| cases run | {counts['cases']} |"]
-    lines += [f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |" for key, label, bad in CLASSES]
+    lines += [f"| {'**' + label + '**' if bad else label} | {counts.get(key, 0)} |" for key, label, bad in shown]
     return "\n".join(lines) + "\n"
 
 

@@ -10,7 +10,7 @@
   ``benchmarks/fuzz_any_robot.py``;
 - :mod:`.pool`, the one pool of worker processes both run their cases in.
 
-The tests (``tests/fuzz/``) run short versions. The any-robot fuzz needs SciPy (its LP is
-the independent reference; the ``test`` extra) and, for the third-party models, the
-``models`` extra. Imported from the repository's root (``benchmarks`` is a package there).
+The tests (``tests/fuzz/``) run short versions. The any-robot fuzz's LP (the independent
+reference) is SciPy's, a dependency of qpik; its third-party models need the ``models``
+extra. Imported from the repository's root (``benchmarks`` is a package there).
 """

@@ -3,7 +3,7 @@
 A case draws a model (:mod:`.models`), a start inside, on or outside the joint
 ranges, 1–4 tasks of every kind (soft or hard, gains up to K·Δt just below 2, reachable,
 far, huge or malformed targets), the limits, and a controller (QPController with each
-solver and the fast path on or off, HierarchicalController with 2–3 levels,
+solver (the closed form always tried first), HierarchicalController with 2–3 levels,
 SNSController, PseudoinverseController). One case in six injects one invalid parameter,
 which must be refused with a typed error. :func:`run_case` returns the case's failure
 classes (:data:`CLASSES`) with the details that reproduce it.
@@ -20,10 +20,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from qpik.errors import GainWarning, QpikError, SolverError
+from qpik.errors import GainWarning, InvalidInput, QpikError, SolverError
 
 from .checks import box_and_rows, crossing, hard_residual, lp_feasible, velocity_excess
 from .models import _log_uniform, random_mjcf, short_name, third_party_models
+from .recipe import Recipe
 
 DT = 0.002
 STEPS = 25
@@ -54,6 +55,12 @@ CLASSES = (
     ("nondeterministic", "another process gave a different q trajectory", True),
     ("stray_warning", "a warning other than GainWarning", True),
     ("hang", "a step over 100 ms of CPU time or a case past its time budget", True),
+    ("batch_same", "on N = 4 worlds (other states and targets), every world got its own one-world run's answer "
+                   "(q̇ to 1e-10; 10·nv·ε·κ on a step of condition number κ; OSQP, ProxQP: 1e-6) or the same typed "
+                   "error at the same step", False),
+    ("batch_same_minimum", "on N = 4 worlds, OSQP's or ProxQP's answers apart by more than 1e-6 but each the same "
+                           "minimum (each level's cost to 1e-6, hard rows, limits)", False),
+    ("batch_differs", "on N = 4 worlds, a world's q̇ or error differed from its own one-world run's", True),
 )
 DEFECTS = tuple(key for key, _, bad in CLASSES if bad)
 INVALID = ("posture_gain", "task_gain", "task_weight", "influence", "damper_rate", "limit_gain", "margin",
@@ -81,6 +88,7 @@ class Case:
         self.kind = str(rng.choice(["qp", "hqp", "sns", "pinv"], p=[0.45, 0.25, 0.15, 0.15]))
         self.params.update(invalid=self.invalid, controller=self.kind)
         self.levels = None  # the QP's cost levels (one for QPController), once built
+        self.recipe: Recipe | None = None  # how the tasks, limits and controller were built (from the start)
 
     def bad(self, where: str, value):
         """``value``, or an invalid one when this case injects one at ``where``."""
@@ -92,6 +100,10 @@ class Case:
         self.params["invalid_value"] = repr(bad)
         self.injected = True
         return bad
+
+    def new(self, cls, *args, **kwargs):
+        """``cls(*args, **kwargs)``, recorded in the case's recipe."""
+        return self.recipe.new(cls, *args, **kwargs)
 
     # Building ---------------------------------------------------------------------------
 
@@ -111,6 +123,7 @@ class Case:
         if self.invalid == "model_range":
             robot = self.robot = self._inverted_range(robot)
         self._start(robot)
+        self.recipe = Recipe(robot)  # every object from here on is built through it (.batched replays it)
         self.tasks = self._tasks(robot)
         self.limits = self._limits(robot)
         self.controller = self._controller(robot)
@@ -209,9 +222,9 @@ class Case:
                 tasks.append(task)
                 self.params.setdefault("tasks", []).append(kind + (" hard" if task.hard else ""))
         if not tasks or all(t.hard for t in tasks):
-            tasks.append(DampingTask(robot, weight=_log_uniform(rng, -8, -2)) if rng.random() < 0.5
-                         else PostureTask(robot, gain=self.bad("posture_gain", _log_uniform(rng, -2, 2)),
-                                          weight=_log_uniform(rng, -6, 0)))
+            tasks.append(self.new(DampingTask, robot, weight=_log_uniform(rng, -8, -2)) if rng.random() < 0.5
+                         else self.new(PostureTask, robot, gain=self.bad("posture_gain", _log_uniform(rng, -2, 2)),
+                                       weight=_log_uniform(rng, -6, 0)))
             self.params.setdefault("tasks", []).append(type(tasks[-1]).__name__)
         return tasks
 
@@ -230,39 +243,41 @@ class Case:
             axes = "".join(sorted(set(rng.choice(list("xyz"), int(rng.integers(1, 4))))))
             self.params.setdefault("axes", []).append(axes)
             if kind == "frame":
-                task = FrameTask(robot, name, frame_type, position_gain=self._gain(), orientation_gain=self._gain(),
-                                 weight=weight, hard=hard)
+                task = self.new(FrameTask, robot, name, frame_type, position_gain=self._gain(),
+                                orientation_gain=self._gain(), weight=weight, hard=hard)
             elif kind == "position":
-                task = PositionTask(robot, name, frame_type, axes=axes, gain=self._gain(), weight=weight, hard=hard)
+                task = self.new(PositionTask, robot, name, frame_type, axes=axes, gain=self._gain(), weight=weight,
+                                hard=hard)
             elif kind == "orientation":
-                task = OrientationTask(robot, name, frame_type, axes=axes, gain=self._gain(), weight=weight, hard=hard)
+                task = self.new(OrientationTask, robot, name, frame_type, axes=axes, gain=self._gain(), weight=weight,
+                                hard=hard)
             else:
                 root, root_type = frames[int(rng.integers(len(frames)))]
                 if root == name:
                     return None
-                task = RelativeFrameTask(robot, name, root, frame_type, root_type, position_gain=self._gain(),
-                                         orientation_gain=self._gain(), weight=weight, hard=hard)
+                task = self.new(RelativeFrameTask, robot, name, root, frame_type, root_type,
+                                position_gain=self._gain(), orientation_gain=self._gain(), weight=weight, hard=hard)
             self._target(robot, task, kind)
             return task
         if kind == "com":
-            task = ComTask(robot, gain=self._gain(), weight=weight, hard=hard)
-            task.set_target(self.bad("target", self._point(robot.data.subtree_com[0])))
+            task = self.new(ComTask, robot, gain=self._gain(), weight=weight, hard=hard)
+            self.recipe.call(task, "set_target", self.bad("target", self._point(robot.data.subtree_com[0])))
             return task
         if kind == "posture":
-            task = PostureTask(robot, gain=self.bad("posture_gain", _log_uniform(rng, -2, np.log10(1.999 / DT))),
-                               weight=weight)
-            task.set_target(self.bad("posture_target", self._posture_target(robot)))
+            task = self.new(PostureTask, robot,
+                            gain=self.bad("posture_gain", _log_uniform(rng, -2, np.log10(1.999 / DT))), weight=weight)
+            self.recipe.call(task, "set_target", self.bad("posture_target", self._posture_target(robot)))
             return task
         if kind == "damping":
-            return DampingTask(robot, weight=weight)
+            return self.new(DampingTask, robot, weight=weight)
         if kind == "equality":
             if not any(robot.data.eq_active):
                 return None
             gain = None if rng.random() < 0.5 else self._gain()
-            return EqualityTask(robot, gain=gain, hard=hard, weight=weight)
+            return self.new(EqualityTask, robot, gain=gain, hard=hard, weight=weight)
         name, frame_type = frames[int(rng.integers(len(frames)))]
-        return ManipulabilityTask(robot, Yoshikawa(robot, name, frame_type), gain=_log_uniform(rng, -2, 1),
-                                  weight=weight)
+        return self.new(ManipulabilityTask, robot, self.new(Yoshikawa, robot, name, frame_type),
+                        gain=_log_uniform(rng, -2, 1), weight=weight)
 
     def _point(self, current: np.ndarray) -> np.ndarray:
         """A target point: near, far (up to 1e8 m) or a finite 1e308."""
@@ -281,13 +296,13 @@ class Case:
         mujoco.mju_quat2Mat(rotation, quat / np.linalg.norm(quat))
         rotation = self.bad("target", rotation.reshape(3, 3)) if kind == "orientation" else rotation.reshape(3, 3)
         if kind == "orientation":
-            task.set_target(rotation)
+            self.recipe.call(task, "set_target", rotation)
             return
         position = self._point(np.zeros(3) if kind == "relative" else task.frame.position)
         if kind == "position":
             position = position[[("xyz").index(a) for a in self.params["axes"][-1]]]
         position = self.bad("target", position)
-        task.set_target(position, rotation) if kind in ("frame", "relative") else task.set_target(position)
+        self.recipe.call(task, "set_target", *((position, rotation) if kind in ("frame", "relative") else (position,)))
 
     def _posture_target(self, robot) -> np.ndarray:
         rng = self.rng
@@ -308,17 +323,17 @@ class Case:
         rng, limits = self.rng, []
         if len(robot.joint_limits.names) and rng.random() < 0.8:
             influence = 0.0 if rng.random() < 0.5 else float(rng.uniform(0.01, 0.5))
-            limits.append(JointPositionLimit(robot, gain=self.bad("limit_gain", float(rng.uniform(0.1, 1.0))),
-                                             influence=self.bad("influence", influence),
-                                             damper_rate=self.bad("damper_rate", _log_uniform(rng, -1, 2)),
-                                             margin=self.bad("margin", 1e-10)))
+            limits.append(self.new(JointPositionLimit, robot, gain=self.bad("limit_gain", float(rng.uniform(0.1, 1.0))),
+                                   influence=self.bad("influence", influence),
+                                   damper_rate=self.bad("damper_rate", _log_uniform(rng, -1, 2)),
+                                   margin=self.bad("margin", 1e-10)))
         if rng.random() < 0.6:
             values = np.array([_log_uniform(rng, -1, 2) for _ in range(robot.nv)])
-            limits.append(JointVelocityLimit(robot, self.bad("velocity_values", values)))
+            limits.append(self.new(JointVelocityLimit, robot, self.bad("velocity_values", values)))
         pairs = _collision_pairs(robot.model)
         if pairs and rng.random() < 0.25:
             a, b = pairs[int(rng.integers(len(pairs)))]
-            limits.append(CollisionAvoidanceLimit(robot, [([a], [b])]))
+            limits.append(self.new(CollisionAvoidanceLimit, robot, [([a], [b])]))
         self.params["limits"] = [type(lim).__name__ for lim in limits]
         return limits
 
@@ -329,29 +344,31 @@ class Case:
         kind = self.kind
         dt = self.bad("dt", DT) if kind != "pinv" else DT
         if kind == "qp":
-            solver, fast = self.bad("solver", str(rng.choice(solvers()))), bool(rng.random() < 0.5)
-            params.update(solver=solver, fast_path=fast)
+            solver = self.bad("solver", str(rng.choice(solvers())))
+            rng.random()  # drew the removed fast_path option: kept, so that a seed draws the case it drew before
+            params.update(solver=solver)
             self.levels = [self.tasks]
-            return QPController(robot, self.tasks, self.limits, solver=solver, dt=dt, fast_path=fast)
+            return self.new(QPController, robot, self.tasks, self.limits, solver=solver, dt=dt)
         if kind == "pinv":
             primary = [t for t in self.tasks if not t.joint_space]
             secondary = next((t for t in self.tasks if t.joint_space), None)
             for task in primary:
                 if task.needs_period:
-                    task.gain = 0.5 / DT  # the law has no period of its own
+                    self.recipe.set(task, "gain", 0.5 / DT)  # the law has no period of its own
             if not primary:
                 primary, secondary = [secondary], None
+            self.levels = [primary] + ([[secondary]] if secondary is not None else [])  # (what .batched compares)
             damping = 0.0 if rng.random() < 0.5 else _log_uniform(rng, -4, -1)
             params.update(damping=damping)
             self.limits = []
-            return PseudoinverseController(robot, primary, secondary, damping=damping)
+            return self.new(PseudoinverseController, robot, primary, secondary, damping=damping)
         levels = self._levels()  # (kept as self.levels: the costs the ProxQP repeat compares)
         if kind == "sns":
             self.limits = [lim for lim in self.limits if not lim.inequality_rows]  # SNS: boxes only
-            return SNSController(robot, limits=self.limits, dt=dt, levels=levels)
+            return self.new(SNSController, robot, limits=self.limits, dt=dt, levels=levels)
         solver = self.bad("solver", str(rng.choice(solvers())))
         params.update(solver=solver)
-        return HierarchicalController(robot, limits=self.limits, solver=solver, dt=dt, levels=levels)
+        return self.new(HierarchicalController, robot, limits=self.limits, solver=solver, dt=dt, levels=levels)
 
     def _levels(self) -> list[list]:
         """2–3 levels; hard tasks only at level 0 (then no lower level may be infeasible)."""
@@ -361,13 +378,13 @@ class Case:
         tasks = sorted(self.tasks, key=lambda t: not t.hard)
         count = min(int(rng.integers(2, 4)), len(tasks))
         if count < 2:
-            tasks.append(DampingTask(self.robot, weight=1e-3))
+            tasks.append(self.new(DampingTask, self.robot, weight=1e-3))
             count = 2
         cuts = sorted(rng.choice(np.arange(1, len(tasks)), count - 1, replace=False)) if len(tasks) > 2 else [1]
         levels = [tasks[a:b] for a, b in zip([0, *cuts], [*cuts, len(tasks)])]
         for level in levels[1:]:
             for task in level:
-                task.hard = False
+                self.recipe.set(task, "hard", False)
         self.params["levels"] = [len(level) for level in levels]
         self.levels = levels
         return levels
@@ -397,8 +414,10 @@ def _stray(records) -> list[str]:
     return [_warning_line(r) for r in records if not issubclass(r.category, GainWarning)]
 
 
-def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = None) -> dict:
+def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = None, batched: bool = False) -> dict:
     """Build and roll out case ``seed``; its classes, parameters, details and q hash.
+    ``batched``: then also its problem on N worlds against each world's own run
+    (:mod:`.batched`).
 
     A ProxQP case also records the configuration before each step (``q_steps``) and the
     cost of each level of its QP at each answer (``step_costs``); ``replay`` (another
@@ -423,12 +442,16 @@ def run_case(seed: int, folder: Path, steps: int = STEPS, replay: list | None = 
                 result["classes"].append("invalid_accepted")
                 result["details"]["outside_start"] = case.refusal_wrong[:300]
             _roll_out(case, result, steps, replay)
+        if batched:
+            from .batched import check_batched
+
+            check_batched(case, result, steps, DT)
         stray = _stray(records)
     if stray:
         result["classes"].append("stray_warning")
         result["details"]["warnings"] = sorted(set(stray))[:5]
     if not any(c in DEFECTS or c in ("typed", "rejected") for c in result["classes"]):
-        result["classes"].append("ok")
+        result["classes"].insert(0, "ok")
     return result
 
 
@@ -476,7 +499,12 @@ def _roll_out(case: Case, result: dict, steps: int, replay: list | None = None) 
         if record:
             result.setdefault("step_costs", []).append(level_costs(case.levels, qdot))
         robot.integrate(qdot, DT)
-        robot.update_kinematics()
+        try:
+            robot.update_kinematics()
+        except InvalidInput as exc:  # the step took q past MuJoCo's range: the next has no answer
+            details.update(error=f"{type(exc).__name__}: {str(exc)[:300]}", at=f"step {step + 1}")
+            result["classes"].append("typed")
+            break
         digest.update(robot.q.tobytes())
     else:
         if case.injected:
@@ -488,13 +516,14 @@ def _roll_out(case: Case, result: dict, steps: int, replay: list | None = None) 
     result["classes"] = sorted(set(result["classes"]), key=result["classes"].index)
 
 
-def level_costs(levels: list[list], qdot: np.ndarray) -> list[float]:
-    """Each level's soft cost ½ Σ w (J q̇ − v)² at ``qdot`` (the tasks as last updated)."""
+def level_costs(levels: list[list], qdot: np.ndarray, hard: bool = False) -> list[float]:
+    """Each level's soft cost ½ Σ w (J q̇ − v)² at ``qdot`` (the tasks as last updated;
+    ``hard``: the hard tasks' rows counted too, as the pseudoinverse law counts them)."""
     costs = []
     for level in levels:
         cost = 0.0
         for task in level:
-            if not task.hard:
+            if hard or not task.hard:
                 residual = task.jacobian @ qdot - task.target_velocity
                 cost += 0.5 * float(np.dot(task.weight * residual, residual))
         costs.append(cost)

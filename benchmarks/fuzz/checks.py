@@ -11,11 +11,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from qpik.extras import require
-
-require("scipy", "the fuzz (its LP is the independent feasibility reference)", extra="test")
-
-from scipy.optimize import linprog  # noqa: E402
+from scipy.optimize import linprog
 
 from qpik.limits import JointPositionLimit, JointVelocityLimit, order_limits
 
@@ -59,8 +55,9 @@ def velocity_excess(limits, qdot: np.ndarray) -> float:
     worst = 0.0
     for limit in limits:
         if isinstance(limit, JointVelocityLimit):
-            lb, ub = np.full(len(qdot), -np.inf), np.full(len(qdot), np.inf)
-            limit.apply(1.0, lb, ub)
+            box = np.full((1, len(qdot)), -np.inf), np.full((1, len(qdot)), np.inf)  # one world's (1, nv)
+            limit.apply(1.0, *box)
+            lb, ub = box[0][0], box[1][0]
             scale = np.maximum(1.0, np.maximum(np.abs(lb), np.abs(ub)))
             scale[~np.isfinite(scale)] = 1.0
             worst = max(worst, float(np.max(np.maximum(lb - qdot, qdot - ub) / scale)))
@@ -73,13 +70,14 @@ def box_and_rows(robot, hard_tasks, limits, dt: float):
     nv = robot.nv
     A = np.vstack([t.jacobian for t in hard_tasks]) if hard_tasks else np.zeros((0, nv))
     b = np.concatenate([t.target_velocity for t in hard_tasks]) if hard_tasks else np.zeros(0)
-    lb, ub = np.full(nv, -np.inf), np.full(nv, np.inf)
+    lower, upper = np.full((1, nv), -np.inf), np.full((1, nv), np.inf)  # one world's box, as a limit writes it
     rows = []
     for limit in order_limits(limits):
-        G, h = np.zeros((limit.inequality_rows, nv)), np.zeros(limit.inequality_rows)
-        limit.apply(dt, lb, ub, G, h)
+        G, h = np.zeros((1, limit.inequality_rows, nv)), np.zeros((1, limit.inequality_rows))
+        limit.apply(dt, lower, upper, G, h)
         if limit.inequality_rows:
-            rows.append((G, h))
+            rows.append((G[0], h[0]))
+    lb, ub = lower[0], upper[0]
     G = np.vstack([g for g, _ in rows]) if rows else np.zeros((0, nv))
     h = np.concatenate([v for _, v in rows]) if rows else np.zeros(0)
     return A, b, lb, ub, G, h

@@ -13,69 +13,22 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 # Public name -> module that defines it.
-_EXPORTS = {
-    # robot and errors
-    "Robot": "qpik.robot",
-    "Frame": "qpik.robot",
-    "JointLimits": "qpik.robot",
-    "load_model": "qpik.robot",
-    "QpikError": "qpik.errors",
-    "InvalidInput": "qpik.errors",
-    "UnknownName": "qpik.errors",
-    "ModelError": "qpik.errors",
-    "OutsideJointLimits": "qpik.errors",
-    "MissingExtra": "qpik.errors",
-    "UnreachablePose": "qpik.errors",
-    "InfeasibleProblem": "qpik.errors",
-    "SolverError": "qpik.errors",
-    "ConvergenceError": "qpik.errors",
-    "DivergenceError": "qpik.errors",
-    "GainWarning": "qpik.errors",
-    # tasks
-    "Task": "qpik.tasks",
-    "JointSpaceTask": "qpik.tasks",
-    "PositionTask": "qpik.tasks",
-    "FrameTask": "qpik.tasks",
-    "PostureTask": "qpik.tasks",
-    "DampingTask": "qpik.tasks",
-    "ManipulabilityTask": "qpik.tasks",
-    "ManipulabilityMeasure": "qpik.tasks",
-    "SigmaProxy": "qpik.tasks",
-    "Yoshikawa": "qpik.tasks",
-    "OrientationTask": "qpik.tasks",
-    "RelativeFrameTask": "qpik.tasks",
-    "ComTask": "qpik.tasks",
-    "EqualityTask": "qpik.tasks",
-    "LookAtTask": "qpik.tasks",
-    "AxisAlignTask": "qpik.tasks",
-    "DofFreezingTask": "qpik.tasks",
-    "KineticEnergyRegularizationTask": "qpik.tasks",
-    # limits
-    "Limit": "qpik.limits",
-    "CollisionAvoidanceLimit": "qpik.limits",
-    "JointPositionLimit": "qpik.limits",
-    "JointVelocityLimit": "qpik.limits",
-    "FloatingBaseVelocityLimit": "qpik.limits",
-    "AccelerationLimit": "qpik.limits",
-    # controllers and solvers
-    "QPController": "qpik.controllers",
-    "HierarchicalController": "qpik.controllers",
-    "SNSController": "qpik.controllers",
-    "PseudoinverseController": "qpik.controllers",
-    "JacobianTransposeController": "qpik.controllers",
-    "available_solvers": "qpik.solvers",
-    # trajectories, rollouts, scenarios
-    "Segment": "qpik.trajectories",
-    "Circle": "qpik.trajectories",
-    "Hold": "qpik.trajectories",
-    "PoseTrajectory": "qpik.trajectories",
-    "simulate": "qpik.rollout",
-    "RolloutLog": "qpik.rollout",
-    "PositionReference": "qpik.rollout",
-    "Setup": "qpik.scenario",
-    "build_scenario": "qpik.scenario",
-    "scenarios": "qpik.scenario",
-}
+_EXPORTS = {name: f"qpik.{module}" for module, names in (
+    ("robot", "Robot Frame JointLimits load_model"),
+    ("errors", "QpikError InvalidInput UnknownName ModelError OutsideJointLimits MissingExtra UnreachablePose "
+               "InfeasibleProblem SolverError ConvergenceError DivergenceError GainWarning"),
+    ("tasks", "Task JointSpaceTask PositionTask FrameTask PostureTask DampingTask ManipulabilityTask "
+              "ManipulabilityMeasure SigmaProxy Yoshikawa OrientationTask RelativeFrameTask ComTask EqualityTask "
+              "LookAtTask AxisAlignTask DofFreezingTask KineticEnergyRegularizationTask"),
+    ("limits", "Limit CollisionAvoidanceLimit JointPositionLimit JointVelocityLimit FloatingBaseVelocityLimit "
+               "AccelerationLimit"),
+    ("controllers", "QPController HierarchicalController SNSController PseudoinverseController "
+                    "JacobianTransposeController"),
+    ("solvers", "available_solvers"),
+    ("trajectories", "Segment Circle Hold PoseTrajectory"),  # trajectories, rollouts, scenarios
+    ("rollout", "simulate RolloutLog PositionReference"),
+    ("scenario", "Setup build_scenario scenarios"),
+) for name in names.split()}
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
@@ -96,57 +49,18 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # static type checkers see the real imports
-    from .controllers import (
-        HierarchicalController,
-        JacobianTransposeController,
-        PseudoinverseController,
-        QPController,
-        SNSController,
-    )
-    from .errors import (
-        ConvergenceError,
-        DivergenceError,
-        GainWarning,
-        InfeasibleProblem,
-        InvalidInput,
-        MissingExtra,
-        ModelError,
-        OutsideJointLimits,
-        QpikError,
-        SolverError,
-        UnknownName,
-        UnreachablePose,
-    )
-    from .limits import (
-        AccelerationLimit,
-        CollisionAvoidanceLimit,
-        FloatingBaseVelocityLimit,
-        JointPositionLimit,
-        JointVelocityLimit,
-        Limit,
-    )
+    from .controllers import (HierarchicalController, JacobianTransposeController, PseudoinverseController,
+                              QPController, SNSController)
+    from .errors import (ConvergenceError, DivergenceError, GainWarning, InfeasibleProblem, InvalidInput,
+                         MissingExtra, ModelError, OutsideJointLimits, QpikError, SolverError, UnknownName,
+                         UnreachablePose)
+    from .limits import (AccelerationLimit, CollisionAvoidanceLimit, FloatingBaseVelocityLimit, JointPositionLimit,
+                         JointVelocityLimit, Limit)
     from .robot import Frame, JointLimits, Robot, load_model
     from .rollout import PositionReference, RolloutLog, simulate
     from .scenario import Setup, build_scenario, scenarios
     from .solvers import available_solvers
-    from .tasks import (
-        AxisAlignTask,
-        ComTask,
-        DampingTask,
-        DofFreezingTask,
-        EqualityTask,
-        FrameTask,
-        JointSpaceTask,
-        KineticEnergyRegularizationTask,
-        LookAtTask,
-        ManipulabilityMeasure,
-        ManipulabilityTask,
-        OrientationTask,
-        PositionTask,
-        PostureTask,
-        RelativeFrameTask,
-        SigmaProxy,
-        Task,
-        Yoshikawa,
-    )
+    from .tasks import (AxisAlignTask, ComTask, DampingTask, DofFreezingTask, EqualityTask, FrameTask, JointSpaceTask,
+                        KineticEnergyRegularizationTask, LookAtTask, ManipulabilityMeasure, ManipulabilityTask,
+                        OrientationTask, PositionTask, PostureTask, RelativeFrameTask, SigmaProxy, Task, Yoshikawa)
     from .trajectories import Circle, Hold, PoseTrajectory, Segment

@@ -38,9 +38,14 @@ class Actuation:
         self.vel_act, self.vel_dof = np.array(vel_act, dtype=int), np.array(vel_dof, dtype=int)
 
     def write(self, data: mujoco.MjData, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:
-        data.ctrl[self.pos_act] = q_cmd[self.pos_q]
+        self.fill(data.ctrl, q_cmd, qdot_cmd)
+
+    def fill(self, ctrl: np.ndarray, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:
+        """The servos' controls ``ctrl`` (..., nu) from commands (..., nq) and (..., nv): one
+        world's or N worlds' (the leading axes)."""
+        ctrl[..., self.pos_act] = q_cmd[..., self.pos_q]
         if len(self.vel_act):
-            data.ctrl[self.vel_act] = qdot_cmd[self.vel_dof]
+            ctrl[..., self.vel_act] = qdot_cmd[..., self.vel_dof]
 
 
 def substeps_per_control_step(model: mujoco.MjModel, dt: float) -> int:

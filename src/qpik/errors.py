@@ -73,3 +73,54 @@ class OutsideJointLimits(ModelError):
 class MissingExtra(QpikError, ImportError):
     """An optional dependency is not installed; the message names the extra that brings it
     (``pip install -e ".[extra]"`` from qpik's clone)."""
+
+
+class InvalidWorlds(InvalidInput):
+    """Bad input in some worlds of a batch (a NaN target, a configuration outside the
+    limits): ``worlds`` lists them, ascending. Nothing was written."""
+
+    def __init__(self, message: str, worlds):
+        import numpy as np
+
+        super().__init__(message)
+        self.worlds = np.asarray(worlds, dtype=np.int64)
+
+
+class WorldsFailed(QpikError, RuntimeError):
+    """Some worlds of a batched step have no answer; the others were solved.
+
+    Raised *after* every healthy world is solved, so that one bad world (an infeasible
+    box, a diverging law) never stops the thousands of others.
+
+    Attributes:
+        worlds: the failing world ids, ascending (``int64`` array).
+        reasons: world id → the typed error of that world (its message says why).
+        qdot: ``(N, nv)``: the healthy worlds' answers, and **zero** velocity in the
+            failing worlds (a safe value: never NaN).
+    """
+
+    def __init__(self, reasons: dict, qdot, what: str = "batched step"):
+        import numpy as np
+
+        self.reasons = dict(sorted(reasons.items()))
+        self.worlds = np.array(list(self.reasons), dtype=np.int64)
+        self.qdot = qdot
+        shown = "; ".join(f"world {w}: {why}" for w, why in list(self.reasons.items())[:5])
+        more = f"; and {len(self.reasons) - 5} more" if len(self.reasons) > 5 else ""
+        super().__init__(f"{what}: {len(self.reasons)} of {len(qdot)} worlds failed "
+                         f"(their velocity set to zero, the others solved) — {shown}{more}")
+
+
+class HostStepWarning(UserWarning):
+    """A step of a device back-end (Warp) runs on the host: a task or limit has no device
+    function (the message names it). The answers are the same; the step is slower."""
+
+
+MAX_WORLDS_LISTED = 8
+
+
+def listed(worlds) -> str:
+    """``worlds`` for a message: the first few ids, and how many more."""
+    worlds = [int(w) for w in worlds]
+    shown = ", ".join(map(str, worlds[:MAX_WORLDS_LISTED]))
+    return shown + (f" and {len(worlds) - MAX_WORLDS_LISTED} more" if len(worlds) > MAX_WORLDS_LISTED else "")

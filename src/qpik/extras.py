@@ -1,7 +1,6 @@
 """Optional dependencies: what ``import qpik`` does not need, and the extra that brings each.
 
-``import qpik`` and a QP step need mujoco, numpy and daqp only (SciPy, when installed,
-makes the closed-form step's small solves faster: :mod:`qpik.linalg`). The rest is
+``import qpik`` and a QP step need mujoco, numpy, daqp and SciPy only. The rest is
 imported where it is used, through :func:`require`, which names the extra to install
 from a clone (qpik is not on a package index): ``pip install -e ".[plots]"``.
 """
@@ -15,7 +14,6 @@ from .errors import MissingExtra
 
 # module -> (pip distribution, the extra that brings it)
 EXTRAS = {
-    "scipy": ("scipy", "fast"),  # calibration names its own extra (require's extra=)
     "matplotlib": ("matplotlib", "plots"),
     "PIL": ("pillow", "video"),
     "imageio_ffmpeg": ("imageio-ffmpeg", "video"),
@@ -56,8 +54,7 @@ def require(module: str, purpose: str, extra: str | None = None):
     Args:
         module: the import name (a key of :data:`EXTRAS`).
         purpose: what needs it, for the message (e.g. ``"--plot"``).
-        extra: the extra to name, where it is not the module's usual one (e.g. SciPy for
-            ``qpik calibrate``: ``"calibration"``).
+        extra: the extra to name, where it is not the module's usual one.
     """
     if not installed(module):
         raise MissingExtra(f"{purpose} needs {EXTRAS[module][0]}, which is not installed: "

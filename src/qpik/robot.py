@@ -22,21 +22,13 @@ at that keyframe, which must exist. ``Robot.load`` of a bundled robot starts at 
 Joint velocity limits are not part of MJCF; a scene declares them as custom numerics
 named ``qpik_velocity_limit_<joint>`` holding one value per degree of freedom.
 
-At load a :class:`Robot` checks what MuJoCo's compiler lets through silently and raises
-:class:`~qpik.errors.ModelError` for it: a timestep that is not positive and finite, a
-joint range with a NaN or with its lower bound not below its upper one (MuJoCo then
-drops the limit without a word), a start keyframe that is not finite, non-finite
-kinematics at the start, and speed limits declared for some joints but not all.
-
-Starting states are checked: the start keyframe (at load), every :meth:`Robot.set_q` (at
-once) and the configuration of the first control step (:meth:`Robot.ensure_kinematics`:
-the model's ``qpos0`` unless another was set) must lie inside the joint ranges (beyond
-:data:`KEYFRAME_TOLERANCE`), else :class:`~qpik.errors.OutsideJointLimits` names each joint
-and by how much (as mink's ``NotWithinConfigurationLimits``). Loading a model whose
-``qpos0`` is outside (dm_control's Jaco, gymnasium's ant) and then calling ``set_q`` with
-a configuration inside is fine. ``allow_outside_limits=True`` accepts such a start on
-purpose: a :class:`~qpik.JointPositionLimit` then brings the joints back into range.
-Models may also be URDF files (MuJoCo reads them) or an :class:`mujoco.MjSpec`.
+At load a :class:`Robot` refuses what MuJoCo's compiler lets through silently
+(:func:`check_model`; the other checks are :class:`Robot`'s Raises), and its start (the
+keyframe at load, every :meth:`Robot.set_q`, ``qpos0`` at the first step) must lie inside
+the joint ranges (else :class:`~qpik.errors.OutsideJointLimits` names each joint, unless
+``allow_outside_limits``): a model whose ``qpos0`` is outside (dm_control's Jaco,
+gymnasium's ant) is fine once ``set_q`` puts it inside. Models may also be URDF files
+(MuJoCo reads them) or an :class:`mujoco.MjSpec`.
 """
 
 from __future__ import annotations
@@ -51,15 +43,20 @@ from typing import Callable
 import mujoco
 import numpy as np
 
-from .errors import InvalidInput, ModelError, OutsideJointLimits, UnknownName
+from .equalities import EqualityRows
+from .errors import InvalidInput, InvalidWorlds, ModelError, OutsideJointLimits, UnknownName, listed
 from .scenes import SCENES
 
 VELOCITY_LIMIT_PREFIX = "qpik_velocity_limit_"
 
 _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+_DOF_COUNT = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}  # else 1
 # A keyframe may sit this far (joint units) outside a range: the rounding of a range
 # written in degrees and a keyframe written in radians, not a start outside the limits.
 KEYFRAME_TOLERANCE = 1e-9
+# MuJoCo's mjMAXVAL: past it a simulation (and a batch's forward) resets the configuration
+# to qpos0, so no frame of the kinematics would be at q.
+MAX_CONFIGURATION = 1e10
 
 
 def check_model(model: mujoco.MjModel, label: str = "model") -> None:
@@ -74,7 +71,7 @@ def check_model(model: mujoco.MjModel, label: str = "model") -> None:
         raise ModelError(f"{label}: the timestep must be positive and finite, got {timestep}")
     for j in range(model.njnt):
         lower, upper = (float(v) for v in model.jnt_range[j])
-        joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+        joint = joint_name(model, j)
         if math.isnan(lower) or math.isnan(upper):
             raise ModelError(f"{label}: joint {joint!r} has a NaN in its range [{lower}, {upper}]")
         written = (lower, upper) != (0.0, 0.0)  # MuJoCo's default: no range given
@@ -82,12 +79,18 @@ def check_model(model: mujoco.MjModel, label: str = "model") -> None:
             raise ModelError(f"{label}: joint {joint!r} has range [{lower}, {upper}]: the lower bound must be "
                              "below the upper one (MuJoCo ignores such a range, leaving the joint unlimited)")
 
+
+def joint_name(model: mujoco.MjModel, joint: int) -> str:
+    """A joint's name in messages (``joint<i>`` for an unnamed one)."""
+    return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"joint{joint}"
+
+
 FRAME_TYPES = ("site", "body", "geom")
-# frame type -> (object type, position array, rotation array, Jacobian function)
-_FRAMES = {
-    "site": (mujoco.mjtObj.mjOBJ_SITE, "site_xpos", "site_xmat", mujoco.mj_jacSite),
-    "body": (mujoco.mjtObj.mjOBJ_BODY, "xpos", "xmat", mujoco.mj_jacBody),
-    "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_xpos", "geom_xmat", mujoco.mj_jacGeom),
+# frame type -> (object type, position array, rotation array, Jacobian function, its body's id array)
+FRAMES = {
+    "site": (mujoco.mjtObj.mjOBJ_SITE, "site_xpos", "site_xmat", mujoco.mj_jacSite, "site_bodyid"),
+    "body": (mujoco.mjtObj.mjOBJ_BODY, "xpos", "xmat", mujoco.mj_jacBody, None),
+    "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_xpos", "geom_xmat", mujoco.mj_jacGeom, "geom_bodyid"),
 }
 # object type -> (label in messages, MjModel attribute counting them)
 _COUNTS = {
@@ -149,35 +152,87 @@ def name_hint(name: str, names, label: str = "") -> str:
     return f"no close match among its {len(names)} {label} names".replace("  ", " ")
 
 
-class Frame:
-    """A site, body or geom of a robot: its id, and views of its world pose.
+def check_configurations(model: mujoco.MjModel, qpos: np.ndarray, batched: bool) -> None:
+    """Refuse configurations (N, nq) with an entry that is not finite or beyond
+    ``MAX_CONFIGURATION``, naming the worlds (batched) and the first one's joint.
 
-    ``position`` (3,) and ``rotation`` (3, 3) are views of MuJoCo's arrays, valid after
-    each :meth:`Robot.update_kinematics` without copying; :meth:`jacobian` fills the
-    translational and/or rotational Jacobians (3 x nv) of the frame's origin.
+    Raises:
+        InvalidInput: one robot's; InvalidWorlds: some of N worlds'.
+    """
+    if float(np.einsum("ij,ij->", qpos, qpos)) <= MAX_CONFIGURATION * MAX_CONFIGURATION:  # the usual call (NaN fails)
+        return
+    bad = np.flatnonzero(~(np.abs(qpos) <= MAX_CONFIGURATION).all(axis=1))
+    if not len(bad):
+        return
+    first = int(bad[0])
+    index = int(np.flatnonzero(~(np.abs(qpos[first]) <= MAX_CONFIGURATION))[0])
+    joint = int(np.searchsorted(model.jnt_qposadr, index, side="right")) - 1
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"#{joint}"
+    detail = f"joint {name} at {qpos[first, index]:g}"
+    where = f" in worlds {listed(bad)} (world {first}: {detail})" if batched else f" ({detail})"
+    message = (f"configuration is not finite or beyond {MAX_CONFIGURATION:g}, where MuJoCo resets a simulation"
+               f"{where}; give configurations within it")
+    raise InvalidWorlds(message, bad) if batched else InvalidInput(message)
+
+
+def as_floats(value, what: str, must: str = "must be") -> np.ndarray:
+    """``value`` as a float array of any shape, or InvalidInput ("{what} {must} numbers")."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{what} {must} numbers, got {value!r}") from None
+
+
+def as_index(index: np.ndarray) -> slice | np.ndarray:
+    """A slice for consecutive indices (views, no fancy-index copies), else the array."""
+    index = np.asarray(index, dtype=int)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
+
+
+class Frame:
+    """A site, body or geom of a robot: its id and its world pose in every world.
+
+    ``positions`` (N, 3) and ``rotations`` (N, 3, 3) are views of the robot's arrays
+    (MuJoCo's ``site_xpos``/``xpos``/``geom_xpos``, ``site_xmat``/...), current after each
+    kinematics update; ``position`` and ``rotation`` are world 0's. :meth:`jacobians`
+    fills the translational and/or rotational Jacobians (N, 3, nv) of the frame's origin.
     """
 
-    __slots__ = ("name", "type", "id", "position", "rotation", "_jac", "_model", "_data")
+    __slots__ = ("name", "type", "id", "body", "positions", "rotations", "position", "rotation", "_jac", "_model",
+                 "_data")
 
     def __init__(self, robot: Robot, name: str, frame_type: str = "site"):
-        if frame_type not in _FRAMES:
+        if frame_type not in FRAMES:
             raise InvalidInput(f"frame_type must be one of {FRAME_TYPES}, got {frame_type!r}")
-        kind, position, rotation, jac = _FRAMES[frame_type]
-        self.name = name
-        self.type = frame_type
+        kind, position, rotation, jac, body = FRAMES[frame_type]
+        self.name, self.type = name, frame_type
         self.id = name_to_id(robot.model, kind, name, robot.name)
-        self.position = getattr(robot.data, position)[self.id]
-        self.rotation = getattr(robot.data, rotation)[self.id].reshape(3, 3)
+        self.body = self.id if body is None else int(getattr(robot.model, body)[self.id])  # the body it is on
+        i = self.id
+        self.positions = getattr(robot.data, position)[i:i + 1]
+        self.rotations = getattr(robot.data, rotation)[i:i + 1].reshape(1, 3, 3)
+        self.position, self.rotation = self.positions[0], self.rotations[0]
         self._jac, self._model, self._data = jac, robot.model, robot.data
 
+    def jacobians(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
+        """Fill the (1, 3, nv) translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
+        self._jac(self._model, self._data, None if jacp is None else jacp[0], None if jacr is None else jacr[0],
+                  self.id)
+
     def jacobian(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
-        """Fill the 3 x nv translational (``jacp``) and/or rotational (``jacr``) Jacobians."""
+        """Fill the 3 x nv Jacobians of this one world (mink's shapes)."""
         self._jac(self._model, self._data, jacp, jacr, self.id)
 
     def jacobian_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> Callable[[], None]:
-        """A call with no arguments that does :meth:`jacobian` into these arrays (MuJoCo's
-        function with its arguments bound: no Python frame each step)."""
+        """A call with no arguments that does :meth:`jacobian` into these 3 x nv arrays
+        (MuJoCo's function with its arguments bound: no Python frame each step)."""
         return functools.partial(self._jac, self._model, self._data, jacp, jacr, self.id)
+
+    def jacobians_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> Callable[[], None]:
+        """:meth:`jacobian_filler` for (1, 3, nv) arrays (:meth:`jacobians`)."""
+        return self.jacobian_filler(None if jacp is None else jacp[0], None if jacr is None else jacr[0])
 
     def __repr__(self) -> str:
         return f"Frame({self.name!r}, {self.type!r}, id={self.id})"
@@ -222,14 +277,6 @@ def load_model(scene: str | Path) -> mujoco.MjModel:
         raise ModelError(f"cannot load {'URDF' if urdf else 'MJCF'} {path}: {_compile_message(exc, urdf)}") from None
 
 
-def compile_spec(spec: mujoco.MjSpec) -> mujoco.MjModel:
-    """Compile an :class:`mujoco.MjSpec` (a model built in Python) with a clear error."""
-    try:
-        return spec.compile()
-    except ValueError as exc:
-        raise ModelError(f"cannot compile the MjSpec: {_compile_message(exc, False)}") from None
-
-
 def _compile_message(exc: Exception, urdf: bool) -> str:
     message = " ".join(str(exc).split())
     if urdf and _MASSLESS in message:
@@ -238,11 +285,15 @@ def _compile_message(exc: Exception, urdf: bool) -> str:
 
 
 def as_model(model) -> mujoco.MjModel:
-    """An MjModel from an MjModel or an MjSpec (compiled), else :class:`InvalidInput`."""
+    """An MjModel from an MjModel or an MjSpec (compiled, ModelError if it fails), else
+    :class:`InvalidInput`."""
     if isinstance(model, mujoco.MjModel):
         return model
     if isinstance(model, mujoco.MjSpec):
-        return compile_spec(model)
+        try:
+            return model.compile()
+        except ValueError as exc:
+            raise ModelError(f"cannot compile the MjSpec: {_compile_message(exc, False)}") from None
     raise InvalidInput(f"expected a mujoco.MjModel or mujoco.MjSpec, got {type(model).__name__}; "
                        "load a file or a bundled robot with Robot.load(path_or_name)")
 
@@ -262,23 +313,19 @@ class JointLimits:
 
     def violation(self, q: np.ndarray) -> float:
         """Largest excursion beyond a limit (0.0 when all are kept), in joint units."""
-        if len(self.names) == 0:
-            return 0.0
-        values = q[self.qpos_index]
-        return float(max(0.0, np.max(self.lower - values), np.max(values - self.upper)))
+        return float(self.violations(np.asarray(q)[None])[0])
 
     def violations(self, qs: np.ndarray) -> np.ndarray:
-        """:meth:`violation` of each row of ``qs`` (steps x nq), in one vectorised pass.
+        """:meth:`violation` of each row of ``qs`` (steps x nq), in one vectorised pass (a
+        row with a NaN counts 0.0)."""
+        worst = self.excess(np.asarray(qs, dtype=float)).max(axis=1, initial=0.0)
+        return np.fmax(0.0, worst) + 0.0  # + 0.0: never -0.0
 
-        A row with a NaN counts 0.0, as :meth:`violation` does.
-        """
-        qs = np.asarray(qs, dtype=float)
-        if len(self.names) == 0 or len(qs) == 0:
-            return np.zeros(len(qs))
-        values = qs[:, self.qpos_index]
-        below = np.max(self.lower - values, axis=1)
-        above = np.max(values - self.upper, axis=1)
-        return np.fmax(np.fmax(0.0, below), above) + 0.0  # + 0.0: never -0.0, as max(0.0, ...)
+    def excess(self, q: np.ndarray) -> np.ndarray:
+        """How far each limited joint of ``q`` (..., nq) lies beyond its range, (..., joints):
+        negative inside."""
+        values = q[..., self.qpos_index]
+        return np.maximum(self.lower - values, values - self.upper)
 
     def tightened(self, ranges: dict[str, tuple[float, float]]) -> JointLimits:
         """A copy with some joints' ranges replaced, each inside the old one.
@@ -326,6 +373,9 @@ class Robot:
         InvalidInput: ``model`` is neither an MjModel nor an MjSpec.
     """
 
+    n = 1  # worlds: the engine's arrays have a leading axis of this length
+    batched = False  # what a user reads is world 0 of them (``present``)
+
     def __init__(self, model: mujoco.MjModel | mujoco.MjSpec, name: str | None = None,
                  keyframe: str | None = None, *, allow_outside_limits: bool = False):
         model = as_model(model)
@@ -335,13 +385,14 @@ class Robot:
         self.name = name or model.names[: model.names.find(b"\0")].decode() or "robot"
         check_model(model, f"model {self.name!r}")
         self.allow_outside_limits = bool(allow_outside_limits)
-        self.nq = model.nq
-        self.nv = model.nv
+        self.nq, self.nv = model.nq, model.nv
+        self.qpos = self._qpos[None]  # (1, nq): the engine's view of the one world
         self._kinematics_state = b""
         self._has_mocap = model.nmocap > 0  # read once: MuJoCo's getter costs ~0.1 µs, twice a step
         self._velocity_shape = (model.nv,)
         self.joint_limits = self._read_joint_limits()
         self.velocity_limits = self._read_velocity_limits()
+        self._equality_rows: dict[tuple[int, ...], EqualityRows] = {}  # per set of equalities read
         # qpos0 is checked at the first step (ensure_kinematics), a keyframe or set_q at once.
         self._start_unchecked = True
         if keyframe is not None:
@@ -387,8 +438,7 @@ class Robot:
         if self.allow_outside_limits:
             return
         limits = self.joint_limits
-        values = q[limits.qpos_index]
-        excess = np.maximum(limits.lower - values, values - limits.upper)
+        values, excess = q[limits.qpos_index], limits.excess(q)
         outside = np.flatnonzero(excess > KEYFRAME_TOLERANCE)
         if not len(outside):
             return
@@ -424,7 +474,12 @@ class Robot:
 
     def update_kinematics(self, state: bytes | None = None) -> None:
         """The one kinematics update per control step: frames and Jacobian data
-        (``state``: the configuration's bytes, when the caller has them already)."""
+        (``state``: the configuration's bytes, when the caller has them already).
+
+        Raises:
+            InvalidInput: a configuration not finite or beyond ``MAX_CONFIGURATION``.
+        """
+        self._check_magnitude()
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
         self._kinematics_state = self._state_bytes() if state is None else state
@@ -446,9 +501,16 @@ class Robot:
             self._start_unchecked = False
         state = self._state_bytes() if self._has_mocap else self._qpos.tobytes()
         if state != self._kinematics_state:  # update_kinematics, inline (every step)
+            self._check_magnitude()
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_comPos(self.model, self.data)
             self._kinematics_state = state
+
+    def _check_magnitude(self) -> None:
+        """:func:`check_configurations` of q: one MuJoCo dot product on the usual call (NaN
+        fails it; |q| <= MAX_CONFIGURATION in norm is within it entry by entry)."""
+        if not mujoco.mju_dot(self._qpos, self._qpos) <= MAX_CONFIGURATION * MAX_CONFIGURATION:
+            check_configurations(self.model, self.qpos, False)
 
     def _state_bytes(self) -> bytes:
         if self._has_mocap:
@@ -479,12 +541,7 @@ class Robot:
 
     def _checked_velocity(self, qdot, dt) -> np.ndarray:
         """The slow path of :meth:`integrate`: raise the precise error, or return a clean copy."""
-        try:
-            dt_ok = 0.0 < dt < math.inf
-        except TypeError:
-            dt_ok = False
-        if not dt_ok:
-            raise InvalidInput(f"integration step dt must be positive and finite, got {dt!r}")
+        check_step(dt)
         try:
             qdot = np.array(qdot, dtype=float)
         except (TypeError, ValueError):
@@ -495,12 +552,66 @@ class Robot:
             raise InvalidInput(f"joint velocity contains NaN or inf: {qdot}")
         return qdot
 
+    @staticmethod
+    def present(array: np.ndarray) -> np.ndarray:
+        """What a user reads of an engine array (N, ...): its world 0 (a view)."""
+        return array[0]
+
+    def world(self, index: int) -> Robot:
+        """World ``index`` as a one-world robot: this robot itself (index 0)."""
+        if index != 0:
+            raise InvalidInput(f"robot {self.name!r} has one world (0), not {index}")
+        return self
+
+    def subtree_com(self, body: int) -> np.ndarray:
+        """(1, 3) view of the centre of mass of ``body``'s subtree (``subtree_com``)."""
+        return self.data.subtree_com[body:body + 1]
+
+    def com_jacobian(self, body: int, out: np.ndarray) -> np.ndarray:
+        """(1, 3, nv) Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``) into ``out``."""
+        mujoco.mj_jacSubtreeCom(self.model, self.data, out[0], body)
+
+    def point_jacobian_filler(self, body: int, points: np.ndarray, out: np.ndarray) -> Callable[[], None]:
+        """A call with no arguments that writes the (1, 3, nv) translational Jacobian
+        (``mj_jac``) of the world point ``points`` (1, 3) as it is then, fixed to ``body``,
+        into ``out`` (MuJoCo's function with its arguments bound)."""
+        return functools.partial(mujoco.mj_jac, self.model, self.data, out[0], None, points[0], body)
+
+    def distance_filler(self, pairs, cutoffs: np.ndarray, distances: np.ndarray,
+                        fromto: np.ndarray) -> Callable[[], None]:
+        """A call with no arguments that writes the signed distance of each geom pair
+        (g1, g2) into ``distances`` (1, P) and its closest points (from g1 to g2) into
+        ``fromto`` (1, P, 6): ``mj_geomDistance`` on this robot's data, searching up to
+        ``cutoffs`` (1, P) (a pair farther apart reads its cutoff, its points zero)."""
+        rows = [(int(g1), int(g2), points) for (g1, g2), points in zip(pairs, fromto[0])]
+        return functools.partial(measure_pairs, self.model, self.data, rows, cutoffs[0], distances[0])
+
+    def equality_rows(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo's rows of the equalities ``ids`` (ascending, each active and acting on a
+        dof) at the current kinematics, in ``mj_makeConstraint``'s layout: residual (1, m)
+        and Jacobian (1, m, nv) (``efc_pos``, ``efc_J``; every other constraint type
+        disabled for the call, see :class:`~qpik.equalities.EqualityRows`). The arrays
+        are the robot's, overwritten by the next call for the same equalities; the data's
+        ``efc_*`` arrays are rewritten.
+
+        Raises:
+            ModelError: an id without rows (inactive, acting on no dof), or active
+                equalities changed since the first call for these ids.
+        """
+        return cached_rows(self._equality_rows, ids, lambda key: EqualityRows(self.model, self.data, key))
+
+    def mass_matrix(self, out: np.ndarray) -> np.ndarray:
+        """(1, nv, nv) joint-space inertia M(q) at the current kinematics (``mj_crb``, then
+        ``mj_fullM``: armature included) into ``out``."""
+        mujoco.mj_crb(self.model, self.data)
+        mujoco.mj_fullM(self.model, self.data, out[0])
+        return out
+
     # Names -------------------------------------------------------------------------
     @property
     def joint_names(self) -> tuple[str, ...]:
         """Every joint's name, in the model's order (``joint<i>`` for an unnamed one)."""
-        m = self.model
-        return tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(m.njnt))
+        return tuple(joint_name(self.model, j) for j in range(self.model.njnt))
 
     def object_id(self, kind: mujoco.mjtObj, name: str) -> int:
         """The id of a named model object; :class:`UnknownName` lists the closest names."""
@@ -516,39 +627,26 @@ class Robot:
                            "with keyframe=None, or pass allow_outside_limits=True")
         mujoco.mj_resetDataKeyframe(m, self.data, key_id)
 
-    def site_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_SITE, name)
-
-    def body_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_BODY, name)
-
-    def geom_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_GEOM, name)
-
-    def joint_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_JOINT, name)
-
-    def keyframe_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_KEY, name)
-
-    def equality_id(self, name: str) -> int:
-        return self.object_id(mujoco.mjtObj.mjOBJ_EQUALITY, name)
+    # The id of a named site, body, ...; UnknownName lists the closest names.
+    site_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_SITE)
+    body_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_BODY)
+    geom_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_GEOM)
+    joint_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_JOINT)
+    keyframe_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_KEY)
+    equality_id = functools.partialmethod(object_id, mujoco.mjtObj.mjOBJ_EQUALITY)
 
     def joint_dofs(self, name: str) -> np.ndarray:
         """The dof indices of a joint (6 for a free joint, 3 for a ball, else 1)."""
         jid = self.joint_id(name)
-        count = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}.get(
-            int(self.model.jnt_type[jid]), 1)
+        count = _DOF_COUNT.get(int(self.model.jnt_type[jid]), 1)
         return int(self.model.jnt_dofadr[jid]) + np.arange(count)
 
     def dof_name(self, dof: int) -> str:
         """The joint a dof belongs to (``name[k]`` for the k-th dof of a ball or free joint)."""
         m = self.model
         joint = int(m.dof_jntid[dof])
-        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"joint{joint}"
-        offset = dof - int(m.jnt_dofadr[joint])
-        single = int(m.jnt_type[joint]) in _SCALAR_JOINTS
-        return name if single else f"{name}[{offset}]"
+        name = joint_name(m, joint)
+        return name if int(m.jnt_type[joint]) in _SCALAR_JOINTS else f"{name}[{dof - int(m.jnt_dofadr[joint])}]"
 
     def joint_qpos_index(self, name: str) -> int:
         return int(self.model.jnt_qposadr[self.joint_id(name)])
@@ -568,15 +666,15 @@ class Robot:
 
     def frame_position(self, frame: Frame) -> np.ndarray:
         """World position of a frame of this model on this robot (a view)."""
-        return getattr(self.data, _FRAMES[frame.type][1])[frame.id]
+        return getattr(self.data, FRAMES[frame.type][1])[frame.id]
 
     def frame_rotation(self, frame: Frame) -> np.ndarray:
         """World rotation of a frame of this model on this robot (a 3x3 view)."""
-        return getattr(self.data, _FRAMES[frame.type][2])[frame.id].reshape(3, 3)
+        return getattr(self.data, FRAMES[frame.type][2])[frame.id].reshape(3, 3)
 
     def frame_jacobian(self, frame: Frame, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
         """Fill a frame's 3 x nv Jacobians on this robot (another robot of the same model)."""
-        _FRAMES[frame.type][3](self.model, self.data, jacp, jacr, frame.id)
+        FRAMES[frame.type][3](self.model, self.data, jacp, jacr, frame.id)
 
     def site_position(self, site_id: int) -> np.ndarray:
         """World position of a site (a view, valid after :meth:`update_kinematics`)."""
@@ -593,12 +691,8 @@ class Robot:
     # Limits ------------------------------------------------------------------------
     def _read_joint_limits(self) -> JointLimits:
         m = self.model
-        ids = [
-            j
-            for j in range(m.njnt)
-            if m.jnt_limited[j] and int(m.jnt_type[j]) in _SCALAR_JOINTS
-        ]
-        names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in ids)
+        ids = [j for j in range(m.njnt) if m.jnt_limited[j] and int(m.jnt_type[j]) in _SCALAR_JOINTS]
+        names = tuple(joint_name(m, j) for j in ids)
         rng = m.jnt_range[ids] if ids else np.zeros((0, 2))
         return JointLimits(
             names=names,
@@ -621,7 +715,7 @@ class Robot:
             if jid < 0:
                 raise ModelError(f"numeric {name!r} names no joint of the model; "
                                  f"{name_hint(joint, object_names(m, mujoco.mjtObj.mjOBJ_JOINT), 'joint')}")
-            dofs = {int(mujoco.mjtJoint.mjJNT_FREE): 6, int(mujoco.mjtJoint.mjJNT_BALL): 3}.get(int(m.jnt_type[jid]), 1)
+            dofs = _DOF_COUNT.get(int(m.jnt_type[jid]), 1)
             adr, size = m.numeric_adr[k], m.numeric_size[k]
             values = np.array(m.numeric_data[adr:adr + size], dtype=float)
             if size not in (1, dofs) or not np.all(values > 0) or not np.all(np.isfinite(values)):
@@ -643,12 +737,40 @@ class Robot:
                          "JointVelocityLimit(robot, {joint: vmax}) the joints to bound")
 
 
-def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the controller") -> None:
-    """Refuse a task or limit built on another :class:`Robot` than the controller's.
+def measure_pairs(model: mujoco.MjModel, data: mujoco.MjData, rows, cutoffs, distances) -> None:
+    """``mj_geomDistance`` on ``data`` of each pair of ``rows`` (g1, g2, its closest points'
+    row of fromto, written), searching up to ``cutoffs`` (P,), into ``distances`` (P,)."""
+    for p, (g1, g2, points) in enumerate(rows):
+        distances[p] = mujoco.mj_geomDistance(model, data, g1, g2, cutoffs[p], points)
 
-    Another instance, even of the same model, has its own MjData: a task bound to it
-    would read a robot that never moves. Objects without a ``robot`` attribute (a user's
-    limit that needs none) pass.
+
+def check_step(dt) -> None:
+    """InvalidInput unless ``dt``, an integration step, is a positive finite number."""
+    try:
+        ok = 0.0 < dt < math.inf
+    except TypeError:
+        ok = False
+    if not ok:
+        raise InvalidInput(f"integration step dt must be positive and finite, got {dt!r}")
+
+
+def cached_rows(cache: dict, ids, make: Callable) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of the equalities ``ids``: ``cache``'s reader for them (``make(ids)`` on
+    the first call, ``ids`` as a tuple), called."""
+    key = ids if isinstance(ids, tuple) else tuple(np.asarray(ids, dtype=int).reshape(-1).tolist())
+    reader = cache.get(key)
+    if reader is None:
+        reader = cache[key] = make(key)
+    return reader()
+
+
+def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the controller") -> None:
+    """Refuse a task or limit built on another robot than the controller's.
+
+    Another instance, even of the same model, has its own state (its MjData; a
+    :class:`qpik.batch.Robot` its N worlds): a task bound to it would read a robot that
+    never moves. A one-world :class:`Robot` and a batch of the same model are different
+    robots too. Objects without a ``robot`` attribute (a user's limit that needs none) pass.
 
     Raises:
         InvalidInput: the first task or limit bound to another robot, named.
@@ -659,8 +781,23 @@ def check_same_robot(robot: Robot, tasks, limits=(), controller: str = "the cont
             if other is robot:
                 continue
             label = getattr(item, "name", None) or type(item).__name__
-            same = isinstance(other, Robot) and (other.name, other.nq, other.nv) == (robot.name, robot.nq, robot.nv)
-            why = (f"another Robot instance of the same model {robot.name!r} (its own MjData, which this controller "
-                   "never moves)" if same else f"robot {getattr(other, 'name', other)!r}")
-            raise InvalidInput(f"{controller}: {kind} {label!r} was built on {why}, not on the controller's robot "
-                               f"{robot.name!r}: build every task and limit on the robot given to the controller")
+            raise InvalidInput(f"{controller}: {kind} {label!r} was built on {_other_robot(other, robot)}, not on "
+                               f"the controller's {_robot_kind(robot)} {robot.name!r}: build every task and limit on "
+                               "the robot given to the controller")
+
+
+def _robot_kind(robot) -> str:
+    """``Robot`` or ``batch.Robot`` (what a message calls it)."""
+    return "batch.Robot" if getattr(robot, "batched", False) else "Robot"
+
+
+def _other_robot(other, robot) -> str:
+    """How a refusal names the robot a task was built on instead of ``robot``."""
+    sizes = (getattr(other, "name", None), getattr(other, "nq", None), getattr(other, "nv", None))
+    if sizes != (robot.name, robot.nq, robot.nv):
+        return f"robot {getattr(other, 'name', other)!r}"
+    kind = _robot_kind(other)
+    if kind != _robot_kind(robot):
+        return f"a {kind} of the same model {robot.name!r}"
+    state = "its own worlds" if other.batched else "its own MjData"
+    return f"another {kind} instance of the same model {robot.name!r} ({state}, which this controller never moves)"

@@ -10,7 +10,7 @@ import pytest
 
 import qpik
 from qpik.app.sweep.rollout import REACH_TOLERANCE, run_chunk
-from qpik.app.sweep.studies import DT, MOVE, STEPS, study
+from qpik.app.sweep.studies import DT, MOVE, STEPS, ported, study
 from qpik.robots.arm.scenarios import (
     ARM_K0,
     DAMPER_INFLUENCE,
@@ -77,6 +77,8 @@ def serial_metrics(kind: str, start_q, target, gain) -> dict:
 
 @pytest.mark.parametrize("kind", ["qp", "qp-soft", "pinv"])
 def test_arm_metrics_equal_a_serial_rerun_of_the_same_worlds(kind):
+    if not ported("arm", kind):
+        pytest.skip(f"the arm's {kind} sweep needs a batched class the engine does not have yet")
     arm = study("arm")
     samples = {key: value[WORLDS] for key, value in arm.samples(seed=3, start=0, stop=12).items()}
     batched = run_chunk(arm, kind, samples)

@@ -1,7 +1,9 @@
 """SNS as it was at commit a61460b (before the saturation loop was made cheaper), kept
 verbatim apart from this docstring, its imports, its class name and the rank rule of
 the saturation passes (marked "pass rank": ‖J‖ and a tolerance of 1e-2, as the package
-decides since a pass's rank no longer follows the task scale), for
+decides since a pass's rank no longer follows the task scale) and the engine's world
+axis (a level's rows are world 0 of the package's Stack, a limit writes a (1, nv) view of
+the box: marked "world axis"), for
 tests/core/test_sns_equivalence.py only: the package's SNSController must give the same
 joint velocities, task scales and saturation counts, step by step. Not part of the
 package; see qpik.controllers.sns for the algorithm."""
@@ -22,7 +24,7 @@ from qpik.tasks import Task
 
 
 def StackedLevel(robot: Robot, tasks, weighted: bool) -> Stack:  # the package's stack, as it was named
-    return Stack(robot.nv, tasks, weighted)
+    return Stack(robot, tasks, weighted)
 
 
 _gesvd = lapack.dgesvd
@@ -130,7 +132,7 @@ class ReferenceSNSController:
         self._lb0, self._ub0 = np.full(nv, -np.inf), np.full(nv, np.inf)
         for limit in self.limits:
             if limit.constant:
-                limit.apply(self.dt, self._lb0, self._ub0)
+                limit.apply(self.dt, self._lb0[None], self._ub0[None])  # world axis
         self._dynamic_limits = [lim for lim in self.limits if not lim.constant]
         self._braking = self._braking_terms(max_acceleration)
         self.lb, self.ub = np.zeros(nv), np.zeros(nv)
@@ -164,7 +166,7 @@ class ReferenceSNSController:
         lb[:] = self._lb0
         ub[:] = self._ub0
         for limit in self._dynamic_limits:
-            limit.apply(self.dt, lb, ub)
+            limit.apply(self.dt, lb[None], ub[None])  # world axis
         q = self.robot.q
         for qpos, dofs, lower, upper, amax in self._braking:
             up = np.sqrt(2.0 * amax * np.maximum(upper - q[qpos], 0.0))
@@ -204,7 +206,7 @@ class ReferenceSNSController:
         the basis left for the levels below)."""
         nv = self.robot.nv
         free_count = nv if basis is None else basis.shape[1]
-        J, v = level.J, level.v
+        J, v = level.J[0], level.v[0]  # world axis: one robot
         if free_count == 0 or J.shape[0] == 0:
             return above, 0.0, 0, basis
         identity = level.identity  # J = I: no decomposition needed

@@ -87,10 +87,10 @@ def test_row_is_the_distance_rate(robot):
     robot.update_kinematics()
     limit = CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], minimum_distance=D_MIN, detection_distance=1.0)
     G, h = np.zeros((1, robot.nv)), np.zeros(1)
-    limit.apply(DT, None, None, G, h)
+    limit.apply(DT, None, None, G[None], h[None])  # one world's rows
     damper_bound = h[0]
     limit.damper_rate = None
-    limit.apply(DT, None, None, G, h)
+    limit.apply(DT, None, None, G[None], h[None])
     qdot = np.array([0.3, -0.7, 0.4])
     eps = 1e-7
     q0 = robot.q.copy()
@@ -105,10 +105,19 @@ def test_row_is_the_distance_rate(robot):
 
 
 def test_far_pairs_add_no_constraint(robot):
+    """A pair farther than d_i plus its reach (how far one step in the speed box can bring
+    it) gets no row (0 ≤ +inf). At 1 rad/s the hand's reach over a step is at most
+    Δt Σ_k L_k ≈ 0.002 (1.13 + 0.63 + 0.23) ≈ 4 mm, and it is 0.35 m from the box. Without
+    a speed bound every pair is within reach and keeps its row (the module's rule: no pair
+    is crossed in one step from beyond d_i)."""
     limit = CollisionAvoidanceLimit(robot, [(["hand"], ["box"])], detection_distance=0.05)
-    G, h = np.ones((1, robot.nv)), np.zeros(1)
+    lower, upper = np.full((1, robot.nv), -1.0), np.full((1, robot.nv), 1.0)  # one world's box
+    G, h = np.ones((1, 1, robot.nv)), np.zeros((1, 1))
+    limit.apply(DT, lower, upper, G, h)
+    assert mujoco.mj_geomDistance(robot.model, robot.data, *limit.pairs[0], 1.0, None) > 0.3
+    assert h[0, 0] == np.inf and not G.any()
     limit.apply(DT, None, None, G, h)
-    assert h[0] == np.inf and not G.any()
+    assert np.isfinite(h[0, 0]) and G.any()
 
 
 def test_bad_input(robot):
@@ -135,7 +144,7 @@ def test_mesh_distances_are_exact_where_the_model_turns_native_collision_off(jac
     robot.update_kinematics()
     limit = CollisionAvoidanceLimit(robot, [(["b_5"], ["box"])], minimum_distance=0.0, detection_distance=0.1)
     rows = len(limit.pairs)
-    limit.apply(DT, None, None, np.zeros((rows, robot.nv)), np.zeros(rows))
+    limit.apply(DT, None, None, np.zeros((1, rows, robot.nv)), np.zeros((1, rows)))  # one world's rows
     assert robot.model.opt.disableflags & native_off  # restored
     fallback = [mujoco.mj_geomDistance(robot.model, robot.data, *pair, 0.1, None) for pair in limit.pairs]
     robot.model.opt.disableflags &= ~native_off

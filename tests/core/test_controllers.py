@@ -108,7 +108,7 @@ def test_velocity_damper_never_steps_past_a_bound(influence):
     robot = _arm_at([np.pi / 2, 0.0, 0.0, 0.995])
     limit = JointPositionLimit(robot, influence=influence, damper_rate=20.0)
     lb, ub = np.full(4, -8.0), np.full(4, 8.0)
-    limit.apply(dt, lb, ub)
+    limit.apply(dt, lb[None], ub[None])  # one world's box
     assert 0.995 + ub[3] * dt <= 1.0
     assert ub[3] == pytest.approx(min(20.0 / influence, 1.0 / dt) * (1.0 - 1e-10 - 0.995), rel=1e-9)
 
@@ -155,8 +155,7 @@ def test_yoshikawa_measure_and_gradient_match_dh_model():
         return np.sqrt(np.linalg.det(J @ J.T))
 
     assert measure.value() == pytest.approx(w(q), rel=1e-12)
-    grad = np.zeros(4)
-    measure.gradient(grad)
+    grad = measure.gradient()[0]  # world 0 of (N, nv)
     fd = np.array([(w(q + e) - w(q - e)) / 2e-7 for e in np.eye(4) * 1e-7])
     np.testing.assert_allclose(grad, fd, atol=1e-6)
     # The full 3-row measure is zero on a planar arm: the reason for the axis mask.
@@ -166,8 +165,7 @@ def test_yoshikawa_measure_and_gradient_match_dh_model():
 def test_sigma_proxy_gradient_matches_formula():
     q = np.array([0.3, 1.1, -0.7, 0.4])
     robot = _arm_at(q)
-    grad = np.zeros(4)
-    SigmaProxy(robot, ["theta2", "theta3"]).gradient(grad)
+    grad = SigmaProxy(robot, ["theta2", "theta3"]).gradient()[0]  # world 0 of (N, nv)
     np.testing.assert_allclose(grad, arm.sigma_gradient(q), atol=1e-15)
     assert SigmaProxy(robot, ["theta2", "theta3"]).value() == pytest.approx(arm.sigma(q))
 

@@ -55,10 +55,11 @@ def _imports(path: Path, top_level_only: bool, run_time: bool = False) -> set[st
     return {m for m in found if m in modules}
 
 
-# The core: the robot, tasks, limits, the step's problem, controllers, solvers, the batched
-# engine and what they stand on. Above it: the bundled robots, the rollouts, the app.
-CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.linalg", "qpik.extras", "qpik.io", "qpik.scenes",
-        "qpik.tasks", "qpik.limits", "qpik.problem", "qpik.controllers", "qpik.solvers", "qpik.batch")
+# The core: the robot, the engine (tasks, limits, the step's problem, controllers and
+# their numerics primitives), solvers, the batched robot and what they stand on. Above it: the bundled robots, the rollouts, the app.
+CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.numerics", "qpik.extras", "qpik.io", "qpik.scenes",
+        "qpik.equalities", "qpik.tasks", "qpik.limits", "qpik.problem", "qpik.controllers", "qpik.solvers",
+        "qpik.batch")
 ABOVE_THE_CORE = ("qpik.robots", "qpik.rollout", "qpik.app", "qpik.scenario")
 
 
@@ -101,7 +102,7 @@ def test_the_core_at_work_loads_nothing_above_it():
     batched): no module of the robots, the rollouts or the app is loaded."""
     done = subprocess.run([sys.executable, "-c", CORE_ONLY], capture_output=True, text=True, check=True)
     loaded = done.stdout.split()
-    assert "qpik.robot" in loaded and "qpik.batch.controllers" in loaded and "qpik.scenes" in loaded
+    assert "qpik.robot" in loaded and "qpik.controllers.qp" in loaded and "qpik.scenes" in loaded
     assert not [m for m in loaded if _within(m, ABOVE_THE_CORE)], loaded
 
 

@@ -81,8 +81,7 @@ def test_yoshikawa_gradient_matches_finite_differences(model_path, name, frame, 
         mujoco.mj_integratePos(robot.model, robot.q, rng.normal(scale=0.4, size=robot.nv), 1.0)
         robot.update_kinematics()
         measure = Yoshikawa(robot, frame, frame_type, axes=axes, orientation_axes=orientation_axes)
-        gradient = np.zeros(robot.nv)
-        measure.gradient(gradient)
+        gradient = robot.present(measure.gradient()).copy()  # (nv,): the robot's one world
         fd = central_differences(measure, robot)
         assert np.max(np.abs(fd)) > 1e-3  # a measure that varies, so the check can fail
         np.testing.assert_allclose(gradient, fd, rtol=0, atol=1e-6 * np.max(np.abs(fd)))
@@ -102,12 +101,12 @@ def test_yoshikawa_on_the_arm_is_the_closed_form():
 def test_singular_configuration_has_zero_measure_and_gradient():
     robot = Robot(mujoco.MjModel.from_xml_string(MIXED))
     measure = Yoshikawa(robot, "base", "body", axes="", orientation_axes="xyz")  # the base's angular rows...
-    gradient = np.full(robot.nv, np.nan)
-    measure.gradient(gradient)
+    gradient = robot.present(measure.gradient())
+    assert gradient.shape == (robot.nv,)
     assert measure.value() == pytest.approx(1.0)  # ...are the identity: w = 1, constant
     np.testing.assert_allclose(gradient, 0.0, atol=1e-15)
     lifeless = Yoshikawa(Robot.load("arm"), "end_effector", axes="z")  # the planar arm never moves along z
-    lifeless.gradient(gradient)
+    gradient = lifeless.robot.present(lifeless.gradient())
     assert lifeless.value() == 0.0
     np.testing.assert_array_equal(gradient, 0.0)
 
@@ -117,8 +116,7 @@ def test_manipulability_task_follows_the_gradient_on_its_dofs(humanoid_path):
     measure = Yoshikawa(robot, "lhand", "body")
     task = ManipulabilityTask(robot, measure, gain=3.0)
     task.update()
-    gradient = np.zeros(robot.nv)
-    measure.gradient(gradient)
+    gradient = robot.present(measure.gradient()).copy()
     assert task.joint_space and 0 not in task.dofs  # the free base is left out
     np.testing.assert_allclose(task.target_velocity, 3.0 * gradient[task.dofs])
 
@@ -127,8 +125,7 @@ def test_sigma_proxy_takes_its_joints_explicitly(jaco_path):
     robot = Robot.load(jaco_path)
     sigma = SigmaProxy(robot, ["joint_2", "joint_3"])
     robot.q[1:3] = [0.4, 1.1]
-    gradient = np.zeros(robot.nv)
-    sigma.gradient(gradient)
+    gradient = robot.present(sigma.gradient())
     np.testing.assert_allclose(gradient, [0, np.sin(0.4) * np.cos(0.4), np.sin(1.1) * np.cos(1.1), 0, 0, 0])
     assert sigma.value() == pytest.approx(0.5 * (np.sin(0.4) ** 2 + np.sin(1.1) ** 2))
     with pytest.raises(TypeError):
@@ -145,7 +142,9 @@ def test_a_diverged_configuration_is_a_divergence_error_not_a_warning():
     """Gradient ascent on w with an unlimited slide joint (the any-robot fuzz: the
     pseudoinverse law, no limits) extends the joint without end; once JJᵀ overflowed the
     task warned (RuntimeWarning from the determinant) on every step. A DivergenceError
-    now, with no warning; a long but finite extension still gives a finite gradient."""
+    now, with no warning; a long but finite extension still gives a finite gradient. The
+    configuration itself is refused past 1e10 (where MuJoCo resets one), so the overflow
+    comes from a site 1e200 out."""
     from qpik import DivergenceError
 
     xml = """<mujoco><worldbody><body><joint name="h" axis="0 0 1"/><geom size="0.05" mass="1"/>
@@ -157,7 +156,12 @@ def test_a_diverged_configuration_is_a_divergence_error_not_a_warning():
     robot.update_kinematics()
     task.update()
     assert np.all(np.isfinite(task.target_velocity)) and np.abs(task.target_velocity).max() > 0
-    robot.set_q([0.3, 1e200])
+    robot.set_q([0.3, 1e200])  # refused past 1e10, where MuJoCo resets a configuration
+    with pytest.raises(InvalidInput, match=r"beyond 1e\+10.*joint s at 1e\+200"):
+        robot.update_kinematics()
+    robot = Robot(mujoco.MjModel.from_xml_string(xml.replace('pos="0.5 0 0"', 'pos="1e200 0 0"')))
+    task = ManipulabilityTask(robot, Yoshikawa(robot, "tip", "site", axes="xy"))
+    robot.set_q([0.3, 1.0])
     robot.update_kinematics()
     with pytest.raises(DivergenceError, match="overflowed"):
         task.update()

@@ -294,7 +294,7 @@ def test_acceleration_limit_reset_and_bad_input():
     limit = AccelerationLimit(robot, 10.0)
     lb, ub = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
     limit.reset(np.full(robot.nv, 1.0))
-    limit.apply(DT, lb, ub)
+    limit.apply(DT, lb[None], ub[None])  # the box of the robot's one world, (1, nv) views
     np.testing.assert_allclose(ub, 1.0 + 10.0 * DT)
     np.testing.assert_allclose(lb, 1.0 - 10.0 * DT)
     with pytest.raises(InvalidInput, match="positive"):

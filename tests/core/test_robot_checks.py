@@ -155,4 +155,39 @@ def test_vectorised_violations_equal_the_per_configuration_violation(q, shift):
     vectorised = limits.violations(rows)
     expected = [limits.violation(row) for row in rows]
     np.testing.assert_array_equal(vectorised, expected)
+    index = limits.qpos_index  # the definition, one configuration at a time (a NaN counts 0.0)
+    reference = [max(0.0, np.max(limits.lower - row[index]), np.max(row[index] - limits.upper)) for row in rows]
+    np.testing.assert_array_equal(vectorised, reference)
     assert not np.any(np.signbit(vectorised))
+
+
+CART_POLE = """<mujoco><compiler angle="radian"/><worldbody><body name="cart">
+<joint name="slide" type="slide" axis="1 0 0"/><geom size="0.1"/>
+<body name="pole" pos="0 0 0.5"><joint name="hinge" axis="0 1 0"/><geom size="0.05"/>
+<site name="tip" pos="0 0 0.5"/></body></body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("value", [2e10, -1e11, np.inf, np.nan])
+def test_a_configuration_mujoco_would_reset_is_refused_by_one_robot_and_by_n(value):
+    """Past 1e10 (mjMAXVAL) MuJoCo's forward resets a configuration to qpos0: the batch's
+    frames would silently be qpos0's while one robot's are at q. Both refuse it, naming
+    the joint (and the world); a world within it is computed as before."""
+    from qpik import batch
+    from qpik.errors import InvalidWorlds
+    model = mujoco.MjModel.from_xml_string(CART_POLE)
+    one = Robot(model, allow_outside_limits=True)
+    one.q[:] = [value, 0.2]
+    with pytest.raises(InvalidInput, match="joint slide"):
+        one.ensure_kinematics()
+    robots = batch.Robot(model, n=3, allow_outside_limits=True)
+    robots.q[:] = [[0.3, 0.2], [value, 0.2], [1e9, 0.1]]
+    with pytest.raises(InvalidWorlds, match=r"not finite or beyond 1e\+10.* in worlds 1 \(world 1: joint slide") as refused:
+        robots.ensure_kinematics()
+    assert list(refused.value.worlds) == [1]
+    robots.q[1] = [0.5, 0.2]
+    robots.ensure_kinematics()
+    one.q[:] = [1e9, 0.1]
+    one.ensure_kinematics()
+    # The same MuJoCo arithmetic in both: equal to a few roundings of the position's norm.
+    expected = one.frame("tip").position
+    assert np.linalg.norm(robots.frame("tip").positions[2] - expected) <= 4 * np.finfo(float).eps * np.linalg.norm(expected)

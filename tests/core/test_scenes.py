@@ -17,20 +17,26 @@ from setuptools import find_packages
 
 from qpik.robot import Robot
 from qpik.robots import BUNDLED
-from qpik.scenes import SCENES
+from qpik.scenes import SCENES, SCENES_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE_FILES = ("arm.xml", "arm.urdf", "hexapod.xml")
 
 
 def test_bundled_scenes_are_the_top_level_folder_through_the_package():
+    """The package is a checkout's top-level scenes/ folder (this one's, or, where qpik
+    is imported from another checkout's editable install, that one's), holding this
+    checkout's files."""
     scenes = files("qpik.scenes")
     for name in SCENE_FILES:
         assert scenes.joinpath(name).is_file(), name
         assert (ROOT / "scenes" / name).read_text() == scenes.joinpath(name).read_text()
     assert {robot: path for robot, (path, _) in BUNDLED.items()} == SCENES  # the robots' registry, the core's names
+    checkout = SCENES_DIR.parent
+    assert SCENES_DIR == checkout / "scenes" == Path(str(scenes)).resolve()
+    assert (checkout / "pyproject.toml").is_file() and (checkout / "src" / "qpik").is_dir()
     for robot, path in SCENES.items():
-        assert path == ROOT / "scenes" / f"{robot}.xml"
+        assert path == SCENES_DIR / f"{robot}.xml"
         model = mujoco.MjModel.from_xml_path(str(path))
         assert Robot.load(robot).model.nq == model.nq
 
@@ -47,7 +53,7 @@ def test_pyproject_lists_every_package_under_src():
 LOAD_FROM_WHEEL = """
 import sys, qpik
 from pathlib import Path
-from qpik.scenes import SCENES
+from qpik.scenes import SCENES, SCENES_DIR
 assert Path(qpik.__file__).is_relative_to(sys.argv[1]), qpik.__file__
 for name in ("arm", "hexapod"):
     robot = qpik.Robot.load(name)

@@ -176,54 +176,56 @@ def test_too_fast_sns_stays_on_the_segment_and_arrives_late_the_soft_qp_cuts_acr
     assert s_sns.completion_time > s_qp.completion_time
 
 
-def test_closed_form_pseudoinverse_equals_numpy_and_falls_back_near_singular():
-    """One or two rows in closed form (Gram-Schmidt on the rows), against np.linalg.pinv:
-    random rows, rows at a small angle (the closed form from ‖x2 − c x1‖²), nearly
-    parallel rows (the SVD takes over), dependent and zero rows (rank decided as the SVD
-    decides it, against ``scale``)."""
-    from qpik.controllers.sns import _solve
+def test_pseudoinverse_equals_numpy_and_decides_rank_as_the_svd():
+    """One row in closed form (xᵀ/‖x‖²), more by one SVD, against np.linalg.pinv: random
+    rows, rows at a small angle, nearly parallel rows, dependent and zero rows (rank
+    decided against ``scale``)."""
+    from qpik.controllers.sns_null_space import pseudoinverse as _solve
     rng = np.random.default_rng(3)
     for _ in range(200):
         X = rng.normal(size=(2, int(rng.integers(2, 8))))
-        pinv, rank, vt = _solve(X, None, True)
-        assert rank == 2 and (vt is None or np.linalg.cond(X) > 50.0)  # SVD only when badly conditioned
+        pinv, rank, vt = _solve(X, None)
+        assert rank == 2 and vt is not None
         np.testing.assert_allclose(pinv, np.linalg.pinv(X), rtol=0, atol=1e-13 * np.abs(pinv).max())
         x = X[:1]
-        one = _solve(x, None, True)[0]
+        one, _, vt = _solve(x, None)
+        assert vt is None
         np.testing.assert_allclose(one, np.linalg.pinv(x), rtol=0, atol=1e-14 * np.abs(one).max())
     x1, e = rng.normal(size=5), rng.normal(size=5)
     e -= e.dot(x1) / x1.dot(x1) * x1  # rows at the given angle
-    for angle, closed in ((1e-1, True), (1e-3, False), (1e-9, False)):  # SVD below a condition of 1e2
+    for angle in (1e-1, 1e-3, 1e-9):
         X = np.array([x1, x1 + angle * np.linalg.norm(x1) * e / np.linalg.norm(e)])
-        pinv, rank, vt = _solve(X, None, True)
-        assert rank == 2 and (vt is None) == closed
+        pinv, rank, vt = _solve(X, None)
+        assert rank == 2
         np.testing.assert_allclose(pinv, np.linalg.pinv(X, rcond=1e-10), rtol=0,
                                    atol=1e-15 * np.abs(pinv).max() / angle)
     dependent = np.array([x1, 2.0 * x1])
-    pinv, rank, _ = _solve(dependent, None, True)
+    pinv, rank, _ = _solve(dependent, None)
     assert rank == 1
     np.testing.assert_allclose(pinv, np.linalg.pinv(dependent, rcond=1e-10), atol=1e-14)
-    assert _solve(np.zeros((2, 4)), 1.0, True)[1] == 0 and _solve(np.zeros((1, 4)), 1.0, True)[1] == 0
+    assert _solve(np.zeros((2, 4)), 1.0)[1] == 0 and _solve(np.zeros((1, 4)), 1.0)[1] == 0
     # below the threshold 1e-10 · scale the second row counts as dependent
     X = np.array([[1.0, 0.0, 0.0], [0.0, 1e-11, 0.0]])
-    assert _solve(X, 1.0, True)[1] == 1 and _solve(X, 1e-2, True)[1] == 2
+    assert _solve(X, 1.0)[1] == 1 and _solve(X, 1e-2)[1] == 2
 
 
 def test_scaling_takes_b_as_q_minus_a_or_zero():
     """_scaling reads b = q̇ − a joint by joint from the pass's q̇ (None: b = 0), skips
-    the saturated joints, and names the joint that limits s."""
+    the saturated joints, and names the joint that limits s (the passes of the last
+    world SNS ran, with its box as lists)."""
     robot = _arm_at([0.9, -0.7, 0.5, 0.5])
     position, _ = _tasks(robot)
     caps = np.array([1.0, 2.0, 4.0, 8.0])
     sns = SNSController(robot, [position], [JointVelocityLimit(robot, caps)], dt=DT)
     sns.compute_velocity()
-    assert sns._lower == list(-caps) and sns._upper == list(caps)
+    passes = sns._passes
+    assert passes.lower == list(-caps) and passes.upper == list(caps)
     a = [2.0, -1.0, 0.5, 0.0]
-    assert sns._scaling(a, None, []) == (0.5, 0)  # b = 0: joint 0 reaches 1 at s = 0.5
+    assert passes._scaling(a, None, []) == (0.5, 0)  # b = 0: joint 0 reaches 1 at s = 0.5
     q = [x + y for x, y in zip(a, [0.5, -1.5, 0.0, 0.0])]  # b = (0.5, -1.5, 0, 0)
-    assert sns._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
-    assert sns._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
-    assert sns._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8
+    assert passes._scaling(a, q, []) == (0.25, 0)  # joint 0: (1 - 0.5)/2
+    assert passes._scaling(a, q, [0]) == (0.5, 1)  # joint 0 held: joint 1, (-2 + 1.5)/-1
+    assert passes._scaling(a, [x + 9.0 if i == 3 else x for i, x in enumerate(a)], []) == (-1.0, 3)  # b3 = 9 > 8
 
 
 def test_reversal_fraction_counts_sign_changes_above_the_speed_on_both_sides():

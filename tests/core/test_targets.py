@@ -138,6 +138,20 @@ def test_the_default_gain_is_dead_beat(chain, dt):
     assert np.linalg.norm(goal - task.frame.position) < 1e-4
 
 
+def test_the_default_gain_is_dead_beat_in_every_world():
+    """N = 4 worlds: the controller's period sets K = 1/Δt in every world's gains, and the
+    gains a user reads ((N, 3) views of them, as every batched array) show it."""
+    from qpik import batch
+
+    robots = batch.Robot.load(mujoco.MjModel.from_xml_string(CHAIN), n=4)
+    task = FrameTask(robots, "tip")
+    assert task.needs_period and np.isnan(task.position_gain).all()
+    QPController(robots, [task], dt=0.01)
+    np.testing.assert_array_equal(task.gains, np.full((4, 6), 100.0))
+    np.testing.assert_array_equal(task.position_gain, np.full((4, 3), 100.0))
+    np.testing.assert_array_equal(task.orientation_gain, np.full((4, 3), 100.0))
+
+
 def test_the_default_gain_matches_minks_default(chain):
     """The same step as mink's FrameTask with its defaults (gain 1, costs 1): one target
     5 mm away with the rotation unchanged, a square full-rank Jacobian, so both solve

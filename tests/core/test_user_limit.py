@@ -1,4 +1,5 @@
-"""A limit written by a user through its one entry point, ``apply(dt, lb, ub, G, h)``,
+"""A limit written by a user through its one entry point, ``apply(dt, lower, upper, G, h)``
+(every world's: lower, upper (N, nv), G (N, rows, nv), h (N, rows); N = 1 for one robot),
 holds in every controller that takes it: a box in the QP, the hierarchy and SNS, a
 general row in the QP and the hierarchy (SNS refuses rows, saying so)."""
 
@@ -30,9 +31,9 @@ class SlowJoint(Limit):
     def __init__(self, robot, dof: int, speed: float):
         self.robot, self.dof, self.speed = robot, dof, speed
 
-    def apply(self, dt, lb, ub, G=None, h=None):
-        lb[self.dof] = max(lb[self.dof], -self.speed)
-        ub[self.dof] = min(ub[self.dof], self.speed)
+    def apply(self, dt, lower, upper, G=None, h=None):
+        np.maximum(lower[:, self.dof], -self.speed, out=lower[:, self.dof])
+        np.minimum(upper[:, self.dof], self.speed, out=upper[:, self.dof])
 
 
 class SlowSum(Limit):
@@ -43,9 +44,9 @@ class SlowSum(Limit):
     def __init__(self, robot, total: float):
         self.robot, self.total = robot, total
 
-    def apply(self, dt, lb, ub, G=None, h=None):
-        G[0] = -1.0
-        h[0] = self.total
+    def apply(self, dt, lower, upper, G=None, h=None):
+        G[:, 0] = -1.0
+        h[:, 0] = self.total
 
 
 def _setup():

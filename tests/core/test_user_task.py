@@ -19,6 +19,7 @@ from qpik import (
     Robot,
     SNSController,
     Task,
+    batch,
     simulate,
 )
 from qpik.errors import GainWarning
@@ -105,6 +106,35 @@ def test_a_user_task_in_a_rollout_with_a_reference(arm):
     log = simulate(controller, PositionReference(task, Hold(goal, 2.0)), 2.0, dt=DT)
     assert log.summary().final_error < 1e-6
     np.testing.assert_allclose(task.measured(), goal, atol=1e-6)
+
+
+class TargetedTipDistance(TipDistance):
+    """TipDistance given its target (one, or one per world): built on N worlds as on one."""
+
+    def __init__(self, robot, centre, target, site="end_effector", **options):
+        Task.__init__(self, robot, **options)
+        self.centre = np.asarray(centre, dtype=float)
+        self.site = robot.model.site(site).id
+        self.set_target(target)
+
+
+def test_what_a_user_task_measures_in_every_world_is_its_own_one_world_measure():
+    """N = 4 worlds in different states, one target each: ``measured()`` (x = x_d − e,
+    the user's methods evaluated world by world) equals each world's own one-robot task."""
+    rng = np.random.default_rng(4)
+    robots = batch.Robot.load("arm", n=4)
+    robots.set_q(robots.q + rng.uniform(-0.4, 0.4, robots.q.shape))
+    targets = rng.uniform(0.2, 0.5, (4, 1))
+    task = TargetedTipDistance(robots, [0.1, -0.2, 0.0], targets, gain=1.0)
+    measured = task.measured()
+    assert measured.shape == (4, 1)
+    for w in range(4):
+        one = Robot.load("arm")
+        one.set_q(robots.q[w])
+        one.update_kinematics()
+        alone = TargetedTipDistance(one, [0.1, -0.2, 0.0], targets[w], gain=1.0)
+        np.testing.assert_allclose(measured[w], alone.measured(), rtol=1e-10, atol=0)
+        np.testing.assert_allclose(measured[w], [alone.distance(one)], rtol=1e-10, atol=0)
 
 
 def test_the_base_class_owns_gain_weight_priority_and_damping(arm):

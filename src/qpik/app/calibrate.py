@@ -165,7 +165,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .output import OutputFolder
     from .progress import StepBars, wanted
 
-    require("scipy", "qpik calibrate", extra="calibration")  # before any work, as --plot's matplotlib
     if args.plot:
         require("matplotlib", "qpik calibrate --plot")
 

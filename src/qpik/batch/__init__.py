@@ -1,4 +1,4 @@
-"""qpik.batch: the same tasks, limits and controllers over N worlds of one model.
+"""qpik.batch: the engine's tasks, limits and controllers over N worlds of one model.
 
     from qpik import batch
     robots = batch.Robot.load("arm", n=1024)
@@ -8,41 +8,33 @@
     qdot = ctrl.compute_velocity()      # (N, nv)
     robots.integrate(qdot, 0.002)
 
-Names load on first use: ``from qpik import batch`` imports nothing heavy.
+The tasks, limits and controllers are qpik's own (:mod:`qpik.tasks`, :mod:`qpik.limits`,
+:mod:`qpik.controllers`), each written once over a leading world axis: the classes a
+one-world :class:`qpik.Robot` runs, and each world's answer is the one its own one-world
+run gives.
+What is batch-only here is the N-world robot (:class:`Robot`, its back-ends) and the
+headless :func:`rollout`. Names load on first use: ``from qpik import batch`` imports
+nothing heavy.
 """
 
 from __future__ import annotations
 
 import importlib
 
-_EXPORTS = {
-    "Robot": "qpik.batch.robot",
-    "Frame": "qpik.batch.robot",
-    "Task": "qpik.batch.tasks",
-    "FrameTask": "qpik.batch.tasks",
-    "PositionTask": "qpik.batch.tasks",
-    "OrientationTask": "qpik.batch.tasks",
-    "RelativeFrameTask": "qpik.batch.tasks",
-    "ComTask": "qpik.batch.tasks",
-    "PostureTask": "qpik.batch.tasks",
-    "DampingTask": "qpik.batch.tasks",
-    "ManipulabilityTask": "qpik.batch.tasks",
-    "SigmaProxy": "qpik.batch.tasks",
-    "EqualityTask": "qpik.batch.tasks",
-    "Limit": "qpik.batch.limits",
-    "JointPositionLimit": "qpik.batch.limits",
-    "JointVelocityLimit": "qpik.batch.limits",
-    "AccelerationLimit": "qpik.batch.limits",
-    "CollisionAvoidanceLimit": "qpik.batch.limits",
-    "QPController": "qpik.batch.controllers",
-    "PseudoinverseController": "qpik.batch.controllers",
-    "ActiveSetQP": "qpik.batch.qp",
-    "rollout": "qpik.batch.rollout",
-    "NotBatched": "qpik.batch.errors",
-    "WorldsFailed": "qpik.batch.errors",
-    "InvalidWorlds": "qpik.batch.errors",
-    "HostStepWarning": "qpik.batch.errors",
-}
+# Public name -> module that defines it. An engine class ported later is one word here.
+_EXPORTS = {name: f"qpik.{module}" for module, names in (
+    ("batch.robot", "Robot Frame"),  # the N worlds and their rollouts
+    ("batch.rollout", "rollout"),
+    ("tasks", "Task JointSpaceTask PositionTask OrientationTask FrameTask PostureTask DampingTask ManipulabilityTask "
+              "ManipulabilityMeasure SigmaProxy Yoshikawa ComTask EqualityTask RelativeFrameTask LookAtTask "
+              "AxisAlignTask KineticEnergyRegularizationTask DofFreezingTask"),  # the engine's
+    ("limits", "Limit JointPositionLimit JointVelocityLimit AccelerationLimit FloatingBaseVelocityLimit "
+               "CollisionAvoidanceLimit"),
+    ("controllers", "QPController HierarchicalController SNSController PseudoinverseController "
+                    "JacobianTransposeController"),
+    ("errors", "WorldsFailed InvalidWorlds HostStepWarning"),  # errors and warnings
+    ("batch.errors", "NotBatched"),
+) for name in names.split()}
 
 __all__ = sorted(_EXPORTS)
 

@@ -16,9 +16,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InvalidInput
 from ..actuation import Actuation, substeps_per_control_step
-from .errors import WorldsFailed
+from ..errors import InvalidInput, WorldsFailed
 
 MODES = ("kinematic", "physics")
 # A bar is drawn for runs of at least this many robot-steps.
@@ -44,7 +43,7 @@ def rollout(controller, steps: int, *, mode: str = "kinematic", on_step: Callabl
     (the physics worlds' in physics mode).
 
     Args:
-        controller: a batched controller (its robots move).
+        controller: an engine controller on a :class:`~qpik.batch.Robot` (its worlds move).
         steps: the number of control periods.
         mode: ``"kinematic"`` or ``"physics"``.
         on_step: called with k before each step (move the targets there).
@@ -56,7 +55,9 @@ def rollout(controller, steps: int, *, mode: str = "kinematic", on_step: Callabl
     """
     if mode not in MODES:
         raise InvalidInput(f"mode must be one of {MODES}, got {mode!r}")
-    robots = controller.robots
+    robots = controller.robot
+    if not robots.batched:
+        raise InvalidInput("batch.rollout steps the worlds of a batch.Robot; roll one robot out with qpik.simulate")
     dt = getattr(controller, "dt", None)
     if dt is None:
         raise InvalidInput("a rollout needs a controller with a period dt (the QP controller)")
@@ -87,18 +88,12 @@ class _Plant:
         self.substeps = substeps_per_control_step(robots.model, dt)
         self.actuation = Actuation(robots.model)
         self.ctrl = np.zeros((robots.n, robots.model.nu))
-        self._write(robots.q, np.zeros((robots.n, robots.nv)))
+        self.actuation.fill(self.ctrl, robots.q, np.zeros((robots.n, robots.nv)))
         robots.backend.physics_reset(robots.q, self.ctrl)
         self.qpos = robots.q.copy()
 
-    def _write(self, q: np.ndarray, qdot: np.ndarray) -> None:
-        a = self.actuation
-        self.ctrl[:, a.pos_act] = q[:, a.pos_q]
-        if len(a.vel_act):
-            self.ctrl[:, a.vel_act] = qdot[:, a.vel_dof]
-
     def step(self, qdot: np.ndarray) -> None:
-        self._write(self.robots.q, qdot)
+        self.actuation.fill(self.ctrl, self.robots.q, qdot)
         self.qpos, unstable = self.robots.backend.physics_step(self.ctrl, self.substeps)
         if unstable.any():
             reasons = {int(w): "physics simulation unstable (MuJoCo reset the world)" for w in np.flatnonzero(unstable)}

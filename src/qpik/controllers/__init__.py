@@ -1,4 +1,4 @@
-"""Controllers: the QP, the strict hierarchy, SNS and the classical laws, on the same task objects."""
+"""Controllers: the QP, the strict hierarchy, SNS and the classical laws, each over N worlds (N = 1: one robot)."""
 
 from .hierarchy import HierarchicalController
 from .pinv import JacobianTransposeController, PseudoinverseController

@@ -13,25 +13,25 @@ import numpy as np
 from ..errors import QpikError
 from ..solvers import make_backend
 from ..problem.cost import tame
-from .fallbacks import has_feasible_point
-from .labels import task_label
+from ..controllers.fallbacks import has_feasible_point
+from ..controllers.labels import task_label
 
 ELASTIC_WEIGHT = 1e6
 
 
-def explain_infeasibility(controller, variable: int | None = None) -> str:
-    """One paragraph naming the binding limits and the unmet hard tasks of the last step."""
-    robot = controller.robot
+def explain_infeasibility(controller, world: int = 0, variable: int | None = None) -> str:
+    """One paragraph naming the binding limits and the unmet hard tasks of a world's last step."""
+    robot, qp = controller.robot, controller.world_qp(world)
     if variable is not None:
         joint = robot.dof_name(variable)
         return (f"the limits leave joint {joint} no admissible velocity: lower bound "
-                f"{controller.lb[variable]:.6g} > upper bound {controller.ub[variable]:.6g} "
+                f"{qp.lb[variable]:.6g} > upper bound {qp.ub[variable]:.6g} "
                 f"(position limit and speed limit disagree, e.g. the joint starts outside its range); "
                 f"widen the range or the speed limit of {joint}")
     nv = robot.nv
-    H = controller.H.copy()
-    c = controller.c.copy()
-    A, b = controller.A, controller.b
+    H = np.array(qp.H)
+    c = qp.c.copy()
+    A, b = qp.A, qp.b
     hessian_scale = max(1.0, float(np.trace(H)) / nv)
     scale = ELASTIC_WEIGHT * hessian_scale
     magnitude = float(np.abs(c).max()) if nv else 0.0
@@ -40,9 +40,9 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
     H += scale * (A.T @ A)
     c -= scale * (A.T @ b)
     c = tame(c, float(H.diagonal().max()))  # a hard target far away: a vertex of the box, found
-    elastic = make_backend("daqp", nv, 0, controller.G.shape[0])
-    elastic.lb[:], elastic.ub[:] = controller.lb, controller.ub
-    elastic.G[:], elastic.h[:] = controller.G, controller.h
+    elastic = make_backend("daqp", nv, 0, qp.G.shape[0])
+    elastic.lb[:], elastic.ub[:] = qp.lb, qp.ub
+    elastic.G[:], elastic.h[:] = qp.G, qp.h
     try:
         x = elastic.solve(H, c)
     except QpikError:
@@ -52,11 +52,11 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
         return ("the solvers found no point meeting the constraints, and the closest point to the hard tasks "
                 "could not be computed either: the problem is badly conditioned; add a DampingTask or try "
                 "another solver")
-    unmet = _unmet_tasks(controller, x)
+    unmet = _unmet_tasks(controller, qp, x)
     if not unmet:
         return "the solver found no point meeting the constraints, but their elastic version is met: " \
                "the problem is badly conditioned; add a DampingTask or try another solver"
-    binding = _binding_limits(controller, x)
+    binding = _binding_limits(controller, world, qp, x)
     text = "cannot meet " + "; ".join(unmet)
     if binding:
         return (text + " within the limits: " + ", ".join(binding) + ". Make the task soft (hard=False) to let "
@@ -66,11 +66,11 @@ def explain_infeasibility(controller, variable: int | None = None) -> str:
             "them soft (hard=False) or give it a lower priority.")
 
 
-def _unmet_tasks(controller, x: np.ndarray) -> list[str]:
+def _unmet_tasks(controller, qp, x: np.ndarray) -> list[str]:
     """Each hard task that the elastic solution misses, with its frame and by how much."""
-    A, b = controller.A, controller.b
+    A, b = qp.A, qp.b
     unmet = []
-    for task, rows in controller.hard_rows.task_rows:
+    for task, rows in controller.cost.hard_task_rows:
         residual = A[rows] @ x - b[rows]
         worst = float(np.max(np.abs(residual))) if residual.size else 0.0
         if worst > 1e-6 * (1.0 + float(np.max(np.abs(b[rows])))):
@@ -78,21 +78,21 @@ def _unmet_tasks(controller, x: np.ndarray) -> list[str]:
     return unmet
 
 
-def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
+def _binding_limits(controller, world: int, qp, x: np.ndarray, tol: float = 1e-9) -> list[str]:
     """The bounds and general rows the elastic solution sits on, named."""
-    robot, inequalities = controller.robot, controller.problem.inequalities
+    robot, problem = controller.robot, controller.problem
     binding = []
     for dof in range(robot.nv):
-        for side, bound, constant in (("lower", controller.lb[dof], inequalities.lower0[dof]),
-                                      ("upper", controller.ub[dof], inequalities.upper0[dof])):
+        for side, bound, constant in (("lower", qp.lb[dof], problem.box0[world, 0, dof]),
+                                      ("upper", qp.ub[dof], problem.box0[world, 1, dof])):
             if np.isfinite(bound) and abs(x[dof] - bound) <= tol * (1.0 + abs(bound)):
                 kind = "speed" if bound == constant else "position"
                 binding.append(f"joint {robot.dof_name(dof)} at its {side} {kind} limit ({bound:.6g})")
-    if controller.G.shape[0]:
-        finite = np.isfinite(controller.h)
-        active = np.zeros(len(controller.h), dtype=bool)
-        active[finite] = controller.G[finite] @ x >= controller.h[finite] - tol * (1.0 + np.abs(controller.h[finite]))
-        for limit, rows in inequalities.row_limits:
+    if qp.G.shape[0]:
+        finite = np.isfinite(qp.h)
+        active = np.zeros(len(qp.h), dtype=bool)
+        active[finite] = qp.G[finite] @ x >= qp.h[finite] - tol * (1.0 + np.abs(qp.h[finite]))
+        for limit, rows in problem.row_limits:
             count = int(np.count_nonzero(active[rows]))
             if count:
                 binding.append(f"{count} row(s) of the {type(limit).__name__}")
@@ -100,5 +100,5 @@ def _binding_limits(controller, x: np.ndarray, tol: float = 1e-9) -> list[str]:
 
 
 def _row_limit_names(controller) -> str:
-    names = [type(limit).__name__ for limit, _ in controller.problem.inequalities.row_limits]
+    names = [type(limit).__name__ for limit, _ in controller.problem.row_limits]
     return "the joint box" + (" and the rows of the " + ", ".join(names) if names else "")

@@ -25,13 +25,11 @@ from ctypes import c_int
 
 import numpy as np
 
-from ..errors import InfeasibleProblem, InvalidInput, SolverError
+from ..errors import InfeasibleProblem, SolverError
 from ..solvers import available_solvers, make_backend
 from ..solvers.base import EXACT_EQUALITY_TOLERANCE, ITERATION_LIMIT, TIME_LIMIT
 from ..solvers.nullspace import NullSpaceBackend
-from ..problem.backoff import Backoff
 from ..problem.cost import COST_SCALE_CAP, tame
-from .labels import task_label
 
 # Exact solvers a failing step falls back to, in this order (the last: DAQP on the problem
 # reduced to the hard rows' null space, for steps with hard rows).
@@ -42,14 +40,32 @@ FALLBACK_SOLVERS = ("daqp", "quadprog", NULL_SPACE)
 FEASIBILITY_TOLERANCE = 1e-7
 
 
-def check_finite_velocities(tasks, c: np.ndarray, b: np.ndarray) -> None:
-    """InvalidInput naming the tasks whose target velocity is not finite (K·e overflowed
-    for a target ~1e308 away), when c or b is not: never solved, never returned."""
-    if np.isfinite(c).all() and np.isfinite(b).all():
-        return
-    bad = [task_label(task) for task in tasks if not np.isfinite(task.target_velocity).all()]
-    raise InvalidInput(f"the target velocity of the {', '.join(bad) or 'cost'} is not finite (K·e overflowed): "
-                       "check the target and the gain")
+# Steps skipped after a failure, doubled while failures follow, up to the maximum.
+PAUSE = 8
+PAUSE_MAX = 32
+
+
+class Backoff:
+    """Skips ``PAUSE`` steps after a failure, doubled while failures follow (at most
+    ``PAUSE_MAX``); a hot loop may test ``skip`` itself, as :meth:`ready` does."""
+
+    def __init__(self) -> None:
+        self.skip = 0  # steps left before the next attempt
+        self.next = PAUSE  # the pause after the next failure
+
+    def ready(self) -> bool:
+        """Whether to try this step (if not, one step of the pause is used up)."""
+        if self.skip:
+            self.skip -= 1
+            return False
+        return True
+
+    def succeeded(self) -> None:
+        self.next = PAUSE
+
+    def failed(self) -> None:
+        self.skip = self.next
+        self.next = min(2 * self.next, PAUSE_MAX)
 
 
 def has_feasible_point(backend) -> bool:
@@ -89,7 +105,7 @@ def feasible_in_null_space(backend) -> bool:
     "infeasible"."""
     phase1 = NullSpaceBackend(backend.nv, backend.meq, backend.mineq)
     phase1.equality_tolerance = FEASIBILITY_TOLERANCE
-    _copy_constraints(backend, phase1)
+    copy_constraints(backend, phase1)
     try:
         phase1.solve(np.eye(backend.nv), np.zeros(backend.nv))
     except (InfeasibleProblem, SolverError):
@@ -112,7 +128,8 @@ def _hard_rows_unmet(backend) -> str:
             "soft or give it a lower priority")
 
 
-def _copy_constraints(source, target) -> None:
+def copy_constraints(source, target) -> None:
+    """A, b, G, h, lb, ub of ``source`` (a back-end, a :class:`~qpik.controllers.worlds.WorldQP`) into ``target``'s."""
     target.A[:], target.b[:] = source.A, source.b
     target.G[:], target.h[:] = source.G, source.h
     target.lb[:], target.ub[:] = source.lb, source.ub
@@ -234,7 +251,7 @@ class GuardedSolve:
             self._spares[name] = NullSpaceBackend(backend.nv, backend.meq, backend.mineq) if name == NULL_SPACE \
                 else make_backend(name, backend.nv, backend.meq, backend.mineq)
         spare = self._spares[name]
-        _copy_constraints(backend, spare)
+        copy_constraints(backend, spare)
         return spare
 
     def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:

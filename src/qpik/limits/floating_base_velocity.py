@@ -1,4 +1,4 @@
-"""Speed bounds on a floating base (a free joint): linear and angular, per axis."""
+"""Speed bounds on a floating base (a free joint): linear and angular, per axis, in every world."""
 
 from __future__ import annotations
 
@@ -6,13 +6,12 @@ import mujoco
 import numpy as np
 
 from ..errors import InvalidInput, ModelError
-from ..robot import Robot
-from .limit import Limit
+from .limit import Limit, bound_values
 
 
 class FloatingBaseVelocityLimit(Limit):
     r"""Bound a free joint's linear and angular velocity, per axis:
-    :math:`|v_k| \le v_{max,k}`, :math:`|\omega_k| \le \omega_{max,k}`.
+    :math:`|v_k| \le v_{max,k}`, :math:`|\omega_k| \le \omega_{max,k}`, in every world.
 
     A joint-wise speed limit names hinges; a floating base left out of it is unbounded
     (a humanoid's base once reached 134 rad/s under a 5 rad/s joint limit). MuJoCo's
@@ -23,7 +22,7 @@ class FloatingBaseVelocityLimit(Limit):
     is then at most :math:`\sqrt3` times a scalar bound; pass :math:`L/\sqrt3` to bound it by L.
 
     Args:
-        robot: the robot.
+        robot: the robot (one world or N: the same bounds in every world).
         linear: m/s, a number or one per world axis (3,); ``None`` leaves it free.
         angular: rad/s, a number or one per base axis (3,); ``None`` leaves it free.
         joint: the free joint (default: the model's only one).
@@ -31,26 +30,30 @@ class FloatingBaseVelocityLimit(Limit):
     Raises:
         ModelError: the model has no free joint, or several and none is named.
         UnknownName: ``joint`` names no joint.
-        InvalidInput: ``joint`` is not free; a bound that is not positive; both None.
+        InvalidInput: ``joint`` is not free; a bound that is not positive or is finite
+            beyond 1e12; both None.
     """
 
-    constant = True
+    constant = True  # the same bounds every step: the controller applies them once
 
-    def __init__(self, robot: Robot, linear=None, angular=None, joint: str | None = None):
+    def __init__(self, robot, linear=None, angular=None, joint: str | None = None):
         if linear is None and angular is None:
             raise InvalidInput("FloatingBaseVelocityLimit: give a linear and/or an angular bound")
         first = int(robot.joint_dofs(free_joint(robot, joint))[0])
         self.robot = robot
         self.dofs = np.arange(first, first + 6)
         self.max_velocity = np.concatenate([_bounds(linear, "linear"), _bounds(angular, "angular")])
+        self._columns = slice(first, first + 6)
+        self._negative = -self.max_velocity
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
-        dofs = self.dofs
-        lb[dofs] = np.maximum(lb[dofs], -self.max_velocity)
-        ub[dofs] = np.minimum(ub[dofs], self.max_velocity)
+    def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
+        """Tighten the base's six columns of the box [lower, upper] (N, nv) in place."""
+        base_lower, base_upper = lower[:, self._columns], upper[:, self._columns]
+        np.maximum(base_lower, self._negative, base_lower)
+        np.minimum(base_upper, self.max_velocity, base_upper)
 
 
-def free_joint(robot: Robot, joint: str | None) -> str:
+def free_joint(robot, joint: str | None) -> str:
     """The name of ``joint`` checked to be free, or of the model's only free joint."""
     model = robot.model
     free = [model.joint(j).name for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
@@ -68,10 +71,4 @@ def free_joint(robot: Robot, joint: str | None) -> str:
 def _bounds(value, what: str) -> np.ndarray:
     if value is None:
         return np.full(3, np.inf)
-    try:
-        bound = np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
-    except (TypeError, ValueError):
-        raise InvalidInput(f"the {what} bound must be a number or 3 numbers, got {value!r}") from None
-    if not np.all(bound > 0):  # NaN fails too
-        raise InvalidInput(f"the {what} bound must be positive (inf for none), got {value!r}")
-    return bound
+    return bound_values(value, 3, f"the {what} bound", " (one per axis)")

@@ -7,8 +7,9 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import InvalidInput, ModelError
-from ..robot import VELOCITY_LIMIT_PREFIX, Robot
-from .limit import Limit
+from ..robot import VELOCITY_LIMIT_PREFIX
+from ..tasks.inputs import as_floats
+from .limit import Limit, checked_bounds
 
 
 class JointVelocityLimit(Limit):
@@ -24,18 +25,19 @@ class JointVelocityLimit(Limit):
       data="2.175"/></custom>``.
 
     Args:
-        robot: the robot.
+        robot: the robot (one world or N: the same bounds in every world).
         values: the bounds, as above.
 
     Raises:
         ModelError: ``values`` is None and the model declares no speed limit.
         UnknownName: a joint name the model does not have (the closest are listed).
-        InvalidInput: a bound that is not positive (NaN, zero, negative), a wrong shape.
+        InvalidInput: a bound that is not positive (NaN, zero, negative) or is finite
+            beyond 1e12, a wrong shape.
     """
 
     constant = True  # the same bounds every step: the controller applies them once
 
-    def __init__(self, robot: Robot, values: Mapping[str, float] | np.ndarray | None = None):
+    def __init__(self, robot, values: Mapping[str, float] | np.ndarray | None = None):
         if values is None:
             vmax = robot.velocity_limits.copy()
             if not np.any(np.isfinite(vmax)):
@@ -47,28 +49,20 @@ class JointVelocityLimit(Limit):
             vmax = np.full(robot.nv, np.inf)
             for joint, value in values.items():
                 dofs = robot.joint_dofs(joint)
-                bound = _floats(value, f"speed limit of joint {joint!r}")
+                bound = as_floats(value, f"speed limit of joint {joint!r}")
                 if bound.ndim > 1 or bound.size not in (1, len(dofs)):
                     raise InvalidInput(f"speed limit of joint {joint!r}: one number or {len(dofs)} (one per dof), "
                                        f"got {value!r}")
                 vmax[dofs] = bound
         else:
-            vmax = _floats(values, "velocity limits").copy()
+            vmax = as_floats(values, "velocity limits").copy()
             if vmax.shape != (robot.nv,):
                 raise InvalidInput(f"velocity limits must be a dict of joint names or an array of shape "
                                    f"({robot.nv},), got shape {vmax.shape}")
-        if not np.all(vmax > 0):  # also catches NaN
-            raise InvalidInput(f"velocity limits must be positive (inf for none), got {vmax}")
         self.robot = robot
-        self.max_velocity = vmax
+        self.max_velocity = checked_bounds(vmax, "velocity limits", vmax)
 
-    def apply(self, dt: float, lb: np.ndarray, ub: np.ndarray, G=None, h=None) -> None:
-        np.maximum(lb, -self.max_velocity, out=lb)
-        np.minimum(ub, self.max_velocity, out=ub)
+    def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
+        np.maximum(lower, -self.max_velocity, out=lower)
+        np.minimum(upper, self.max_velocity, out=upper)
 
-
-def _floats(value, what: str) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{what} must be numbers, got {value!r}") from None

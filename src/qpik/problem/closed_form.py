@@ -1,379 +1,321 @@
-r"""The equality-constrained QP in closed form: the fast path of a control step.
+r"""The QP's minimiser in closed form, in every world: the fast path of a control step.
 
-When no limit binds, the QP's minimiser is that of :math:`\min \tfrac12 x^THx + c^Tx`
-s.t. :math:`Ax = b`: :math:`x = H^{-1}A^TS^{-1}r - H^{-1}c` with :math:`S = AH^{-1}A^T`,
-:math:`r = b + AH^{-1}c`; the QP being strictly convex, an x that also meets every
-inequality *is* its solution. :func:`closed_form_step` chooses once how to compute it,
-:class:`ClosedForm` tries it before the solver, :class:`HeldBounds` (the QP's) with the
-bounds a solver found active held. Every answer is checked against the hard rows
-(``EQUALITY_TOLERANCE``); one that fails any check goes to the solver.
+The cost is kept as rows: :math:`\tfrac12\|R_1x - r_1\|^2 + \tfrac12 x^TDx + c^Tx` with
+:math:`R_1` the soft tasks' rows scaled by √w, D a positive diagonal (ε, the joint-space
+tasks' weights, the Levenberg–Marquardt damping) and c the joint-space tasks' linear
+term; the hard rows are :math:`R_2x = r_2`. When no limit binds, the QP's minimiser is
+
+.. math::
+    x = D^{-1}(R^T z - c),\qquad
+    \big(R D^{-1} R^T + \mathrm{diag}(I, 0)\big)\, z = r + R D^{-1} c
+
+(:class:`DampedLeastSquares`): one Cholesky solve of as many unknowns as rows. Where D is
+only a tiny ε on joints the rows constrain (a floating base no posture covers), x loses
+digits to cancellation; the residual of the system says so and a step or two of iterative
+refinement with the same matrix brings them back. The QP being strictly convex, an x that also meets every inequality *is* its
+solution. Where bounds bind, :class:`HeldBounds` holds them: a held dof has
+:math:`D^{-1} = 0` and its bound's value moved to the right-hand side, so one shape serves
+every active set, and the answer is the QP's minimiser when it is inside every limit,
+meets the hard rows and each held bound's multiplier has the sign of an active bound. A
+wrong-signed bound is released, a crossed one held, and the system solved again
+(``HELD_TRIES`` at most); the worlds left go to the solver, which also decides the worlds
+whose general rows bind. Every answer is checked against the hard rows
+(``EQUALITY_TOLERANCE``).
 """
 
 from __future__ import annotations
 
-from typing import Callable
+import math
 
-import mujoco
 import numpy as np
 
-from .. import linalg
-from ..solvers.base import equalities_met, equalities_met_in_floats
-from .backoff import PAUSE, Backoff
-from .cost import UNCAPPED_NORM2, uncapped
+from ..numerics import (all_finite, both, cholesky_solve, everywhere, lu_solve, matvec, nowhere, outer_product,
+                        squared_norm, vecmat, worlds_first)
 
-# S is treated as singular (dependent hard rows) when its Cholesky factor's diagonal spans
-# more than this ratio (the condition number of S is the square of it: 1e12).
+# The system is treated as singular (dependent hard rows) when its Cholesky factor's
+# diagonal spans more than this ratio (its condition number is the square of it: 1e12).
 SINGULAR_RATIO = 1e6
 # Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
-# answer as the solvers' are: a nearly singular H or S loses digits no cheaper test foresees.
+# answer as the solvers' are: a nearly singular system loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
-# Closed forms a step may try with held bounds (HeldBounds) before the solver takes it.
+# Closed forms a step may try with held bounds before the solver takes the world.
 HELD_TRIES = 3
+# Steps of iterative refinement a closed form may take while its residual is above
+# REFINE_TOLERANCE (relative to 1 + |rhs|; a few roundings): a tiny ε on dofs the rows
+# constrain loses digits in x = D⁻¹(...), which the residual shows.
+REFINEMENTS, REFINE_TOLERANCE = 2, 1e-13
+# A bound is active at a solver's answer within this (relative to 1 + |bound|).
+ACTIVE_TOLERANCE = 1e-9
 
 
-def closed_form_step(nv: int, meq: int, H0: np.ndarray | None) -> "KKTStep":
-    """The closed-form solve for ``nv`` dofs and ``meq`` equality rows, chosen once: A⁻¹b
-    when the rows are as many as the dofs; else through H⁻¹, kept when ``H0`` (the Hessian
-    when the same every step, else None) is a positive diagonal, else factorised every step
-    (by MuJoCo's Cholesky when there are no rows: a cost alone)."""
-    if meq and meq == nv:
-        return SquareRows(meq)
-    if H0 is not None:
-        diagonal = np.diag(H0)
-        if np.count_nonzero(H0 - np.diag(diagonal)) == 0 and np.all(diagonal > 0):
-            return DiagonalHessian(meq, 1.0 / diagonal)
-    return FactorisedHessian(meq) if meq else CostOnly(nv)
+class DampedLeastSquares:
+    """The minimiser above in ``n`` worlds of ``nv`` dofs, ``soft_rows`` rows R₁ and
+    ``rows`` rows R₂ (the equalities), optionally with some dofs held at given values, and
+    its checks, with their buffers (allocated once)."""
 
+    def __init__(self, n: int, nv: int, soft_rows: int, rows: int):
+        m = soft_rows + rows
+        self.soft_rows, self.rows = soft_rows, rows
+        # R D⁻¹, and R D⁻¹ Rᵀ + diag(I, 0) stored worlds last (as the products and solves form it)
+        self.scaled, self.K = np.empty((n, m, nv)), worlds_first(np.empty((m, m, n)))
+        self._soft_diagonal = np.einsum("nii->ni", self.K)[:, :soft_rows]  # a writable view
+        self.z, self._Rv, self._fit = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
+        self.x, self._held_inverse = np.empty((n, nv)), np.empty((n, nv))
+        self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
+        self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
+        self._x_row = self.x[:, None, :]
+        self._everywhere = everywhere(n)
+        self._square = not soft_rows and rows == nv  # the hard rows alone fix x (see _point)
 
-class KKTStep:
-    """Solves min ½xᵀHx + cᵀx s.t. Ax = b (``Ac``: A, meq x nv, and cᵀ as its last row);
-    :meth:`solve` returns None where the solvers would see c capped (:func:`uncapped`: they
-    answer a far target), H is not positive definite, S is singular or x misses the
-    equalities (the solver then decides). A subclass gives ``scaled(H, Ac)``, [A H⁻¹;
-    cᵀH⁻¹] or None; with ``uniform`` (H = I/d) [A; cᵀ] is its own: d goes to the scalars.
-    ``norm_factor`` (where H is a constant diagonal): c·c is at most it times cᵀH⁻¹c (over d
-    when uniform), which the step computes anyway; None: c·c is computed. ``capped`` says
-    whether the last None was the cap's (no failure of the closed form's)."""
+    def solve(self, dinv, R, rhs, c=None, fixed=None, values=None):
+        """``(x (N, nv), z (N, m) or None, ok (N,))``: ``ok`` where the system is numerically
+        positive definite (:func:`~qpik.numerics.cholesky_solve` within ``SINGULAR_RATIO``),
+        x is finite and the system's residual (the hard rows' miss among it) is within
+        ``EQUALITY_TOLERANCE`` of 1 + |rhs|; x and z mean nothing elsewhere (buffers,
+        overwritten by the next solve). z is None where the hard rows alone fix x
+        (:meth:`_point`).
 
-    capped = False
-
-    def __init__(self, meq: int, d: float = 1.0, uniform: bool = False, norm_factor: float | None = None):
-        self.meq, self.d, self.uniform = meq, d, uniform
-        self._norm_factor = norm_factor if meq else None
-        self._Ac = self._transposed = None
-        self._tail = np.array([0.0] * meq + [-d])  # [d y; −d], the coefficients of x in [A H⁻¹; cᵀH⁻¹]
-        self._y = self._tail[:meq]  # solved in place where LAPACK allows
-        self._M = np.empty((meq + 1, meq + 1))  # [A H⁻¹; cᵀH⁻¹] [A; cᵀ]ᵀ, written in place
-        self._S, self._Ahc, self._d = self._M[:meq, :meq], self._M[:meq, meq], np.array(d)  # (views; d as an array)
-
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """x, or None."""
-        meq, d, norm_factor = self.meq, self.d, self._norm_factor
-        self.capped = norm_factor is None and not uncapped(Ac[meq], H)
-        if self.capped:
-            return None
-        scaled = Ac if self.uniform else self.scaled(H, Ac)
-        if scaled is None:
-            return None
-        if not meq:
-            return -d * scaled[0]
-        if Ac is not self._Ac:  # Aᵀ (a view), kept while Ac is the same array
-            self._Ac, self._transposed = Ac, Ac.T
-        M = scaled.dot(self._transposed, self._M)  # [[S, A H⁻¹ c], [·, ·]] (over d when H = I/d)
-        rows = M.tolist() if meq <= 2 else None
-        if norm_factor is not None and not (norm_factor * (rows[meq][meq] if rows else M[meq, meq]) <= UNCAPPED_NORM2
-                                            or uncapped(Ac[meq], H)):
-            self.capped = True
-            return None
-        rhs = b.tolist()
-        if not (self._small_rows(rows, rhs, d) if rows else self._rows(b)):
-            return None
-        x = self._tail.dot(scaled)  # checked as the solvers' answers are (a few rows: in floats)
-        if meq > 8:
-            return x if equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE) else None
-        return x if equalities_met_in_floats(Ac.dot(x).tolist(), rhs, EQUALITY_TOLERANCE) else None
-
-    def _rows(self, b: np.ndarray) -> bool:
-        """d y = d S⁻¹r into the tail: (S/d) z = r by LAPACK's Cholesky (z is d y); False where S is singular."""
-        rhs = self._y
-        np.multiply(self._Ahc, self._d, rhs)
-        rhs += b
-        factor, z, info = linalg.dposv(self._S, rhs, 0, 0, 1)  # overwrite_b (positional: cheaper)
-        if info != 0:
-            return False
-        pivots = factor.diagonal().tolist()
-        if max(pivots) > SINGULAR_RATIO * min(pivots):
-            return False
-        if z is not rhs:
-            rhs[:] = z
-        return True
-
-    def _small_rows(self, rows: list, rhs: list, d: float) -> bool:
-        """:meth:`_rows` for one or two rows, in floats (``rows``: M as lists)."""
-        tail = self._tail
-        if self.meq == 1:
-            s = d * rows[0][0]
-            if not s > 0.0:
-                return False
-            tail[0] = d * (d * rows[0][1] + rhs[0]) / s
-            return True
-        (a, b_, r0), (_, d_, r1) = rows[0], rows[1]
-        a, b_, d_ = d * a, d * b_, d * d_
-        det = a * d_ - b_ * b_
-        if not det * SINGULAR_RATIO ** 2 > a * d_:  # cond(S) > 1e12, or not positive
-            return False
-        r0 = d * r0 + rhs[0]
-        r1 = d * r1 + rhs[1]
-        tail[0] = d * (d_ * r0 - b_ * r1) / det
-        tail[1] = d * (a * r1 - b_ * r0) / det
-        return True
-
-
-class SquareRows(KKTStep):
-    """As many independent hard rows as dofs: the feasible set is the point x = A⁻¹b (one LU)."""
-
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        A = Ac[: self.meq]
-        lu, _, x, info = linalg.dgesv(A, b)
-        pivots = np.abs(lu.diagonal()).tolist()
-        well_posed = info == 0 and max(pivots) <= SINGULAR_RATIO ** 2 * min(pivots)
-        return x if well_posed and equalities_met(A, x, b, EQUALITY_TOLERANCE) else None
-
-
-class DiagonalHessian(KKTStep):
-    """H a constant positive diagonal: H⁻¹ is the vector ``inverse`` (uniform: H = I/d)."""
-
-    def __init__(self, meq: int, inverse: np.ndarray):
-        uniform = bool(np.all(inverse == inverse[0]))
-        super().__init__(meq, float(inverse[0]) if uniform else 1.0, uniform,
-                         norm_factor=1.0 if uniform else float(1.0 / inverse.min()))
-        self.inverse = inverse
-
-    def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray:
-        return Ac * self.inverse
-
-
-class FactorisedHessian(KKTStep):
-    """H changes every step (or is dense): H⁻¹[Aᵀ c] by one Cholesky solve."""
-
-    def scaled(self, H: np.ndarray, Ac: np.ndarray) -> np.ndarray | None:
-        factor, scaled_t, info = linalg.dposv(H, Ac.T)
-        return None if info != 0 else scaled_t.T
-
-
-class CostOnly(KKTStep):
-    """No hard rows, H changes every step: x = −H⁻¹c by MuJoCo's dense Cholesky (on the
-    small systems of a control step its call costs less than LAPACK's through SciPy)."""
-
-    def __init__(self, nv: int):
-        super().__init__(0)
-        self._factor = np.empty((nv, nv))
-        self._c = None  # the last Ac's row c (a view, kept while Ac is the same array)
-
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        if Ac is not self._Ac:
-            self._Ac, self._c = Ac, Ac[0]
-        c, factor = self._c, self._factor
-        self.capped = not (c.dot(c) <= UNCAPPED_NORM2 or uncapped(c, H))
-        if self.capped:
-            return None
-        np.copyto(factor, H)  # H stays as it is for the solver
-        if mujoco.mju_cholFactor(factor, 0.0) < len(factor):  # not positive definite
-            return None
-        x = np.empty(len(factor))
-        mujoco.mju_cholSolve(x, factor, c)
-        return np.negative(x, x)
-
-
-class ClosedForm(Backoff):
-    """The closed form tried before the solver: its answer is kept when it meets every
-    limit (then it is the QP's solution). ``admits``: the limits' check (None: none).
-
-    A limit that binds usually still binds next step, where the closed form is wasted
-    work: after a miss the next few steps go to the solver directly (the same answer),
-    twice as many after each miss again; a success brings the pause back to its start.
-    """
-
-    def __init__(self, admits: Callable[[np.ndarray], bool] | None):
-        super().__init__()
-        self.admits = admits
-
-    def attempt(self, solve: Callable[..., np.ndarray | None], *arguments) -> np.ndarray | None:
-        """``solve(*arguments)`` when it is tried this step and meets the limits, else None
-        (one step of the pause used up, or a miss that starts the next pause)."""
-        if not self.ready():
-            return None
-        x = solve(*arguments)
-        return self.kept(x if x is None or self.admits is None or self.admits(x) else None)
-
-    def kept(self, x: np.ndarray | None) -> np.ndarray | None:
-        """x, the pause back at its start; or None (a miss), the next pause begun."""
-        if x is None:
-            self.failed()
+        Args:
+            dinv: (N, nv) D⁻¹.
+            R: (N, soft_rows + rows, nv) [R₁; R₂]; rhs: (N, soft_rows + rows) [r₁; r₂].
+            c: (N, nv), or None for zero.
+            fixed, values: (N, nv) the dofs held and their values (zero elsewhere), or None.
+        """
+        if self._square and fixed is None:
+            return self._point(R, rhs)
+        scaled, K, x, z = self.scaled, self.K, self.x, self.z
+        right = rhs
+        if fixed is not None:  # D⁻¹ = 0 on the held dofs, their values moved to the right
+            np.copyto(self._held_inverse, dinv)
+            dinv = self._held_inverse
+            np.copyto(dinv, 0.0, where=fixed)
+            right = np.subtract(rhs, matvec(R, values, self._Rv), self._Rv)
+        np.multiply(R, dinv[:, None, :], scaled)
+        outer_product(scaled, R, K)
+        if self.soft_rows:
+            self._soft_diagonal += 1.0
+        if c is None:
+            np.copyto(z, right)
         else:
-            self.succeeded()
-        return x
+            np.add(right, matvec(scaled, c, z), z)
+        _, solved = cholesky_solve(K, z, SINGULAR_RATIO, in_place=True)
+        vecmat(z, R, x)
+        if c is not None:
+            x -= c
+        x *= dinv
+        if fixed is not None:
+            x += values
+        met = self._fits(R, rhs, REFINE_TOLERANCE)
+        if met is not self._everywhere:
+            met = self._refined(K, R, rhs, met)
+        if R.shape[1]:  # a non-finite x leaves a non-finite residual (NaN even where R is 0)
+            return x, z, solved if met is solved else both(solved, met)
+        return x, z, self._everywhere if all_finite(x) else np.isfinite(x).all(axis=1)
+
+    def _point(self, A, b):
+        """:meth:`solve` where the hard rows are as many as the dofs, no soft row and no dof
+        held: they alone fix x = A⁻¹b (one LU; nothing is left to minimise, and z is not
+        computed: None), checked as every answer is."""
+        x, solved = lu_solve(A, b, self.x)
+        met = self._fits(A, b, EQUALITY_TOLERANCE)
+        return x, None, solved if met is solved else both(solved, met)
+
+    def _refined(self, K, R, rhs, met) -> np.ndarray:
+        """Up to ``REFINEMENTS`` steps of iterative refinement of x and z while some world's
+        residual is above ``REFINE_TOLERANCE``; whether each world's residual is then within
+        ``EQUALITY_TOLERANCE``."""
+        for _ in range(REFINEMENTS):
+            if met.all():
+                return self._everywhere
+            correction, _ = cholesky_solve(K, self._fit)  # K δz = −residual (K as solved above)
+            correction[met] = 0.0  # only where the residual asks: each world's answer its own
+            self.z -= correction
+            self.x -= vecmat(correction, self.scaled, self._Rz)
+            met = self._fits(R, rhs, REFINE_TOLERANCE)
+        return met if met.all() else self._fits(R, rhs, EQUALITY_TOLERANCE)
+
+    def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
+        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual), its
+        soft part and its hard rows' part each at its own scale (a soft target far away must
+        not excuse a hard row's miss), leaving the miss in ``_fit``."""
+        fit, m = matvec(R, self.x, self._fit), self.soft_rows
+        if not m:
+            return rows_met(fit, rhs, tolerance)
+        fit[:, :m] += self.z[:, :m]
+        return both(rows_met(fit[:, :m], rhs[:, :m], tolerance), rows_met(fit[:, m:], rhs[:, m:], tolerance))
+
+    def gradient(self, damping, R, c) -> np.ndarray:
+        """Dx + c − Rᵀz of the last solve (D = ``damping``, c None for zero): zero on the
+        free dofs; on a held dof, the bound's multiplier (>= 0 at a lower bound, <= 0 at an
+        upper one at the minimiser)."""
+        g = np.multiply(damping, self.x, self._gradient)
+        if c is not None:
+            g += c
+        g -= vecmat(self.z, R, self._Rz)
+        return g
+
+    def objective(self, x, damping, R, rhs, c) -> np.ndarray:
+        r""":math:`\tfrac12 \|R_1 x - r_1\|^2 + \tfrac12 x^T D x + c^T x` of x (N, nv) in
+        every world (N,)."""
+        m = self.soft_rows
+        residual = np.einsum("nij,nj->ni", R[:, :m], x) - rhs[:, :m]
+        value = 0.5 * np.einsum("ni,ni->n", residual, residual) + 0.5 * np.einsum("ni,ni,ni->n", x, damping, x)
+        return value if c is None else value + np.einsum("ni,ni->n", c, x)
+
+    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None) -> np.ndarray:
+        """(N,) whether the last x is in the box and under the rows (:func:`inside`)."""
+        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides)
 
 
-class HeldBounds(ClosedForm):
-    r"""The QP's closed form (:class:`ClosedForm` of ``plain``), the bounds the last solver step
-    found active held for an active-set solver (``hold``; a tolerance-based one's stay its own).
+def active_bounds(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds x is on, to ``ACTIVE_TOLERANCE`` relative: (at lower, at upper). An absent
+    bound (±inf) is never reached (|x − inf| <= inf would say it is)."""
+    at_lower = np.isfinite(lower) & (np.abs(x - lower) <= ACTIVE_TOLERANCE * (1.0 + np.abs(lower)))
+    at_upper = np.isfinite(upper) & ~at_lower & (np.abs(x - upper) <= ACTIVE_TOLERANCE * (1.0 + np.abs(upper)))
+    return at_lower, at_upper
 
-    The held dofs are equality rows :math:`x_i = v_i` (this step's bound values) beside
-    the hard rows; the KKT system :math:`[H\ C^T; C\ 0][x; \mu] = [-c; v]` is solved by LU
-    (accurate however small ε is). The answer is the QP's unique minimiser when it is in
-    every limit, meets the hard rows and each held bound's multiplier :math:`r_i = -\mu_i`
-    has the sign of an active bound (≥ 0 at a lower bound, ≤ 0 at an upper one). Else a
-    wrong-signed bound is released, a crossed bound held, and the system solved again
-    (``HELD_TRIES`` at most); then None: the solver decides (docs/controllers.md).
-    """
 
-    def __init__(self, nv: int, meq: int, plain: KKTStep, inequalities, hold: bool = True):
-        super().__init__(inequalities.admits)
-        self.nv, self.meq, self.plain, self.inequalities, self.hold = nv, meq, plain, inequalities, hold
-        self.lower, self.upper = [], []  # the dofs held at their lower and upper bounds
-        self._kkt = None  # ((lower, upper), its KKT matrix)
+def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.ndarray | None = None) -> np.ndarray:
+    """(N,) whether |Ax − b| <= tolerance (1 + |b|) in each world (Euclidean norms; NaN
+    fails), from A x (N, meq) (overwritten with the residual); ``all_worlds``: what to
+    return when every world meets them (default ``everywhere``)."""
+    np.subtract(Ax, b, Ax)
+    if len(b) == 1:  # one world: two dot products
+        met = Ax[0].dot(Ax[0]) <= tolerance * tolerance * (1.0 + b[0].dot(b[0]))
+        return (everywhere(1) if all_worlds is None else all_worlds) if met else nowhere(1)
+    if squared_norm(Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
+        return everywhere(len(b)) if all_worlds is None else all_worlds
+    miss = np.einsum("ni,ni->n", Ax, Ax)
+    return miss <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))
 
-    def attempt(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """:meth:`ClosedForm.attempt` of :meth:`solve` (of the plain closed form alone
-        without ``hold``); most steps (nothing held, no limit crossed) end here."""
-        if self.skip:  # Backoff.ready, inline (every step)
-            self.skip -= 1
-            return None
-        if self.lower or self.upper:
-            x = None
-            if not uncapped(Ac[self.meq], H):  # the solver's capped cost answers: no miss
-                return None
+
+_SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >= 0
+
+
+def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.ndarray | None = None,
+           gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
+    """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
+    comparisons: a point on a bound is inside; NaN and ±inf are not). One comparison
+    decides the usual step where every world is inside; one world's, in floats."""
+    if len(x) == 1 and G is None:
+        values = x[0].tolist()
+        for value, low, high in zip(values, *box[0].tolist()):
+            if not low <= value <= high:  # NaN fails too
+                return nowhere(1)
+        finite = math.isfinite(sum(values)) or all(map(math.isfinite, values))  # (the sum may overflow)
+        return everywhere(1) if finite else nowhere(1)
+    if not all_finite(x):  # decided on the finite worlds alone (inf − inf would be NaN)
+        finite = np.isfinite(x).all(axis=1)
+        if not finite.all():
+            if finite.any():
+                finite[finite] = inside(x[finite], box[finite], None if G is None else G[finite],
+                                        None if h is None else h[finite])
+            return finite
+    gap = np.subtract(x[:, None, :] if x_row is None else x_row, box, gap)
+    np.multiply(gap, sides, gap)
+    ok = everywhere(len(x)) if gap.min(initial=np.inf) >= 0.0 else gap.reshape(len(x), -1).min(axis=1) >= 0.0
+    if G is None or not G.shape[1]:
+        return ok
+    if ok is everywhere(len(x)):
+        return (np.matmul(G, x[:, :, None])[:, :, 0] <= h).all(axis=1)
+    worlds = np.flatnonzero(ok)  # the rows of the worlds in the box only
+    ok[worlds] = (np.matmul(G[worlds], x[worlds, :, None])[:, :, 0] <= h[worlds]).all(axis=1)
+    return ok
+
+
+class HeldBounds:
+    """The bounds held at each world's last answer, and the closed form that holds them
+    (see the module's description), for a cost of ``soft_rows`` rows and ``rows`` hard
+    rows. ``hold`` False: the plain closed form only (a tolerance-based solver's answers
+    stay its own)."""
+
+    def __init__(self, n: int, nv: int, soft_rows: int, rows: int, hold: bool = True):
+        self.hold, self.shape = hold, (nv, soft_rows, rows)
+        self._forms: dict[int, DampedLeastSquares] = {}
+        self.lower = np.zeros((n, nv), dtype=bool)  # dofs held at their lower bound
+        self.upper = np.zeros((n, nv), dtype=bool)
+        self.holding = False  # whether any world holds a bound
+
+    def remember(self, worlds: np.ndarray, x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        """The bounds active at answers x (len(worlds), nv) of some worlds, held next step."""
+        if not self.hold:
+            return
+        self.lower[worlds], self.upper[worlds] = active_bounds(x, lower, upper)
+        self.holding = bool(self.lower.any() or self.upper.any())
+
+    def solve(self, cost, box, G=None, h=None, worlds=None):
+        """The QP's minimiser by closed forms with bounds held, in ``worlds`` (an index
+        array, None: all), for the :class:`~qpik.problem.Cost` ``cost`` (its rows, D and c).
+
+        Returns:
+            ``(x (len, nv), solved (len,))``: ``solved`` where x is the checked minimiser.
+        """
+        data = (cost.dinv, cost.damping, cost.R, cost.rhs, cost.linear, box, G, h)
+        if worlds is not None:
+            data = tuple(None if a is None else a[worlds] for a in data)
+        if not self.holding:  # the plain closed form first: most steps end here
+            form = self._form(len(box) if worlds is None else len(worlds))
+            x, _, ok = form.solve(data[0], data[2], data[3], data[4])
+            inside_box = form.admits(data[5], data[6], data[7])
+            if ok is inside_box:  # both everywhere: every world settled
+                return x, ok
+            solved = both(ok, inside_box)
+            if not self.hold:
+                return x, solved
+            x, solved = x.copy(), np.array(solved)
+            if solved.all():
+                return x, solved
+            ids = np.arange(len(x)) if worlds is None else worlds
+            start = np.flatnonzero(ok & ~solved)  # held from the bounds it crossed
+            crossed = data[5][start]
+            self.lower[ids[start]], self.upper[ids[start]] = x[start] < crossed[:, 0], x[start] > crossed[:, 1]
         else:
-            x = self.plain.solve(H, Ac, b)
-            if x is not None and self.admits(x):
-                self.next = PAUSE  # Backoff.succeeded, inline
-                return x
-            if self.plain.capped:
-                return None
-        return self.kept(self.solve(H, Ac, b, x) if self.hold else None)
+            ids = np.arange(len(box)) if worlds is None else worlds
+            x, solved, start = np.zeros((len(ids), self.shape[0])), np.zeros(len(ids), dtype=bool), np.arange(len(ids))
+        self._held(data, ids, start, x, solved)
+        self.holding = bool(self.lower.any() or self.upper.any())
+        return x, solved
 
-    def remember(self, x: np.ndarray) -> None:
-        """The bounds active at a solver's answer x (to 1e-9 relative), held next time."""
-        lb, ub = self.inequalities.lb, self.inequalities.ub
-        at_lower = np.isfinite(lb) & (np.abs(x - lb) <= 1e-9 * (1.0 + np.abs(lb)))
-        at_upper = np.isfinite(ub) & ~at_lower & (np.abs(x - ub) <= 1e-9 * (1.0 + np.abs(ub)))
-        self.lower, self.upper = np.flatnonzero(at_lower).tolist(), np.flatnonzero(at_upper).tolist()
+    def _form(self, count: int) -> DampedLeastSquares:
+        """The closed form's buffers for ``count`` worlds."""
+        if count not in self._forms:
+            self._forms[count] = DampedLeastSquares(count, *self.shape)
+        return self._forms[count]
 
-    def solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, plain: np.ndarray | None = None) -> np.ndarray | None:
-        """The QP's minimiser by closed forms with bounds held, checked (None: the solver decides);
-        ``plain``: the plain closed form's answer, where the caller has it."""
-        lower, upper = self.lower, self.upper
-        if not (lower or upper):  # the plain closed form, kept when it meets the limits
-            x = self.plain.solve(H, Ac, b) if plain is None else plain
-            if x is None or self.admits(x):
-                return x
-            r = np.zeros(0)
-        else:
-            x, r = self._held_solve(H, Ac, b, lower, upper)
+    def _held(self, data, ids, todo, x, solved) -> None:
+        """Closed forms with bounds held in the worlds ``todo`` (positions in ``ids``),
+        until their answer is the minimiser, the held set stops changing or the tries run out."""
         for _ in range(HELD_TRIES):
-            if x is None:
-                return None
-            wrong = {i for i, ri in zip(lower, r[: len(lower)].tolist()) if ri < 0.0} | \
-                {i for i, ri in zip(upper, r[len(lower):].tolist()) if ri > 0.0}
-            if not wrong and self.admits(x):
-                self.lower, self.upper = lower, upper  # the working set, held again next step
-                return x
-            lb, ub = self.inequalities.box()
-            values = x.tolist()
-            below = [i for i, value in enumerate(values) if value < lb[i]]
-            above = [i for i, value in enumerate(values) if value > ub[i]]
-            if not (wrong or below or above):  # a general row, not a bound, is in the way
-                return None
-            lower = [i for i in lower if i not in wrong] + below
-            upper = [i for i in upper if i not in wrong] + above
-            x, r = self._held_solve(H, Ac, b, lower, upper) if lower or upper else (self.plain.solve(H, Ac, b), r[:0])
-        return None
-
-    def _bordered(self, lower: list, upper: list) -> np.ndarray:
-        """The KKT matrix with its held dofs' unit rows and columns in place (kept while
-        the same bounds are held)."""
-        if self._kkt is None or self._kkt[0] != (lower, upper):
-            nv, meq, held = self.nv, self.meq, lower + upper
-            kkt = np.zeros((nv + meq + len(held),) * 2)
-            rows = np.arange(nv + meq, nv + meq + len(held))
-            kkt[rows, held] = kkt[held, rows] = 1.0
-            self._kkt = ((list(lower), list(upper)), kkt)
-        return self._kkt[1]
-
-    def _held_solve(self, H: np.ndarray, Ac: np.ndarray, b: np.ndarray, lower: list, upper: list):
-        """(x, the held bounds' multipliers r) with ``lower`` and ``upper`` held, or (None, None)."""
-        nv, meq, held = self.nv, self.meq, len(lower)  # (more rows than dofs: a singular system, refused below)
-        kkt = self._bordered(lower, upper)
-        kkt[:nv, :nv] = H
-        kkt[nv:nv + meq, :nv] = Ac[:meq]
-        kkt[:nv, nv:nv + meq] = Ac[:meq].T
-        lb, ub = self.inequalities.lb, self.inequalities.ub
-        right = np.concatenate([-Ac[meq], b, lb[lower], ub[upper]])
-        lu, _, solution, info = linalg.dgesv(kkt, right)
-        pivots = np.abs(lu.diagonal()).tolist()
-        if info != 0 or max(pivots) > SINGULAR_RATIO ** 2 * min(pivots):
-            return None, None
-        x = solution[:nv]
-        x[lower], x[upper] = right[nv + meq:nv + meq + held], right[nv + meq + held:]  # on the bounds exactly
-        if not equalities_met(Ac[:meq], x, b, EQUALITY_TOLERANCE):  # the hard rows, once x is on them
-            return None, None
-        return x, -solution[nv + meq:]
+            if not len(todo):
+                return
+            every = len(todo) == len(x)  # todo is every position: the data as it is
+            worlds = ids if every else ids[todo]
+            part = data if every else tuple(None if a is None else a[todo] for a in data)
+            attempt, kept, (held_lower, held_upper, changed) = _attempt(self._form(len(todo)), part,
+                                                                        self.lower[worlds], self.upper[worlds])
+            if every and kept.all():
+                x[...], solved[...] = attempt, True
+            else:
+                x[todo[kept]], solved[todo[kept]] = attempt[kept], True
+            self.lower[worlds], self.upper[worlds] = held_lower, held_upper
+            todo = todo[~kept & changed]  # the worlds whose held set changed: try again
 
 
-def damped_least_squares_step(dinv: np.ndarray, R: np.ndarray, soft_rows: int, rhs: np.ndarray,
-                              c: np.ndarray | None) -> np.ndarray | None:
-    r"""min ½‖R₁x − r₁‖² + ½xᵀDx + cᵀx s.t. R₂x = r₂ (R₁ the first ``soft_rows`` rows of R,
-    D diagonal positive, ``dinv`` = D⁻¹, c None for zero), or None where singular.
-
-    x = D⁻¹(Rᵀz − c) with (R D⁻¹ Rᵀ + diag(I, 0)) z = r + R D⁻¹ c: the damped
-    least-squares form, which keeps its digits where H⁻¹ (of order 1/ε) would not; an x
-    that misses R₂x = r₂ by more than ``EQUALITY_TOLERANCE`` relative is None. Up to
-    ``SMALL_SYSTEM`` rows in floats.
-    """
-    m = R.shape[0]
-    scaled = R * dinv
-    K = scaled.dot(R.T)
-    right = rhs if c is None else rhs + scaled.dot(c)
-    if m <= SMALL_SYSTEM:
-        z = _small_spd_solve(K.tolist(), right.tolist(), soft_rows)
-        if z is None:
-            return None
-        x = np.dot(z, R)
-    else:
-        K.reshape(-1)[:: m + 1][:soft_rows] += 1.0
-        factor, z, info = linalg.dposv(K, right, overwrite_a=1, overwrite_b=right is not rhs)
-        if info != 0:
-            return None
-        pivots = factor.diagonal().tolist()
-        if max(pivots) > SINGULAR_RATIO * min(pivots):
-            return None
-        x = np.dot(z, R)
-    if c is not None:
-        x -= c
-    x *= dinv
-    if soft_rows < m and not equalities_met(R[soft_rows:], x, rhs[soft_rows:], EQUALITY_TOLERANCE):
-        return None
-    return x
-
-
-# Up to this many rows, damped_least_squares_step solves in Python floats.
-SMALL_SYSTEM = 2
-
-
-def _small_spd_solve(K: list, r: list, soft_rows: int) -> list | None:
-    """z of (K + diag(I, 0)) z = r for one or two rows, in floats (K symmetric, as lists),
-    or None where it is not positive definite or its condition number passes
-    SINGULAR_RATIO² (as the LAPACK path's pivot test)."""
-    if len(r) == 1:
-        a = K[0][0] + (1.0 if soft_rows else 0.0)
-        return [r[0] / a] if a > 0.0 else None
-    (a, b), (_, d) = K
-    if soft_rows:
-        a += 1.0
-        if soft_rows > 1:
-            d += 1.0
-    det = a * d - b * b
-    if not (a > 0.0 and det * SINGULAR_RATIO ** 2 > a * d):
-        return None
-    return [(d * r[0] - b * r[1]) / det, (a * r[1] - b * r[0]) / det]
+def _attempt(form: DampedLeastSquares, data, held_lower, held_upper):
+    """One closed form with the given bounds held: (x, kept (count,), (held lower, held
+    upper, changed (count,)))."""
+    dinv, damping, R, rhs, c, box, G, h = data
+    lower, upper = box[:, 0], box[:, 1]
+    fixed = held_lower | held_upper
+    values = np.zeros_like(dinv)
+    np.copyto(values, lower, where=held_lower)
+    np.copyto(values, upper, where=held_upper)
+    x, _, ok = form.solve(dinv, R, rhs, c, fixed, values)
+    gradient = form.gradient(damping, R, c)
+    wrong = (held_lower & (gradient < 0.0)) | (held_upper & (gradient > 0.0))
+    kept = ok & ~wrong.any(axis=1) & form.admits(box, G, h)
+    if kept.all():
+        return x, kept, (held_lower, held_upper, ~kept)
+    below, above = ~fixed & (x < lower), ~fixed & (x > upper)
+    changed = ok & ~kept & (wrong | below | above).any(axis=1)
+    return x, kept, ((held_lower & ~wrong) | below, (held_upper & ~wrong) | above, changed)

@@ -1,7 +1,9 @@
-"""Task rows: tasks grouped into priority levels, and their rows J q̇ = v stacked.
+"""Task rows: tasks grouped into priority levels, and their rows J q̇ = v stacked, in
+every world.
 
-Every controller reads tasks through these: the QP's hard rows, each level of the
-hierarchy, the pseudoinverse's primary task and each SNS level are one :class:`Stack`.
+Every controller reads tasks through these: the QP's hard rows and its cost's general
+rows, each level of the hierarchy, the pseudoinverse's primary task and each SNS level
+are one :class:`Stack`.
 """
 
 from __future__ import annotations
@@ -11,7 +13,6 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..robot import Robot
 from ..tasks import Task
 
 
@@ -24,7 +25,7 @@ def row_slices(sizes: Sequence[int], start: int = 0) -> list[slice]:
     return slices
 
 
-def group_levels(robot: Robot, tasks: Sequence[Task] | None, levels: Sequence[Sequence[Task]] | None,
+def group_levels(robot, tasks: Sequence[Task] | None, levels: Sequence[Sequence[Task]] | None,
                  owner: str) -> list[list[Task]]:
     """The hierarchy as a list of levels, level 0 (highest priority) first.
 
@@ -75,47 +76,50 @@ def _check_tasks(tasks: Sequence, owner: str, where: str) -> None:
 
 
 class Stack:
-    """The rows of some tasks stacked: ``J`` (m x nv) and ``v`` (m,), written in place by
-    :meth:`stack` (after the tasks' ``update``).
+    """The rows of some tasks stacked in every world: ``J`` (N, m, nv) and ``v`` (N, m),
+    written by :meth:`stack` (after the tasks' ``update``).
 
     Rows of zero weight of a soft task are left out (a zero weight masks a row); a hard
-    task keeps all its rows. ``weighted`` scales each row by √w, so that a least-squares
-    solution of the stack weighs the tasks as the QP's cost does. ``out``: (J, v) views of
-    a larger array to write into.
+    task keeps all its rows. ``weighted`` scales each soft row by √w, so that a
+    least-squares solution of the stack weighs the tasks as the QP's cost does.
+    ``spare_rows`` more rows follow the tasks', for the owner to write. One task whose
+    rows need no change is its own stack (its arrays, no copy).
     """
 
-    def __init__(self, nv: int, tasks: Sequence[Task], weighted: bool = False, out: tuple | None = None):
+    def __init__(self, robot, tasks: Sequence[Task], weighted: bool = False, spare_rows: int = 0):
+        n, nv = robot.n, robot.nv
         self.tasks = list(tasks)
         kept = [np.arange(t.dim) if t.hard else np.flatnonzero(t.weight > 0) for t in self.tasks]
         self.dim = sum(len(keep) for keep in kept)
-        self.J, self.v = out if out is not None else (np.zeros((self.dim, nv)), np.zeros(self.dim))
         self.task_rows = list(zip(self.tasks, row_slices([len(keep) for keep in kept])))  # (task, its rows)
-        self._blocks = []  # (task, its rows kept or None for all, J rows, v rows, √w or None)
-        for (task, rows), keep in zip(self.task_rows, kept):
-            root = np.sqrt(task.weight[keep]) if weighted else np.ones(len(keep))
-            self._blocks.append((task, None if len(keep) == task.dim else keep, self.J[rows], self.v[rows],
-                                 None if np.all(root == 1.0) else root))
-        # One task whose rows need no scaling: its own arrays are the stack (no copy; a
-        # uniform weight on one task changes no least-squares solution).
-        single = self._blocks[0] if len(self._blocks) == 1 else None
-        self._direct = out is None and single is not None and single[1] is None and \
-            (single[4] is None or np.all(single[4] == single[4][0]))
-        # J = I (a joint-space task on every dof, one weight): a controller may skip J.
-        self.identity = bool(self._direct and single[0].joint_space and np.array_equal(single[0].dofs, np.arange(nv)))
+        roots = [np.sqrt(t.weight[keep]) if weighted and not t.hard else np.ones(len(keep))
+                 for t, keep in zip(self.tasks, kept)]
+        single = len(self.tasks) == 1 and not spare_rows and len(kept[0]) == self.tasks[0].dim and \
+            np.all(roots[0] == 1.0)
+        self._direct = self.tasks[0] if single else None
+        if single:
+            self.J, self.v = self.tasks[0].jacobians, self.tasks[0].target_velocities
+        else:
+            self.J, self.v = np.zeros((n, self.dim + spare_rows, nv)), np.zeros((n, self.dim + spare_rows))
+        self._blocks = []  # (task, its kept rows or None, its blocks of J and v (views), √w for J and v or None)
+        for (task, rows), keep, root in zip(self.task_rows, kept, roots):
+            scale = None if np.all(root == 1.0) else np.tile(root, (n, 1))
+            self._blocks.append((task, None if len(keep) == task.dim else keep, self.J[:, rows], self.v[:, rows],
+                                 None if scale is None else scale[:, :, None], scale))
+        # J = I (a joint-space task on every dof): a controller may skip J.
+        self.identity = bool(single and self.tasks[0].joint_space and np.array_equal(self.tasks[0].dofs, np.arange(nv)))
 
     def stack(self) -> None:
         """Copy each task's J and v (scaled where weighted)."""
-        if self._direct:
-            task = self._blocks[0][0]
-            self.J, self.v = task.jacobian, task.target_velocity
+        if self._direct is not None:
             return
-        for task, keep, J, v, root in self._blocks:
-            if keep is None:
-                J[...] = task.jacobian
-                v[...] = task.target_velocity
+        for task, keep, J, v, row_roots, roots in self._blocks:
+            jacobians, velocities = task.jacobians, task.target_velocities
+            if keep is not None:
+                jacobians, velocities = jacobians[:, keep], velocities[:, keep]
+            if roots is None:
+                np.copyto(J, jacobians)
+                np.copyto(v, velocities)
             else:
-                task.jacobian.take(keep, 0, J)
-                task.target_velocity.take(keep, None, v)
-            if root is not None:
-                J *= root[:, None]
-                v *= root
+                np.multiply(jacobians, row_roots, J)
+                np.multiply(velocities, roots, v)

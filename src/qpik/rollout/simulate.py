@@ -47,7 +47,7 @@ from ..errors import DivergenceError, InfeasibleProblem, InvalidInput, SolverErr
 from ..robot import JointLimits, Robot
 from .log import LevelLog, RolloutLog, RunInfo, RunStop
 from .plant import PhysicsPlant
-from ..limits.limit import as_slice
+from ..tasks.inputs import as_index
 from .references import Reference, start_measurement, start_reference
 
 MODES = ("kinematic", "physics")
@@ -167,7 +167,7 @@ class Rollout:
         self._manipulability = start_measurement(manipulability, self.plant, self.steps)
         # End stops: the model's ranges, clipped in place (on a view when the joints are consecutive).
         stops = robot.joint_limits
-        self._stop_index = as_slice(stops.qpos_index)
+        self._stop_index = as_index(stops.qpos_index)
         self._stop_lower, self._stop_upper = stops.lower, stops.upper
         self._has_stops = len(stops.names) > 0
         self._stop_view = robot.data.qpos[self._stop_index] if isinstance(self._stop_index, slice) else None

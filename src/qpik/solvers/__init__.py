@@ -22,7 +22,8 @@ from .osqp import OsqpBackend
 from .proxqp import ProxqpBackend
 
 # Native back-ends by qpsolvers name: each takes (nv, meq, mineq, **settings).
-NATIVE_BACKENDS: dict[str, Callable[..., QPBackend]] = {}
+NATIVE_BACKENDS: dict[str, Callable[..., QPBackend]] = {"daqp": DaqpBackend, "osqp": OsqpBackend,
+                                                        "proxqp": ProxqpBackend}
 
 # Tolerances tight enough for the QP to reproduce the closed-form laws (≤ 1e-6) when a
 # solver runs through qpsolvers.
@@ -38,11 +39,6 @@ QPSOLVERS_DEFAULTS: dict[str, dict] = {
 def register_backend(name: str, factory: Callable[..., QPBackend]) -> None:
     """Make ``factory(nv, meq, mineq, **settings)`` the native back-end of solver ``name``."""
     NATIVE_BACKENDS[name] = factory
-
-
-register_backend("daqp", DaqpBackend)
-register_backend("osqp", OsqpBackend)
-register_backend("proxqp", ProxqpBackend)
 
 
 # Native back-end -> the module its solver imports (installed or not, without importing it).

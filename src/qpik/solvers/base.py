@@ -83,16 +83,6 @@ def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float
     return residual.dot(residual) <= tolerance * tolerance * (1.0 + b.dot(b))
 
 
-def equalities_met_in_floats(Ax: list, b: list, tolerance: float) -> bool:
-    """:func:`equalities_met` with Ax and b given as lists of floats (a row or two: cheaper
-    than any NumPy call); extra entries of ``Ax`` past ``b``'s are ignored."""
-    miss = scale = 0.0
-    for value, target in zip(Ax, b):  # a loop: generator sums cost more on two rows
-        miss += (value - target) * (value - target)
-        scale += target * target
-    return miss <= tolerance * tolerance * (1.0 + scale)
-
-
 class QPBackend:
     """Base class: one solver instance per controller, sized at construction.
 
@@ -118,15 +108,10 @@ class QPBackend:
     constraint_tolerance = 1e-6
 
     def __init__(self, nv: int, meq: int, mineq: int = 0):
-        self.nv = nv
-        self.meq = meq
-        self.mineq = mineq
-        self.A = np.zeros((meq, nv))
-        self.b = np.zeros(meq)
-        self.G = np.zeros((mineq, nv))
-        self.h = np.zeros(mineq)
-        self.lb = np.full(nv, -np.inf)
-        self.ub = np.full(nv, np.inf)
+        self.nv, self.meq, self.mineq = nv, meq, mineq
+        self.A, self.b = np.zeros((meq, nv)), np.zeros(meq)
+        self.G, self.h = np.zeros((mineq, nv)), np.zeros(mineq)
+        self.lb, self.ub = np.full(nv, -np.inf), np.full(nv, np.inf)
 
     def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
         """Solve with the arrays as written and return the checked minimiser.
@@ -226,11 +211,3 @@ class QPBackend:
             raise InfeasibleProblem(f"QP infeasible ({self.name}: {status})")
         raise SolverError(f"QP solver {self.name} failed: {status}")
 
-
-def finite_bounds(values: np.ndarray, out: np.ndarray, sign: float) -> np.ndarray:
-    """``values`` with ±inf replaced by ±BIG, written into ``out`` (solvers without inf)."""
-    if sign > 0:
-        np.minimum(values, BIG, out=out)
-    else:
-        np.maximum(values, -BIG, out=out)
-    return out

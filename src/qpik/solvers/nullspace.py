@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BIG, EXACT_EQUALITY_TOLERANCE, TIME_LIMIT, QPBackend, active_set_iterations
+from .base import BIG
+from .daqp import DaqpBackend
 
 EPS = float(np.finfo(float).eps)
 # A row of N (a dof's share of the null space) shorter than this is a dof the hard rows
@@ -36,7 +37,7 @@ EPS = float(np.finfo(float).eps)
 FIXED_DOF_ROW = 64 * EPS
 
 
-class NullSpaceBackend(QPBackend):
+class NullSpaceBackend(DaqpBackend):
     """DAQP on the QP reduced to the null space of its equality rows (see the module).
 
     Its answer is exact as DAQP's is: x_p meets the rows to rounding, N z adds nothing to
@@ -45,18 +46,8 @@ class NullSpaceBackend(QPBackend):
     answer is projected onto the box.
     """
 
+    # DAQP's settings and tolerances; bound_tolerance is widened per solve by the rounding of x_p + N z.
     name = "daqp (null space of the hard rows)"
-    exact = True
-    equality_tolerance = EXACT_EQUALITY_TOLERANCE
-    bound_tolerance = 1e-5  # DAQP's; widened per solve by the rounding of x_p + N z
-
-    def __init__(self, nv: int, meq: int, mineq: int = 0, **settings):
-        super().__init__(nv, meq, mineq)
-        import daqp
-
-        self._solve_daqp = daqp.solve
-        self._settings = {"iter_limit": active_set_iterations(nv, meq + mineq), "time_limit": TIME_LIMIT,
-                          **settings}
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
         particular, basis = self._null_space()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import SolverError
 from .base import BIG, OSQP_ITERATIONS, TIME_LIMIT, QPBackend, iteration_cap
 
 
@@ -40,16 +41,13 @@ class OsqpBackend(QPBackend):
         self._a_rows, self._a_cols = a_rows[order], a_cols[order]
         self._stacked = np.zeros((m + nv, nv))
         self._stacked[m:] = np.eye(nv)
-        self._lower = np.full(m + nv, -np.inf)
-        self._upper = np.full(m + nv, np.inf)
+        self._lower, self._upper = np.full(m + nv, -np.inf), np.full(m + nv, np.inf)
         self.A, self.G = self._stacked[:meq], self._stacked[meq:m]
         self.b, self._b_lower = self._upper[:meq], self._lower[:meq]
         self.h = self._upper[meq:m]
         self.lb, self.ub = self._lower[m:], self._upper[m:]
-        self._l = np.empty(m + nv)
-        self._u = np.empty(m + nv)
-        self._solver = None
-        self._workspace = None
+        self._l, self._u = np.empty(m + nv), np.empty(m + nv)
+        self._solver = self._workspace = None
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
         self._b_lower[:] = self.b
@@ -105,8 +103,6 @@ class OsqpBackend(QPBackend):
         return np.array(x)  # the workspace reuses its solution buffer
 
     def _error(self, message: str):
-        from ..errors import SolverError
-
         self._solver = self._workspace = None  # set up afresh on the next call
         return SolverError(f"QP solver {self.name}: {message}")
 

@@ -33,8 +33,7 @@ class ProxqpBackend(QPBackend):
             setattr(self._qp.settings, key, value)
         self._ready = False
         self._lb, self._ub = np.empty(nv), np.empty(nv)
-        self._l = np.full(mineq, -BIG)
-        self._h = np.empty(mineq)
+        self._l, self._h = np.full(mineq, -BIG), np.empty(mineq)
 
     def _solve(self, H, c, hessian_changed: bool) -> np.ndarray:
         lb = np.clip(self.lb, -BIG, BIG, out=self._lb)

@@ -1,4 +1,4 @@
-"""Tasks: one concept per module, all sharing the :class:`~qpik.tasks.task.Task` interface."""
+"""Tasks: one concept per module, all sharing :class:`~qpik.tasks.task.Task`, each written once over a leading world axis N."""
 
 from .axis_align import AxisAlignTask
 from .com import ComTask
@@ -8,31 +8,15 @@ from .equality import EqualityTask
 from .frame import FrameTask
 from .kinetic_energy import KineticEnergyRegularizationTask
 from .look_at import LookAtTask
-from .manipulability import ManipulabilityMeasure, ManipulabilityTask, SigmaProxy, Yoshikawa
+from .manipulability import ManipulabilityMeasure, ManipulabilityTask, SigmaProxy
 from .orientation import OrientationTask
 from .position import PositionTask
 from .posture import PostureTask
 from .relative_frame import RelativeFrameTask
-from .task import JointSpaceTask, Task, rotation_error
+from .task import JointSpaceTask, Task
+from .yoshikawa import Yoshikawa
 
-__all__ = [
-    "AxisAlignTask",
-    "ComTask",
-    "DampingTask",
-    "DofFreezingTask",
-    "EqualityTask",
-    "FrameTask",
-    "JointSpaceTask",
-    "KineticEnergyRegularizationTask",
-    "LookAtTask",
-    "ManipulabilityMeasure",
-    "ManipulabilityTask",
-    "OrientationTask",
-    "PositionTask",
-    "PostureTask",
-    "RelativeFrameTask",
-    "SigmaProxy",
-    "Task",
-    "Yoshikawa",
-    "rotation_error",
-]
+__all__ = ["AxisAlignTask", "ComTask", "DampingTask", "DofFreezingTask", "EqualityTask", "FrameTask",
+           "JointSpaceTask", "KineticEnergyRegularizationTask", "LookAtTask", "ManipulabilityMeasure",
+           "ManipulabilityTask", "OrientationTask", "PositionTask", "PostureTask", "RelativeFrameTask",
+           "SigmaProxy", "Task", "Yoshikawa"]

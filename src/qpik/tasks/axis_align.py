@@ -1,23 +1,21 @@
-"""Align a frame's axis with a target direction; the roll about the axis is left free."""
+"""Align a frame's axis with a target direction, in every world; the roll about the axis is left free."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidInput
-from ..robot import Robot
-from .look_at import local_jacobians, skew, unit_axis
-from .task import Task
+from ..numerics import skew
+from .look_at import FrameAxisTask, world_unit_vectors
 
 
-class AxisAlignTask(Task):
+class AxisAlignTask(FrameAxisTask):
     r"""Align a frame's axis :math:`a` (its own coordinates) with a world direction
     :math:`t` (a surface normal, gravity), as mink's ``AxisAlignTask``: a
-    :class:`~qpik.tasks.look_at.LookAtTask` at a point at infinity, the roll about the
-    axis left free (rank 2).
+    :class:`~qpik.tasks.look_at.LookAtTask` at a point at infinity, the roll about
+    the axis left free (rank 2).
 
     With the frame's rotation R the target direction in the frame's axes is
-    :math:`x = R^T t`, driven to :math:`x_d = a`:
+    :math:`x = R^T t`, driven to :math:`x_d = a`, in every world:
 
     .. math::
         e = a - R^T t,\qquad
@@ -29,48 +27,47 @@ class AxisAlignTask(Task):
     there. Three rows of rank 2: keep the task soft.
 
     Args:
-        robot: the robot.
-        frame: name of the site, body or geom.
-        frame_type: ``"site"``, ``"body"`` or ``"geom"``.
-        axis: the axis in the frame's own coordinates (normalised), default +z.
+        robot, frame, frame_type, axis: as for :class:`~qpik.tasks.look_at.LookAtTask`.
         gain, weight, hard, priority, lm_damping: as for :class:`~qpik.tasks.task.Task`.
 
     The target is the axis's current world direction at construction (met);
     :meth:`set_target` changes it.
 
     Raises:
-        UnknownName: no frame of that type has this name.
-        InvalidInput: a zero or non-finite axis or direction, a bad gain or weight.
+        UnknownName, InvalidInput: as :class:`~qpik.tasks.look_at.LookAtTask` (the target
+            here a direction: a zero or non-finite one is refused).
     """
 
     name = "axis-align task"
-    dim = 3
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axis=(0.0, 0.0, 1.0), **options):
-        super().__init__(robot, **options)
-        self.frame = robot.frame(frame, frame_type)
-        self.axis = unit_axis(axis, f"{self.name} axis")
-        robot.ensure_kinematics()
-        self.direction = self.frame.rotation @ self.axis
+    def _start(self, robot) -> None:
+        self.directions = np.matmul(self.frame.rotations, self.axis)  # (N, 3)
+        self.direction = robot.present(self.directions)
+        self._seen = np.zeros((robot.n, 3))  # x = Rᵀt
 
     def set_target(self, direction, velocity=None) -> None:
-        """The world direction (3,) to align the axis with (normalised).
+        """The world direction (3,) to align the axis with (normalised), or (N, 3) one per world.
 
         Raises:
-            InvalidInput: a wrong shape, NaN, inf or zero, or a feed-forward velocity.
+            InvalidInput: a wrong shape, NaN, inf or zero (InvalidWorlds: in some worlds),
+                or a feed-forward velocity.
         """
-        if velocity is not None:
-            raise InvalidInput(f"{self.name}: the target is a direction; it takes no velocity")
-        self.direction = unit_axis(direction, f"{self.name} target direction")
+        self._no_velocity(velocity, "a direction")
+        self.directions[...] = world_unit_vectors(self.robot, direction, f"{self.name} target direction")
 
-    def measured(self, robot: Robot | None = None) -> np.ndarray:
-        """x = Rᵀt, the target direction in the frame's axes."""
-        return (robot or self.robot).frame_rotation(self.frame).T @ self.direction
+    def _seen_directions(self, rotations: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """x = Rᵀt of every world (as the rows tᵀR), into ``out`` (N, 3)."""
+        np.matmul(self.directions[:, None, :], rotations, out[:, None, :])
+        return out
 
-    def compute_error(self, robot: Robot) -> np.ndarray:
-        return self.axis - self.measured(robot)
+    def measured(self, robot=None) -> np.ndarray:
+        """x = Rᵀt, the target direction in the frame's axes (a copy), on the bound robot
+        or another robot of the same model and number of worlds."""
+        robot, frame = self._frame_on(robot)
+        return robot.present(self._seen_directions(frame.rotations, np.zeros((robot.n, 3))))
 
-    def compute_jacobian(self, robot: Robot) -> np.ndarray:
-        rotation, _, jac_w = local_jacobians(robot, self.frame)
-        return skew(rotation.T @ self.direction) @ jac_w
-
+    def measure_rows(self) -> None:
+        seen, axes = self._seen_directions(self.frame.rotations, self._seen), self._axes
+        axes.update(linear=False)
+        np.subtract(self.axis, seen, self.errors)
+        np.matmul(skew(seen, self._skew), axes.angular, self.jacobians)

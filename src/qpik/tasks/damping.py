@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from ..robot import Robot
 from .task import JointSpaceTask
 
 
@@ -13,15 +12,15 @@ class DampingTask(JointSpaceTask):
     minimum-norm J†v.
 
     Args:
-        robot: the robot.
+        robot: the robot (one world or N).
         weight: cost weight.
         joints: joints whose dofs are damped (default: every hinge and slide joint).
     """
 
     name = "damping task"
 
-    def __init__(self, robot: Robot, weight=1e-3, joints: Sequence[str] | None = None):
+    def __init__(self, robot, weight=1e-3, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
 
-    def update(self) -> None:
-        pass
+    def track(self) -> None:
+        """v = 0: nothing to track."""

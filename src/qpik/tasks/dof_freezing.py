@@ -1,11 +1,10 @@
-"""Hold chosen degrees of freedom still: hard rows q̇_i = 0."""
+"""Hold chosen degrees of freedom still: hard rows q̇_i = 0, in every world."""
 
 from __future__ import annotations
 
 from typing import Sequence
 
 from ..errors import InvalidInput
-from ..robot import Robot
 from .task import JointSpaceTask
 
 
@@ -15,13 +14,12 @@ class DofFreezingTask(JointSpaceTask):
     the solver's accuracy whatever the other tasks ask, and the rest of the robot
     moves around them.
 
-    A joint-space task: J is the selection ``I[dofs]`` and ``dofs`` says which. In a
-    :class:`~qpik.controllers.hierarchy.HierarchicalController` or an
-    :class:`~qpik.controllers.sns.SNSController` give it ``priority=0`` so nothing
-    above it moves the frozen joints.
+    A joint-space task: J is the selection ``I[dofs]`` and ``dofs`` says which; e and v
+    are zero in every world, written once. In a hierarchy give it ``priority=0`` so
+    nothing above it moves the frozen joints.
 
     Args:
-        robot: the robot.
+        robot: the robot (one world or N).
         joints: names of the joints to freeze (all dofs of a free or ball joint).
         priority: its level in a strict hierarchy (0 the highest).
 
@@ -32,12 +30,10 @@ class DofFreezingTask(JointSpaceTask):
 
     name = "DoF freezing task"
 
-    def __init__(self, robot: Robot, joints: Sequence[str], priority: int = 0):
+    def __init__(self, robot, joints: Sequence[str], priority: int = 0):
         if joints is None or (not isinstance(joints, str) and len(joints) == 0):
             raise InvalidInput(f"{self.name}: name the joints to freeze")
-        super().__init__(robot, joints)
-        self.hard = True
-        self.priority = priority
+        super().__init__(robot, joints, hard=True, priority=priority)
 
-    def update(self) -> None:
-        pass  # v = 0 and e = 0, set once
+    def track(self) -> None:
+        """v = 0: nothing to track."""

@@ -2,30 +2,80 @@
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
-from ..robot import Robot
-from .task import (
-    PoseRows,
-    Task,
+from .inputs import (
     axis_rows,
     check_axes_frame,
     feedback_gain,
-    check_targets,
-    float_array,
     homogeneous_transform,
     mocap_pose,
-    rotation_error,
-    rotation_matrix,
+    world_rotations,
+    world_values,
 )
-
-__all__ = ["FrameTask", "rotation_error"]
-
-_ZERO3 = np.zeros(3)
+from .pose import PoseRows
+from .task import Task
 
 
-class FrameTask(Task):
+class PoseTask(Task):
+    """What :class:`FrameTask` and :class:`~qpik.tasks.relative_frame.RelativeFrameTask`
+    share: position rows then orientation rows, their gains, and a target pose and
+    feed-forward twist per world (a subclass measures the pose now: ``_pose_now``)."""
+
+    def _start_pose(self, positions, rotations, twist: np.ndarray, position_gain, orientation_gain, p: int) -> None:
+        """Gains K_p (``p`` rows) then K_o, targets copied from ``positions`` (N, 3) and
+        ``rotations`` (N, 3, 3), the feed-forward ``twist`` (N, 6), and the views a user reads."""
+        robot = self.robot
+        self.set_gain(np.concatenate([feedback_gain(position_gain, p, "position gain"),
+                                      feedback_gain(orientation_gain, self.dim - p, "orientation gain")]))
+        self.position_gain, self.orientation_gain = self.gain[..., :p], self.gain[..., p:]
+        self.target_positions, self.target_rotations, self._twist = np.array(positions), np.array(rotations), twist
+        self._linear_twist, self._angular_twist = twist[:, :3], twist[:, 3:]
+        self.target_position = robot.present(self.target_positions)
+        self.target_rotation = robot.present(self.target_rotations)
+        view = robot.present(twist)
+        self.target_linear_velocity, self.target_angular_velocity = view[..., :3], view[..., 3:]
+        self.position_error, self.orientation_error = self.error[..., :p], self.error[..., p:]
+
+    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
+        """Desired pose and feed-forward twist in the task's coordinates (the world's for a
+        :class:`FrameTask`, whatever ``axes_frame``; ``root``'s for a relative one): one for
+        every world, or (N, ...) one per world. ``rotation`` is a 3x3 rotation matrix or a
+        unit quaternion in MuJoCo's w-x-y-z order.
+
+        Raises:
+            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation
+                (InvalidWorlds: in some worlds).
+        """
+        robot = self.robot
+        position = world_values(robot, position, (3,), "target position")
+        rotation = world_rotations(robot, rotation)
+        linear = 0.0 if linear_velocity is None else world_values(robot, linear_velocity, (3,), "target linear velocity")
+        angular = 0.0 if angular_velocity is None else world_values(robot, angular_velocity, (3,),
+                                                                    "target angular velocity")
+        self.target_positions[...] = position  # every argument checked before any is written
+        self.target_rotations[...] = rotation
+        np.copyto(self._linear_twist, linear)
+        np.copyto(self._angular_twist, angular)
+
+    def set_target_from_configuration(self) -> None:
+        """Desired pose: the pose at the current configuration, in every world."""
+        self.robot.ensure_kinematics()
+        self.target_positions[...], self.target_rotations[...] = self._pose_now()
+        self._twist[...] = 0.0
+
+    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
+        """:meth:`set_target` from a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]] (one
+        for every world).
+
+        Raises:
+            InvalidInput: not a 4x4 homogeneous transform with a rotation block.
+        """
+        position, rotation = homogeneous_transform(transform)
+        self.set_target(position, rotation, linear_velocity, angular_velocity)
+
+
+class FrameTask(PoseTask):
     r"""Track a frame's pose: position rows, then orientation rows.
 
     .. math::
@@ -43,13 +93,9 @@ class FrameTask(Task):
         robot: the robot.
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
-        position_gain: :math:`K_p` (1/s), a scalar or one per position row; default
-            ``None``: dead-beat, 1/Δt of the controller the task is given to (see below).
-        orientation_gain: :math:`K_o` (1/s), a scalar or one per orientation row; default
-            ``None``: dead-beat as well.
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
+        position_gain, orientation_gain: :math:`K_p`, :math:`K_o` (1/s), a scalar or one per
+            position (orientation) row; default ``None``: dead-beat (see below).
+        weight, hard, lm_damping: as for :class:`~qpik.tasks.task.Task`.
         position_axes: the position rows kept, a subset of ``"xyz"``.
         orientation_axes: the orientation rows kept, a subset of ``"xyz"``.
         axes_frame: ``"world"`` or ``"local"``: the axes the rows, masks, gains and
@@ -72,99 +118,40 @@ class FrameTask(Task):
 
     name = "frame task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", position_gain=None, orientation_gain=None,
+    def __init__(self, robot, frame: str, frame_type: str = "site", position_gain=None, orientation_gain=None,
                  weight=1.0, hard: bool = False, lm_damping: float = 0.0, position_axes: str = "xyz",
                  orientation_axes: str = "xyz", axes_frame: str = "world"):
         self.position_rows = axis_rows(position_axes, "position_axes")
         self.orientation_rows = axis_rows(orientation_axes, "orientation_axes")
         self.axes_frame = axes_frame
         local = check_axes_frame(axes_frame)
+        self.frame = robot.frame(frame, frame_type)
+        self._pose = PoseRows(robot, self.frame, self.position_rows, self.orientation_rows, local)
         n_position = len(self.position_rows)
         super().__init__(robot, n_position + len(self.orientation_rows), weight, hard, lm_damping=lm_damping)
-        self.frame = robot.frame(frame, frame_type)
-        # Gains and the feed-forward twist live in one array each, the per-block names being
-        # views: v = K e + ẋ_d is then two operations on all rows.
-        self._use_gain(np.concatenate([feedback_gain(position_gain, n_position, "position gain"),
-                                       feedback_gain(orientation_gain, self.dim - n_position, "orientation gain")]))
-        self.position_gain, self.orientation_gain = self.gain[:n_position], self.gain[n_position:]
-        self.target_position = self.frame.position.copy()
-        self.target_rotation = self.frame.rotation.copy()
-        self._twist = np.zeros(6)
-        self.target_linear_velocity, self.target_angular_velocity = self._twist[:3], self._twist[3:]
-        self.position_error = self.error[:n_position]
-        self.orientation_error = self.error[n_position:]
-        # Every world axis: MuJoCo fills the task's own Jacobian rows (views), no copies.
-        self._whole = self.dim == 6 and not local
+        self._start_pose(self.frame.positions, self.frame.rotations, np.zeros((robot.n, 6)), position_gain,
+                         orientation_gain, n_position)
+        # Every world axis: MuJoCo fills the task's own Jacobian rows, the feed-forward is
+        # the twist itself, the errors are views: no copies.
+        self._whole = self._pose.whole_rows()
         if self._whole:
-            self._jacp, self._jacr = self.jacobian[:3], self.jacobian[3:]
-            self._fill_jacobian = self.frame.jacobian_filler(self._jacp, self._jacr)
-            # The rotations as 9-vectors (views), as MuJoCo's quaternion conversion takes them,
-            # their quaternions and the error in the frame's axes (RotationError's steps, inline).
-            self._target_flat, self._current_flat = self.target_rotation.reshape(9), self.frame.rotation.reshape(9)
-            self._quaternions, self._local_error = (np.empty(4), np.empty(4)), np.empty(3)
-        else:
-            self._rows = PoseRows(self.frame, robot.nv, self.position_rows, self.orientation_rows, local)
-            self._feedforward = np.zeros(self.dim)
-
-    def set_target(self, position, rotation, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose and feed-forward twist (world axes), whatever ``axes_frame``.
-
-        ``rotation`` is a 3x3 rotation matrix or a unit quaternion in MuJoCo's w-x-y-z order.
-
-        Raises:
-            InvalidInput: a wrong shape, NaN/inf, or a matrix that is no rotation.
-        """
-        position = float_array(position, 3, "target position")
-        linear = _ZERO3 if linear_velocity is None else float_array(linear_velocity, 3, "target linear velocity")
-        angular = _ZERO3 if angular_velocity is None else float_array(angular_velocity, 3, "target angular velocity")
-        check_targets((position, "target position"), (linear, "target linear velocity"),
-                      (angular, "target angular velocity"))
-        self.target_rotation[:] = rotation_matrix(rotation)  # every argument checked before the others are written
-        self.target_position[:] = position
-        self.target_linear_velocity[:] = linear
-        self.target_angular_velocity[:] = angular
-
-    def set_target_transform(self, transform, linear_velocity=None, angular_velocity=None) -> None:
-        """Desired world pose as a homogeneous 4x4 transform [[R, p], [0, 0, 0, 1]].
-
-        Raises:
-            InvalidInput: not a 4x4 homogeneous transform with a rotation block.
-        """
-        position, rotation = homogeneous_transform(transform)
-        self.set_target(position, rotation, linear_velocity, angular_velocity)
+            self._fill = self.frame.jacobians_filler(self.jacobians[:, :3], self.jacobians[:, 3:])
+            self.rates = self._twist
+            self.target_rate = robot.present(self.rates)
+            self._position_errors, self._orientation_errors = self.errors[:, :3], self.errors[:, 3:]
 
     def set_target_from_mocap(self, body: str) -> None:
-        """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now.
-
-        Raises:
-            UnknownName: no body of that name.
-            InvalidInput: the body is not a mocap body.
-        """
+        """Desired world pose: a mocap body's (``data.mocap_pos``/``mocap_quat``), read now."""
         self.set_target(*mocap_pose(self.robot, body))
 
-    def set_target_from_configuration(self) -> None:
-        """Desired world pose: the frame's pose at the robot's current configuration."""
-        self.robot.ensure_kinematics()
-        self.set_target(self.frame.position, self.frame.rotation)
+    def _pose_now(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.frame.positions, self.frame.rotations
 
-    def update(self) -> None:
-        if self._whole:
-            self._fill_jacobian()
-        else:
-            self._rows.jacobian(self.jacobian)
-        self.update_target_velocity()
-
-    def update_target_velocity(self) -> None:
-        """Errors and v only (what a law without the Jacobian needs)."""
+    def measure_rows(self) -> None:
+        pose = self._pose
         if not self._whole:
-            self._rows.errors(self.target_position, self.target_rotation, self.target_linear_velocity,
-                              self.target_angular_velocity, self.error, self._feedforward)
-            self._track(self._feedforward)
+            pose.write(self, self.target_positions, self.target_rotations, self._linear_twist, self._angular_twist)
             return
-        frame, (desired, current), local = self.frame, self._quaternions, self._local_error
-        np.subtract(self.target_position, frame.position, self.position_error)
-        mujoco.mju_mat2Quat(desired, self._target_flat)
-        mujoco.mju_mat2Quat(current, self._current_flat)
-        mujoco.mju_subQuat(local, desired, current)  # q_current * exp(local) = q_desired
-        frame.rotation.dot(local, self.orientation_error)  # in world axes
-        self._track(self._twist)
+        self._fill()
+        np.subtract(self.target_positions, self.frame.positions, self._position_errors)
+        pose._rotation_error(self.target_rotations, self.frame.rotations, self._orientation_errors)

@@ -4,20 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..robot import Robot
-from .task import (
-    PoseRows,
-    Task,
-    axis_rows,
-    check_axes_frame,
-    feedback_gain,
-    target_vector,
-    mocap_pose,
-    rotation_matrix,
-)
+from .inputs import mocap_pose, world_rotations, world_values
+from .pose import MaskedFrameTask
 
 
-class OrientationTask(Task):
+class OrientationTask(MaskedFrameTask):
     r"""Track a frame's orientation on selected axes.
 
     .. math::
@@ -29,16 +20,9 @@ class OrientationTask(Task):
     :math:`R_d`'s does while leaving the rotation about it free (to first order).
 
     Args:
-        robot: the robot.
-        frame: name of the site, body or geom.
-        frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
-        axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
-            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
-        lm_damping: adaptive Levenberg–Marquardt weight μ (see :class:`~qpik.tasks.task.Task`).
-        axes_frame: ``"world"`` or ``"local"`` (the frame's own axes).
+        robot, frame, frame_type, axes, axes_frame: as for :class:`~qpik.PositionTask`.
+        gain, weight, hard, lm_damping: K, dead-beat by default, and the rest as for
+            :class:`~qpik.tasks.task.Task`.
 
     Raises:
         UnknownName: no frame of that type has this name (the closest are listed).
@@ -46,51 +30,35 @@ class OrientationTask(Task):
     """
 
     name = "orientation task"
+    block = "orientation"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
-                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
-        self.rows = axis_rows(axes)
-        self.axes_frame = axes_frame
-        local = check_axes_frame(axes_frame)
-        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
-        self.frame = robot.frame(frame, frame_type)
-        self._use_gain(feedback_gain(gain, self.dim, "orientation gain"))
-        self.target_rotation = self.frame.rotation.copy()
-        self.target_angular_velocity = np.zeros(3)
-        self._pose_rows = PoseRows(self.frame, robot.nv, None, self.rows, local)
-        self._feedforward = np.zeros(self.dim)
+    def _start(self, robot) -> None:
+        self.target_rotations = np.array(self.frame.rotations)
+        self.target_angular_velocities = np.zeros((robot.n, 3))
+        self.target_rotation = robot.present(self.target_rotations)
+        self.target_angular_velocity = robot.present(self.target_angular_velocities)
 
     def set_target(self, rotation, angular_velocity=None) -> None:
-        """Desired world rotation (a 3x3 matrix or a w-x-y-z unit quaternion) and
-        feed-forward angular velocity (world axes).
+        """Desired world rotation (a 3x3 matrix or a w-x-y-z unit quaternion; or one per
+        world) and feed-forward angular velocity (world axes).
 
         Raises:
             InvalidInput: a matrix that is no rotation, a wrong shape, NaN or inf.
         """
-        self.target_rotation[:] = rotation_matrix(rotation)
-        self.target_angular_velocity[:] = (0.0 if angular_velocity is None
-                                           else target_vector(angular_velocity, 3, "target angular velocity"))
+        rotation = world_rotations(self.robot, rotation)
+        angular = 0.0 if angular_velocity is None else world_values(self.robot, angular_velocity, (3,),
+                                                                    "target angular velocity")
+        self.target_rotations[...] = rotation
+        self.target_angular_velocities[...] = angular
 
     def set_target_from_configuration(self) -> None:
-        """Desired rotation: the frame's at the robot's current configuration."""
+        """Desired rotation: the frame's at the current configuration, in every world."""
         self.robot.ensure_kinematics()
-        self.set_target(self.frame.rotation)
+        self.set_target(self.robot.present(self.frame.rotations))
 
     def set_target_from_mocap(self, body: str) -> None:
-        """Desired rotation: a mocap body's (``data.mocap_quat``), read now.
-
-        Raises:
-            UnknownName: no body of that name.
-            InvalidInput: the body is not a mocap body.
-        """
+        """Desired rotation: a mocap body's (``data.mocap_quat``), read now (one world)."""
         self.set_target(mocap_pose(self.robot, body)[1])
 
-    def update(self) -> None:
-        self._pose_rows.jacobian(self.jacobian)
-        self.update_target_velocity()
-
-    def update_target_velocity(self) -> None:
-        """Error and v only (what a law without the Jacobian needs)."""
-        self._pose_rows.errors(None, self.target_rotation, None, self.target_angular_velocity, self.error,
-                               self._feedforward)
-        self._track(self._feedforward)
+    def measure_rows(self) -> None:
+        self._pose.write(self, None, self.target_rotations, None, self.target_angular_velocities)

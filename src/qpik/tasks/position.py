@@ -4,20 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..robot import Robot
-from .task import (
-    PointTarget,
-    PoseRows,
-    Task,
-    axis_rows,
-    check_axes_frame,
-    contiguous_rows,
-    feedback_gain,
-    mocap_pose,
-)
+from .inputs import mocap_pose, world_values
+from .pose import MaskedFrameTask
 
 
-class PositionTask(Task):
+class PositionTask(MaskedFrameTask):
     r"""Track a frame's position on selected axes (the arm's task uses ``"xy"``).
 
     .. math::
@@ -34,14 +25,11 @@ class PositionTask(Task):
     calms the step when the target is out of reach and the error stays large.
 
     Args:
-        robot: the robot.
+        robot: the robot (one world or N).
         frame: name of the site, body or geom.
         frame_type: ``"site"``, ``"body"`` (its origin) or ``"geom"``.
         axes: the rows kept, a subset of ``"xyz"``.
-        gain: K (1/s), a scalar or one per row; default ``None``: dead-beat, 1/Δt of the
-            controller the task is given to (K·Δt = 1, mink's default ``gain=1``).
-        weight: cost weight of a soft task, a scalar or one per row.
-        hard: enforce the rows as equalities in the QP.
+        gain, weight, hard: K, dead-beat by default, and the rest as for :class:`~qpik.tasks.task.Task`.
         lm_damping: μ above.
         axes_frame: ``"world"`` or ``"local"`` (the frame's own axes).
 
@@ -52,92 +40,70 @@ class PositionTask(Task):
 
     name = "position task"
 
-    def __init__(self, robot: Robot, frame: str, frame_type: str = "site", axes: str = "xyz", gain=None, weight=1.0,
-                 hard: bool = False, lm_damping: float = 0.0, axes_frame: str = "world"):
-        self.rows = axis_rows(axes)
-        self.axes_frame = axes_frame
-        self.local = check_axes_frame(axes_frame)
-        super().__init__(robot, len(self.rows), weight, hard, lm_damping=lm_damping)
-        self.frame = robot.frame(frame, frame_type)
-        self._use_gain(feedback_gain(gain, self.dim, "position gain"))
-        self._jacp = np.zeros((3, robot.nv))
-        self._fill_jacobian = self.frame.jacobian_filler(self._jacp)
-        self._views = False
-        if self.local:
-            self._pose_rows = PoseRows(self.frame, robot.nv, self.rows, None, local=True)
-            self._feedforward = np.zeros(self.dim)
-            self._goal = PointTarget(self.frame.position, "target position", "target velocity")
-            self.target, self.target_rate = self._goal.target, self._goal.rate
-            return
-        # With contiguous axes ("xy", "xyz") the Jacobian and position are views that
-        # MuJoCo's own arrays fill: no copies in the loop.
-        rows = contiguous_rows(self.rows)
-        self._views = rows is not None
-        if self._views:
-            self.jacobian = self._jacp[rows]
-            self.position = self.frame.position[rows]
-        else:
-            self.position = self.frame.position[self.rows]
-        self._goal = PointTarget(self.frame.position[self.rows], "target position", "target velocity")
-        self.target, self.target_rate = self._goal.target, self._goal.rate
+    def _start(self, robot) -> None:
+        start = self.frame.positions if self.local else self.frame.positions[:, self.rows]
+        self.targets = np.array(start)  # (N, target_dim)
+        self.target = robot.present(self.targets)
+        self._velocities = np.zeros((robot.n, 3)) if self.local else self.rates  # ẋ_d, world axes
+        self._fill = self._pose._fill
+        # World axes: the kept rows of the frame's position (a view when consecutive).
+        rows = self._pose.rows
+        self._kept = self.frame.positions[:, rows] if isinstance(rows, slice) else np.zeros((robot.n, self.dim))
+
+    def _allocate_jacobians(self) -> None:
+        # World axes: the rows of MuJoCo's own Jacobian (a view, no copy per step).
+        rows = self._pose.rows
+        self.jacobians = self._pose.position_jacobian[:, rows] if not self.local and isinstance(rows, slice) else \
+            np.zeros((self.robot.n, self._pose.dim, self.robot.nv))
 
     @property
     def target_dim(self) -> int:
         """Length of a target: ``len(axes)`` in world axes, 3 (a world position) in local axes."""
-        return len(self.target)
+        return self.targets.shape[1]
 
     def set_target(self, position, velocity=None) -> None:
         """Desired position and feed-forward velocity: on the masked world axes, or a
-        world position (3,) and velocity with ``axes_frame="local"``.
+        world position (3,) and velocity with ``axes_frame="local"``; one for every world,
+        or (N, ...) one per world.
 
         Raises:
-            InvalidInput: a wrong length, NaN or inf.
+            InvalidInput: a wrong shape, NaN or inf (InvalidWorlds: in some worlds).
         """
-        self._goal.set(position, velocity)
+        size = self.target_dim
+        target = world_values(self.robot, position, (size,), "target position")
+        rate = None if velocity is None else world_values(self.robot, velocity, (size,), "target velocity")
+        self.targets[...] = target
+        self._velocities[...] = 0.0 if rate is None else rate
 
     def set_target_from_configuration(self) -> None:
-        """Desired position: the frame's position at the robot's current configuration."""
+        """Desired position: the frame's position at the current configuration, in every world."""
         self.robot.ensure_kinematics()
-        self.set_target(self.measured())
+        self.set_target(self.robot.present(self.measured_positions()))
 
     def set_target_from_mocap(self, body: str) -> None:
-        """Desired position: a mocap body's (``data.mocap_pos``, the masked world axes in
-        world axes), read now.
-
-        Raises:
-            UnknownName: no body of that name.
-            InvalidInput: the body is not a mocap body.
-        """
+        """Desired position: a mocap body's (``data.mocap_pos``), read now (one world)."""
         position = mocap_pose(self.robot, body)[0]
         self.set_target(position if self.local else position[self.rows])
 
-    def measured(self, robot: Robot | None = None) -> np.ndarray:
-        """The tracked position in the target's coordinates (a copy), on the bound robot
-        or another robot of the same model (valid after its kinematics update)."""
-        position = (robot or self.robot).frame_position(self.frame)
+    def measured_positions(self) -> np.ndarray:
+        """The tracked position of every world in the target's coordinates (N, target_dim), a copy."""
+        positions = self.frame.positions
+        return positions.copy() if self.local else positions[:, self.rows]
+
+    def measured(self, robot=None) -> np.ndarray:
+        """The tracked position (a copy) as a user reads it, on the bound robot or another
+        robot of the same model (after its kinematics update)."""
+        if robot is None or robot is self.robot:
+            return self.robot.present(self.measured_positions())
+        position = robot.frame_position(self.frame)
         return position.copy() if self.local else position[self.rows]
 
-    def update(self) -> None:
+    def measure_rows(self) -> None:
         if self.local:
-            self._pose_rows.jacobian(self.jacobian)
-            self.update_target_velocity()
+            self._pose.write(self, self.targets, None, self._velocities)
             return
-        self._fill_jacobian()
-        if not self._views:
-            self._jacp.take(self.rows, 0, self.jacobian)
-            self.frame.position.take(self.rows, None, self.position)
-        # update_target_velocity's, inline: e = x_d − x, v = K e + ẋ_d
-        np.subtract(self.target, self.position, self.error)
-        np.multiply(self.gain, self.error, self.target_velocity)
-        np.add(self.target_velocity, self.target_rate, self.target_velocity)
-
-    def update_target_velocity(self) -> None:
-        """Error and v only (what a law without the Jacobian needs)."""
-        if self.local:
-            self._pose_rows.errors(self.target, None, self.target_rate, None, self.error, self._feedforward)
-            self._track(self._feedforward)
-            return
-        if not self._views:
-            self.frame.position.take(self.rows, None, self.position)
-        np.subtract(self.target, self.position, self.error)
-        self._track(self.target_rate)
+        self._fill()
+        if not isinstance(self._pose.rows, slice):
+            np.take(self._pose.position_jacobian, self.rows, 1, self.jacobians)
+            np.take(self.frame.positions, self.rows, 1, self._kept)
+        np.subtract(self.targets, self._kept, self.errors)

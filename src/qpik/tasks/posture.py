@@ -4,19 +4,20 @@ from __future__ import annotations
 
 from typing import Sequence
 
-import mujoco
 import numpy as np
 
-from ..robot import Robot
-from .task import JointSpaceTask, ScalarGain, contiguous_rows, target_vector
+from ..numerics import ConfigurationDifference
+from .inputs import as_index, positive_scalar, world_values
+from .task import JointSpaceTask, ScalarGain
 
 
-class PostureTask(JointSpaceTask):
+class PostureTask(ScalarGain, JointSpaceTask):
     """Joint-space task toward a reference configuration: v = K (q_ref ⊖ q) on its dofs.
 
     Args:
-        robot: the robot.
-        target: reference configuration (nq,), default the current one.
+        robot: the robot (one world or N).
+        target: reference configuration (nq,) (or (N, nq), one per world); default the
+            current one.
         gain: K (1/s), a number >= 0.
         weight: cost weight.
         joints: joints whose dofs the task covers (default: every hinge and slide joint,
@@ -27,29 +28,26 @@ class PostureTask(JointSpaceTask):
     """
 
     name = "posture task"
-    gain = ScalarGain("posture gain")
+    gain_label = "posture gain"
 
-    def __init__(self, robot: Robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
+    def __init__(self, robot, target=None, gain: float = 1.0, weight=1.0, joints: Sequence[str] | None = None):
         super().__init__(robot, joints, weight)
-        self.gain = gain
-        self.target = robot.q.copy() if target is None else target_vector(target, robot.nq, "posture target")
-        self._difference = np.zeros(robot.nv)
-        # Consecutive dofs (every hinge, with or without a floating base before them): the
-        # error is a view of the difference, no copy per step.
-        rows = contiguous_rows(self.dofs)
-        if rows is not None:
-            self.error = self._difference[rows]
-        self._copy_error = rows is None
-        self._model, self._qpos = robot.model, robot.data.qpos  # views, valid for the robot's life
+        self.set_gain(np.full(self.dim, positive_scalar(gain, self.gain_label, allow_zero=True)))
+        self.targets = np.array(robot.qpos) if target is None else \
+            np.array(world_values(robot, target, (robot.nq,), "posture target"))
+        self.target = robot.present(self.targets)
+        self._difference = ConfigurationDifference(robot.model, robot.n)
+        self._velocity = np.zeros((robot.n, robot.nv))
+        self._dofs = as_index(self.dofs)
+        if isinstance(self._dofs, slice):  # the error is a view of the difference: no copy per step
+            self.errors = self._velocity[:, self._dofs]
+            self.error = robot.present(self.errors)
 
     def set_target(self, target) -> None:
-        self.target[:] = target_vector(target, self.robot.nq, "posture target")
+        """The reference configuration (nq,), or (N, nq) one per world."""
+        self.targets[...] = world_values(self.robot, target, (self.robot.nq,), "posture target")
 
-    def feedback_gains(self) -> np.ndarray:
-        return np.full(self.dim, self.gain)
-
-    def update(self) -> None:
-        mujoco.mj_differentiatePos(self._model, self._difference, 1.0, self._qpos, self.target)
-        if self._copy_error:
-            self._difference.take(self.dofs, None, self.error)
-        np.multiply(self._k, self.error, self.target_velocity)
+    def measure_rows(self) -> None:
+        self._difference(self.robot.qpos, self.targets, self._velocity)
+        if not isinstance(self._dofs, slice):
+            np.take(self._velocity, self._dofs, 1, self.errors)

@@ -95,7 +95,8 @@ class PeerProblem:
         self.joint_names, self.lower, self.upper = limits.names, limits.lower, limits.upper
         self.limit_gain = self.position_limit.gain
         self.damper = self.position_limit.influence > 0.0
-        self._low, self._high = np.empty(self.robot.nv), np.empty(self.robot.nv)
+        # One world's box (1, nv), as the limit writes it (the peers run a one-world robot).
+        self._low, self._high = np.empty((1, self.robot.nv)), np.empty((1, self.robot.nv))
         self._step = np.empty(6)
 
     @classmethod
@@ -174,7 +175,7 @@ class PeerProblem:
         high.fill(np.inf)
         self.position_limit.apply(self.dt, low, high)
         dofs = self.position_limit.limits.dof_index
-        return self.dt * low[dofs], self.dt * high[dofs]
+        return self.dt * low[0, dofs], self.dt * high[0, dofs]
 
     def velocity_limited_joints(self) -> dict[str, float]:
         """{joint name: q̇max} for the scalar joints with a finite speed bound."""

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InvalidInput
-from .studies import CONTROLLERS, DT, HOLD, MOVE, STUDIES
+from .studies import CONTROLLERS, DT, HOLD, MOVE, STUDIES, check_ported, ported
 
 DEFAULT_CHUNK = 2048
 DEFAULT_CONTROLLERS = "qp,pinv"
@@ -60,11 +60,27 @@ def _controllers(text: str) -> list[str]:
     return names
 
 
+def chosen_controllers(robot: str, given: list[str] | None) -> list[str]:
+    """The controllers to sweep: those given (each checked), else the defaults the engine
+    runs for ``robot``.
+
+    Raises:
+        NotBatched: a controller given (or, with none ported, the first default) that needs
+            a batched class the engine does not have yet.
+    """
+    if given is None:
+        default = _controllers(DEFAULT_CONTROLLERS)
+        given = [kind for kind in default if ported(robot, kind)] or default
+    check_ported(robot, given)
+    return given
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("robot", choices=sorted(STUDIES), help="the bundled robot to sweep")
     p.add_argument("--targets", type=_positive, required=True, metavar="N", help="number of worlds (targets)")
-    p.add_argument("--controllers", type=_controllers, default=_controllers(DEFAULT_CONTROLLERS), metavar="C1,C2",
-                   help=f"comma-separated, of {', '.join(CONTROLLERS)} (default: {DEFAULT_CONTROLLERS})")
+    p.add_argument("--controllers", type=_controllers, default=None, metavar="C1,C2",
+                   help=f"comma-separated, of {', '.join(CONTROLLERS)} (default: {DEFAULT_CONTROLLERS}, those of them "
+                        "the batched engine runs for ROBOT)")
     p.add_argument("--seed", type=int, default=0, help="seed of the samples (targets, start states, gains)")
     p.add_argument("--out", metavar="DIR", help="output folder; a sweep run again into it resumes "
                                                 "(default: out/sweep-ROBOT)")
@@ -126,6 +142,7 @@ def cmd_sweep(args) -> int:
 
     if args.workers is not None and args.ray is None:
         raise InvalidInput("--workers applies to --ray only (in-process, the chunks run one after another)")
+    args.controllers = chosen_controllers(args.robot, args.controllers)
     runner = None
     if args.ray is not None:
         from .runners import RayRunner

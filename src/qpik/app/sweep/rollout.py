@@ -3,7 +3,7 @@
 Every world runs ``steps`` control steps of ``DT`` (by default ``STEPS``: the reference
 moves ``MOVE`` s, then holds ``HOLD`` s). A world whose step has no answer (an
 infeasible QP, a singular pseudoinverse) stops there, as ``qpik run`` stops a run: its
-configuration is frozen and it is left out of the later solves. What is measured, per
+configuration is frozen (its target held there, its velocity zero). What is measured, per
 world, over the steps it ran:
 
 - ``max_error``: the largest tracking error |x_ref(t) − x| (m, the position rows);
@@ -43,7 +43,8 @@ class Recorder:
     def __init__(self, study, built, samples, steps: int):
         robots = built.robots
         n = robots.n
-        self.study, self.built, self.target = study, built, samples["target"][:, :study.position_dims]
+        self.study, self.built, self.samples = study, built, samples
+        self.target = samples["target"][:, :study.position_dims]
         self.steps = steps
         self.limits = robots.joint_limits
         self.vmax = robots.velocity_limits
@@ -102,11 +103,12 @@ class Recorder:
             "stopped_at": self.stopped_at, "stop_reason": self.stop_reason,
         }
         if self.study.name == "hexapod":
-            from ...batch.rotations import rotation_error_world
+            from ...numerics import rotation_error
+            from ...trajectories import rpy_rotations_and_rates
 
-            target = built.task.target_rotation
-            out["final_orientation_error"] = np.linalg.norm(
-                rotation_error_world(np.where(np.isfinite(target), target, np.eye(3)), built.task.frame.rotation), axis=1)
+            rpy = self.samples["target"][:, 3:]
+            target = rpy_rotations_and_rates(rpy, np.zeros_like(rpy))[0]
+            out["final_orientation_error"] = np.linalg.norm(rotation_error(target, built.task.frame.rotation), axis=1)
         return out
 
 
@@ -123,10 +125,11 @@ def run_chunk(study, kind: str, samples: dict[str, np.ndarray], nthread: int | N
         t = k * DT
         study.set_reference(built, reference, t, ~recorder.running)
         try:
-            qdot = built.controller.compute_velocity()
+            qdot = built.controller.compute_velocity().copy()
         except WorldsFailed as failed:
-            qdot = failed.qdot
+            qdot = failed.qdot.copy()
             recorder.stop(k, failed.reasons)
+        qdot[~recorder.running] = 0.0  # a stopped world stays where it stopped
         recorder.before_step(k, reference.at(t)[0])
         built.robots.integrate(qdot, DT)
         recorder.after_step(qdot)

@@ -67,37 +67,43 @@ def log_uniform(rng: np.random.Generator, n: int, bounds: tuple[float, float]) -
     return np.exp(rng.uniform(low, high, n))
 
 
-class PerWorldGain:
-    """A batched task whose feedback gain differs per world: v = K_w e + ẋ_d.
+def set_world_gains(task, gains: np.ndarray) -> None:
+    """Each world's feedback gain K_w on every row of ``task`` (v = K_w e + ẋ_d): the
+    engine's gains are (N, dim). The task is built with the largest gain, so that the
+    controller's K·Δt check covers every world."""
+    task.gains[...] = np.asarray(gains, dtype=float)[:, None]
 
-    The task is built with the largest gain (so the K·Δt check covers every world); after
-    its own update, the rows are moved from that gain to each world's.
+
+NEEDS = {"qp": (), "qp-soft": (), "pinv": ("PseudoinverseController",)}
+
+
+def missing_classes(needs: tuple[str, ...]) -> list[str]:
+    """The names of ``needs`` that :mod:`qpik.batch` does not export (yet)."""
+    from ... import batch
+
+    return [name for name in needs if name not in batch.__all__]
+
+
+def ported(robot: str, kind: str) -> bool:
+    """Whether :mod:`qpik.batch` has every class the study of ``robot`` needs for ``kind``."""
+    return not missing_classes(STUDIES[robot].needs + NEEDS[kind])
+
+
+def check_ported(robot: str, controllers) -> None:
+    """Refuse controllers whose batched classes the engine does not have yet.
+
+    Raises:
+        NotBatched: the first such controller, with the classes it needs.
     """
+    from ...batch.errors import NotBatched
 
-    def set_world_gains(self, gains: np.ndarray) -> None:
-        self.world_gains = np.asarray(gains, dtype=float)[:, None]
-
-    def update(self) -> None:
-        super().update()
-        self.target_velocity += (self.world_gains - self.feedback_gains()) * self.error
-
-
-def _position_task_class():
-    from ... import batch
-
-    class WorldGainPositionTask(PerWorldGain, batch.PositionTask):
-        pass
-
-    return WorldGainPositionTask
-
-
-def _frame_task_class():
-    from ... import batch
-
-    class WorldGainFrameTask(PerWorldGain, batch.FrameTask):
-        pass
-
-    return WorldGainFrameTask
+    for kind in controllers:
+        absent = missing_classes(STUDIES[robot].needs + NEEDS[kind])
+        if absent:
+            runnable = [k for k in CONTROLLERS if ported(robot, k)]
+            raise NotBatched(f"qpik sweep {robot} --controllers {kind} needs batch.{', batch.'.join(absent)}, not "
+                             f"ported to the engine (qpik.engine) yet; "
+                             + (f"{robot} runs {', '.join(runnable)} now" if runnable else f"no {robot} sweep runs yet"))
 
 
 class Built:
@@ -113,6 +119,7 @@ class ArmStudy:
     name = "arm"
     frame = "end_effector"
     position_dims = 2
+    needs: tuple[str, ...] = ()  # what qpik.batch must export beyond NEEDS[controller]
 
     def __init__(self):
         from ...robot import Robot
@@ -153,9 +160,9 @@ class ArmStudy:
         robots.set_q(samples["start_q"])
         robots.ensure_kinematics()
         hard = kind != "qp-soft"
-        task = _position_task_class()(robots, self.frame, axes="xy", gain=GAIN_RANGE[1], hard=hard,
-                                      lm_damping=0.0 if hard else LM_DAMPING)
-        task.set_world_gains(samples["gain"])
+        task = batch.PositionTask(robots, self.frame, axes="xy", gain=GAIN_RANGE[1], hard=hard,
+                                  lm_damping=0.0 if hard else LM_DAMPING)
+        set_world_gains(task, samples["gain"])
         sigma = batch.ManipulabilityTask(robots, batch.SigmaProxy(robots, ["theta2", "theta3"]), gain=ARM_K0)
         if kind == "pinv":
             return Built(robots, batch.PseudoinverseController(robots, [task], sigma), task)
@@ -172,7 +179,7 @@ class ArmStudy:
 
     def set_reference(self, built: Built, ref: Reference, t: float, stopped: np.ndarray) -> None:
         position, velocity = ref.at(t)
-        position[stopped] = np.nan  # a stopped world is left out of the solve (zero velocity)
+        position[stopped], velocity[stopped] = self.position(built)[stopped], 0.0  # held where it stopped
         built.task.set_target(position, velocity)
 
     def position(self, built: Built) -> np.ndarray:
@@ -185,6 +192,7 @@ class HexapodStudy:
     name = "hexapod"
     frame = "platform_center"
     position_dims = 3
+    needs = ("EqualityTask",)  # the loop closures
 
     def __init__(self):
         from ...robot import Robot
@@ -223,9 +231,9 @@ class HexapodStudy:
         robots.set_q(samples["start_q"])
         robots.ensure_kinematics()
         hard = kind != "qp-soft"
-        task = _frame_task_class()(robots, self.frame, position_gain=GAIN_RANGE[1], orientation_gain=GAIN_RANGE[1],
-                                   hard=hard, lm_damping=0.0 if hard else LM_DAMPING)
-        task.set_world_gains(samples["gain"])
+        task = batch.FrameTask(robots, self.frame, position_gain=GAIN_RANGE[1], orientation_gain=GAIN_RANGE[1],
+                               hard=hard, lm_damping=0.0 if hard else LM_DAMPING)
+        set_world_gains(task, samples["gain"])
         loops = batch.EqualityTask(robots, list(self._model.loop_names), gain=LOOP_GAIN)
         if kind == "pinv":
             return Built(robots, batch.PseudoinverseController(robots, [task, loops]), task, loops)
@@ -240,7 +248,8 @@ class HexapodStudy:
     def set_reference(self, built: Built, ref: Reference, t: float, stopped: np.ndarray) -> None:
         position, velocity = ref.at(t)
         rotation, omega = ref.rotation_at(t)
-        position[stopped] = np.nan
+        position[stopped], velocity[stopped] = self.position(built)[stopped], 0.0  # held where it stopped
+        rotation[stopped], omega[stopped] = built.task.frame.rotation[stopped], 0.0
         built.task.set_target(position, rotation, velocity, omega)
 
     def position(self, built: Built) -> np.ndarray:

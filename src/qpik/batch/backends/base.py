@@ -1,29 +1,24 @@
-r"""The two interfaces a batched back-end implements: kinematics, and the batched QP.
+r"""The interface a batched back-end implements: the N worlds' state and kinematics.
 
-:mod:`qpik.batch` runs the same tasks, limits and controllers over N *worlds*: N copies
-of one MuJoCo model, each with its own configuration and targets. Everything that
-depends on where the arrays live (the CPU's memory, a GPU's) sits behind two classes:
-
-- :class:`KinematicsBackend`: the N configurations, their kinematics (frame poses,
-  Jacobians, centres of mass, equality-constraint rows), the integration
-  :math:`q \leftarrow q \oplus \dot q\,\Delta t` and the physics step;
-- :class:`BatchQP`: N strictly convex QPs of one size,
-
-  .. math::
-      \min_x \tfrac12 x^T H x + c^T x \quad\text{s.t.}\quad A x = b,\quad lb \le x \le ub,
-
-  solved to the serial solvers' tolerances, every world's answer checked.
+:mod:`qpik.batch` runs qpik's tasks, limits and controllers (written once over N worlds)
+over N *worlds*: N copies of one MuJoCo model, each with its own configuration and
+targets. What depends on where the worlds live (the CPU's memory, a GPU's) sits behind
+:class:`KinematicsBackend`: the N configurations, their kinematics (frame poses,
+Jacobians, centres of mass, equality-constraint rows), the integration
+:math:`q \leftarrow q \oplus \dot q\,\Delta t` and the physics step. The step's math
+(the tasks' rows, the limits, the solve) is the engine's, on the host, for every
+back-end.
 
 ``backend="cpu"`` (:mod:`qpik.batch.backends.cpu`) is MuJoCo's own thread pool
-(``mujoco.batch.Batch``) and NumPy; a GPU back-end (MuJoCo Warp) implements the same
-two classes.
+(``mujoco.batch.Batch``) and NumPy; ``backend="warp"``
+(:mod:`qpik.batch.backends.warp`) is MuJoCo Warp on a Warp device.
 
 Conventions for every method below
 ----------------------------------
 - ``N`` is ``nworld``; ``nq``, ``nv``, ``nu`` are the model's sizes.
 - Arrays crossing the interface are C-contiguous NumPy ``float64`` arrays on the host
   (indices ``int64``, flags ``bool``). A device back-end copies to and from the host
-  at these calls (or keeps a host mirror); the batched tasks and limits only ever see
+  at these calls (or keeps a host mirror); the engine's tasks and limits only ever see
   NumPy.
 - *Owned by the back-end* means the back-end allocates the array once and overwrites
   it in place: a caller may keep a reference (it stays valid, and current after the
@@ -37,12 +32,11 @@ Conventions for every method below
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-__all__ = ["BatchQP", "KinematicsBackend", "QPResult", "QPStatus"]
+__all__ = ["KinematicsBackend"]
 
 
 class KinematicsBackend(ABC):
@@ -64,6 +58,9 @@ class KinematicsBackend(ABC):
 
     Attributes:
         name: the back-end's name (``"cpu"``, ``"warp"``).
+        device: where the kinematics run when not on the host: a device back-end's
+            device (the engine's step then runs on the host and says so:
+            :class:`~qpik.errors.HostStepWarning`); None on the CPU.
         model: the host ``mujoco.MjModel`` (the caller's object: read sizes, ids,
             ranges from it; the back-end never writes it).
         nworld: N.
@@ -73,6 +70,7 @@ class KinematicsBackend(ABC):
     """
 
     name = "base"
+    device = None
     model: mujoco.MjModel
     nworld: int
     qpos: np.ndarray
@@ -115,18 +113,37 @@ class KinematicsBackend(ABC):
             else new arrays. Equal to ``mj_jac`` of each world to rounding.
         """
 
+    def _field(self, name: str) -> np.ndarray:
+        """A MjData field of every world on the host, ``(N, ...)`` float64, current after
+        every :meth:`forward` (read by the methods written here once for every back-end)."""
+        raise NotImplementedError
+
     @abstractmethod
     def subtree_com(self, body: int) -> np.ndarray:
         """``(N, 3)`` centre of mass of ``body``'s subtree (``data.subtree_com``), owned
         by the back-end, read-only."""
 
-    @abstractmethod
     def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
         """``(N, 3, nv)`` Jacobian of :meth:`subtree_com` (``mj_jacSubtreeCom``), into
-        ``out`` when given."""
+        ``out`` when given: the mass-weighted :meth:`jacobian` of each massive body's
+        centre of mass in the subtree (``_field("xipos")``, ``_subtrees`` a dict)."""
+        m, n = self.model, self.nworld
+        if body not in self._subtrees:
+            members = [b for b in range(body, m.nbody) if _descends(m, b, body)]
+            self._subtrees[body] = [b for b in members if m.body_mass[b] > 0.0]
+        xipos = self._field("xipos").reshape(n, -1, 3)
+        total = np.zeros((n, 3, m.nv)) if out is None else out
+        total.fill(0.0)
+        jacp, jacr = np.empty((n, 3, m.nv)), np.empty((n, 3, m.nv))
+        for b in self._subtrees[body]:
+            self.jacobian(b, xipos[:, b], jacp, jacr)
+            jacp *= m.body_mass[b]
+            total += jacp
+        total *= 1.0 / m.body_subtreemass[body]
+        return total
 
     @abstractmethod
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and Jacobians of equality constraints, in MuJoCo's row layout
         (``efc_pos``, ``efc_J`` of ``mj_makeConstraint``): 3 rows per ``connect``, 6 per
         ``weld`` (position, then orientation scaled by its torquescale), 1 per
@@ -134,20 +151,22 @@ class KinematicsBackend(ABC):
 
         Args:
             equalities: ``int64`` equality ids, ascending.
+            out: ``(residual, jacobian)`` to write into (the Jacobian's entries off the
+                equalities' dofs left as they are: zeros the caller made once), or None.
 
         Returns:
-            ``(residual (N, m), jacobian (N, m, nv))``, new arrays.
+            ``(residual (N, m), jacobian (N, m, nv))``: ``out``, or new arrays.
 
         Raises:
             qpik.batch.NotBatched: an equality type the back-end cannot write rows for.
         """
 
     # -- state -------------------------------------------------------------------------
-    @abstractmethod
     def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
         """``qpos ← qpos ⊕ qvel·dt`` on the configuration manifold, as
         ``mj_integratePos`` (quaternions of ball and free joints integrated and
-        normalised), in place.
+        normalised), in place, on the host (``_integration``: the model's
+        :class:`~qpik.batch.backends.cpu._Integration`).
 
         Args:
             qvel: ``(N, nv)``, or ``(len(ids), nv)`` with ``ids``; finite (the caller
@@ -155,6 +174,12 @@ class KinematicsBackend(ABC):
             dt: the step, positive and finite.
             ids: the worlds to move, or None for all.
         """
+        if ids is None:
+            self._integration.apply(self.qpos, qvel, dt)
+        else:
+            qpos = self.qpos[ids]
+            self._integration.apply(qpos, qvel, dt)
+            self.qpos[ids] = qpos
 
     # -- physics -----------------------------------------------------------------------
     @abstractmethod
@@ -175,89 +200,7 @@ class KinematicsBackend(ABC):
         """
 
 
-class QPStatus:
-    """Per-world outcome codes of :meth:`BatchQP.solve` (``int8``)."""
-
-    SOLVED = 0  # the checked minimiser: hard rows to 1e-9 relative, bounds to 1e-9
-    INFEASIBLE = 1  # no point meets the hard rows and the box (or the box is empty)
-    FAILED = 2  # no solver found the minimiser (non-finite data, ill-conditioned rows)
-    SKIPPED = 3  # not solved: the caller masked the world out (``active`` False)
-
-    LABELS = {SOLVED: "solved", INFEASIBLE: "infeasible", FAILED: "solver failure", SKIPPED: "skipped"}
-
-
-@dataclass
-class QPResult:
-    """What :meth:`BatchQP.solve` returns.
-
-    Attributes:
-        x: ``(N, nv)`` float64, owned by the solver (overwritten by the next solve):
-            the minimiser of each SOLVED world; **zero** in every other world (never
-            NaN).
-        status: ``(N,)`` int8, :class:`QPStatus` codes.
-        reasons: world id → a one-line reason, for every world not SOLVED.
-        closed_form: ``(N,)`` bool: the world's answer is the equality-constrained
-            closed form (no bound active).
-        fallback: ``(N,)`` bool: the world was solved by the serial solver (DAQP)
-            because the batched active set did not settle.
-        iterations: active-set iterations of the batched method (the largest over
-            the worlds that needed it; 0 when every world was closed form).
-    """
-
-    x: np.ndarray
-    status: np.ndarray
-    reasons: dict[int, str]
-    closed_form: np.ndarray
-    fallback: np.ndarray
-    iterations: int = 0
-
-
-class BatchQP(ABC):
-    r"""N strictly convex QPs of one size, solved exactly:
-
-    .. math::
-        \min_x \tfrac12 x^T H_k x + c_k^T x \quad\text{s.t.}\quad
-        A_k x = b_k,\quad lb_k \le x \le ub_k,\qquad k = 1..N.
-
-    The promise is each world's exact minimiser (the one the serial controller's
-    closed form or DAQP returns, to their tolerances), checked: hard rows met to
-    ``1e-9 (1 + |b|)``, bounds to ``1e-9``. A world that cannot keep it is
-    INFEASIBLE or FAILED with a reason, its ``x`` zero; the others are unaffected.
-
-    A solver keeps per-world state between calls (the last active set, for a warm
-    start); :meth:`reset` forgets it.
-
-    Args (of a subclass's constructor):
-        nworld: N.
-        nv: variables per world.
-        meq: equality rows per world (0 allowed).
-    """
-
-    name = "base"
-
-    def __init__(self, nworld: int, nv: int, meq: int):
-        self.nworld, self.nv, self.meq = int(nworld), int(nv), int(meq)
-
-    @abstractmethod
-    def solve(self, H: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, lb: np.ndarray,
-              ub: np.ndarray, active: np.ndarray | None = None) -> QPResult:
-        """Solve every world.
-
-        Args:
-            H: ``(nv, nv)`` shared by all worlds, or ``(N, nv, nv)``; symmetric positive
-                definite (the controller's regulariser makes it so).
-            c: ``(N, nv)``.
-            A: ``(N, meq, nv)`` (``meq`` may be 0).
-            b: ``(N, meq)``.
-            lb, ub: ``(N, nv)``, ``±inf`` where a variable is unbounded.
-            active: ``(N,)`` bool, the worlds to solve (None: all); the others are
-                SKIPPED with ``x`` zero.
-
-        Inputs are read, never written, and not kept after the call.
-
-        Returns:
-            A :class:`QPResult`.
-        """
-
-    def reset(self) -> None:
-        """Forget every world's warm start."""
+def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > ancestor:
+        body = int(model.body_parentid[body])
+    return body == ancestor

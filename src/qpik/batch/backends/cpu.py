@@ -34,6 +34,7 @@ and the caller's callback (``mujoco.get_mjcb_time()``) is put back after each ca
 from __future__ import annotations
 
 import contextlib
+import copy
 import ctypes
 import os
 
@@ -41,7 +42,9 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from .. import rotations
+from ...equalities import equality_label
+from ...numerics import mul, quat2mat, quat_integrate
+from ...robot import FRAMES, as_index
 from ..errors import NotBatched
 from .base import KinematicsBackend
 
@@ -49,8 +52,8 @@ _D = mujoco.mjtDisableBit
 # The kinematic copy computes no contact and no constraint: a forward to the position
 # stage then skips collision detection and constraint assembly.
 _KINEMATIC_DISABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_CONTACT)
-_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat")}
 _SAME = mujoco.mjtSameFrame
+ALL = slice(None)  # a chain on every dof
 _J = mujoco.mjtJoint
 _EQ = mujoco.mjtEq
 
@@ -99,20 +102,7 @@ def default_threads(nworld: int) -> int:
     return max(1, min(cpus, nworld // WORLDS_PER_THREAD))
 
 
-class HostIntegration:
-    """:meth:`KinematicsBackend.integrate` for a back-end whose ``qpos`` lives on the host
-    (``_integration``: an :class:`_Integration` of its model)."""
-
-    def integrate(self, qvel: np.ndarray, dt: float, ids: np.ndarray | None = None) -> None:
-        if ids is None:
-            self._integration.apply(self.qpos, qvel, dt)
-        else:
-            qpos = self.qpos[ids]
-            self._integration.apply(qpos, qvel, dt)
-            self.qpos[ids] = qpos
-
-
-class CpuBackend(HostIntegration, KinematicsBackend):
+class CpuBackend(KinematicsBackend):
     """N worlds on ``mujoco.batch.Batch``.
 
     Args:
@@ -127,7 +117,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         self.model = model
         self.nworld = int(nworld)
         self.nthread = default_threads(self.nworld) if nthread is None else int(nthread)
-        kinematic = _copy(model)
+        kinematic = copy.deepcopy(model)
         kinematic.opt.disableflags = int(kinematic.opt.disableflags) | _KINEMATIC_DISABLE
         kinematic.body_geomnum[:] = 0  # no geom poses: see _geom_pose
         self._batch = mujoco.batch.Batch(kinematic, self.nworld, self.nthread, persistent=False)
@@ -137,8 +127,9 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         self._fields: dict[str, np.ndarray] = {}
         self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cdof_components = None
+        self._difference = np.zeros((3, model.nv, self.nworld))  # a connect's rows, worlds last
         self._chains: dict[int, np.ndarray] = {}
-        self._subtrees: dict[int, np.ndarray] = {}
+        self._subtrees: dict[int, list[int]] = {}
         self._physics = None
         self._integration = _Integration(model)
 
@@ -167,7 +158,7 @@ class CpuBackend(HostIntegration, KinematicsBackend):
                 self._geom_pose(frame_id, *pose)
                 self._geoms[frame_id] = pose
             return self._geoms[frame_id]
-        position, rotation = _FRAME_FIELDS[frame_type]
+        position, rotation = FRAMES[frame_type][1:3]
         xpos = self._field(position).reshape(self.nworld, -1, 3)
         xmat = self._field(rotation).reshape(self.nworld, -1, 3, 3)
         return xpos[:, frame_id], xmat[:, frame_id]
@@ -187,43 +178,37 @@ class CpuBackend(HostIntegration, KinematicsBackend):
                 position[:, i] = xmat[:, i, 0] * local[0] + xmat[:, i, 1] * local[1] + xmat[:, i, 2] * local[2]
             position += xpos
         if same == int(_SAME.mjSAMEFRAME_NONE):
-            quat = rotations.mul(self._fields["xquat"].reshape(n, -1, 4)[:, body], m.geom_quat[geom][None])
-            rotation[:] = rotations.quat2mat(quat)
+            quat = mul(self._fields["xquat"].reshape(n, -1, 4)[:, body], m.geom_quat[geom][None])
+            rotation[:] = quat2mat(quat)
         elif same in (int(_SAME.mjSAMEFRAME_BODY), int(_SAME.mjSAMEFRAME_BODYROT)):
             rotation[:] = xmat
         else:
             rotation[:] = self._fields["ximat"].reshape(n, -1, 3, 3)[:, body]
 
-    def chain(self, body: int) -> np.ndarray:
-        """The dofs on ``body``'s chain to the world (``mj_jac``'s loop), ascending."""
+    def chain(self, body: int) -> slice | np.ndarray:
+        """The columns of the dofs on ``body``'s chain to the world (``mj_jac``'s loop), as
+        :func:`as_index` gives them (``ALL`` for every dof)."""
         if body not in self._chains:
-            m = self.model
-            while body and not m.body_dofnum[body]:
-                body = int(m.body_parentid[body])
-            dofs = []
-            if body:
-                dof = int(m.body_dofadr[body] + m.body_dofnum[body] - 1)
+            m, link, dofs = self.model, body, []
+            while link and not m.body_dofnum[link]:
+                link = int(m.body_parentid[link])
+            if link:
+                dof = int(m.body_dofadr[link] + m.body_dofnum[link] - 1)
                 while dof >= 0:
                     dofs.append(dof)
                     dof = int(m.dof_parentid[dof])
-            self._chains[body] = np.array(sorted(dofs), dtype=np.int64)
+            self._chains[body] = ALL if len(dofs) == m.nv else as_index(sorted(dofs))
         return self._chains[body]
 
-    def _columns(self, dofs: np.ndarray):
-        """``dofs`` as an index of a Jacobian's columns: None for all, a slice when
-        consecutive, else the array."""
-        if len(dofs) == self.model.nv:
-            return None
-        if len(dofs) and dofs[-1] - dofs[0] == len(dofs) - 1:
-            return slice(int(dofs[0]), int(dofs[-1]) + 1)
-        return dofs
-
     def _cdof_by_component(self) -> np.ndarray:
-        """``cdof`` as (6, nv, N), worlds along the last axis (each operation below is
-        then one pass over contiguous memory, whatever dofs a chain selects): made once
-        per forward and shared by every Jacobian of the step."""
+        """``cdof`` as (8, nv, N), worlds last: v, ω, then ω₀ and ω₁ again (ω turned by one or
+        two components is a slice; each operation below is one pass over contiguous
+        memory): made once per forward and shared by every Jacobian of the step."""
         if self._cdof_components is None:
-            self._cdof_components = np.ascontiguousarray(self._cdof.transpose(2, 1, 0))
+            cdof = self._cdof.transpose(2, 1, 0)  # (6, nv, N): ω, v
+            components = self._cdof_components = np.empty((8,) + cdof.shape[1:])
+            components[:3], components[3:6] = cdof[3:], cdof[:3]
+            components[6:] = components[3:5]
         return self._cdof_components
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
@@ -232,71 +217,43 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
         jacr = np.empty((n, 3, nv)) if out_r is None else out_r
         columns, chain_p, chain_r = self._chain_jacobian(body, points)
-        if columns is None:
-            jacp[:], jacr[:] = chain_p, chain_r
-            return jacp, jacr
-        jacp.fill(0.0)
-        jacr.fill(0.0)
-        if chain_p is not None:
-            jacp[:, :, columns] = chain_p
-            jacr[:, :, columns] = chain_r
+        if columns is not ALL:  # zeros off the chain
+            jacp.fill(0.0)
+            jacr.fill(0.0)
+        jacp[:, :, columns], jacr[:, :, columns] = chain_p, chain_r
         return jacp, jacr
 
     def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
-        on ``body``'s chain (``columns`` as :meth:`_columns`; None and None for a body
-        on no dof, jacr None unless ``rotational``)."""
-        dofs = self.chain(body)
-        columns = self._columns(dofs)
-        if not len(dofs):
-            return columns, None, None
-        root = int(self.model.body_rootid[body])
-        offset = (points - self._subtree_com[:, root]).T  # (3, N)
-        cdof = self._cdof_by_component()  # [ω; v] per dof
-        if columns is not None:
-            cdof = cdof[:, columns]
-        jacp = np.empty((3, len(dofs), self.nworld))
+        on ``body``'s chain (``columns`` as :meth:`chain` gives them; jacr None unless
+        ``rotational``)."""
+        columns = self.chain(body)
+        offset = np.empty((5, self.nworld))  # o = points − com, then o₀ and o₁ again
+        np.subtract(points.T, self._subtree_com[:, int(self.model.body_rootid[body])].T, offset[:3])
+        offset[3:] = offset[:2]
+        cdof = self._cdof_by_component()[:, columns]
+        jacp, cross = np.empty((2, 3) + cdof.shape[1:])
         o = offset[:, None, :]
-        for i in range(3):  # v + mju_cross(ω, offset), component by component
-            a, b = (i + 1) % 3, (i + 2) % 3
-            jacp[i] = cdof[3 + i] + (cdof[a] * o[b] - cdof[b] * o[a])
-        jacr = cdof[:3].transpose(2, 0, 1) if rotational else None
+        # v + mju_cross(ω, o), every component at once: ω_a o_b − ω_b o_a, (a, b) = (i + 1, i + 2) mod 3
+        np.multiply(cdof[4:7], o[2:5], jacp)
+        np.multiply(cdof[5:8], o[1:4], cross)
+        np.subtract(jacp, cross, jacp)
+        np.add(cdof[:3], jacp, jacp)
+        jacr = cdof[3:6].transpose(2, 0, 1) if rotational else None
         return columns, jacp.transpose(2, 0, 1), jacr  # (N, 3, k) views
 
     def subtree_com(self, body: int) -> np.ndarray:
         return self._subtree_com[:, body]
 
-    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
-        m = self.model
-        if body not in self._subtrees:
-            members = [body] + [b for b in range(body + 1, m.nbody) if _descends(m, b, body)]
-            self._subtrees[body] = np.array(members, dtype=np.int64)
-        xipos = self._field("xipos").reshape(self.nworld, -1, 3)
-        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
-        total.fill(0.0)
-        jacp = np.zeros((self.nworld, 3, m.nv))
-        jacr = np.zeros((self.nworld, 3, m.nv))
-        for b in self._subtrees[body]:
-            if m.body_mass[b] == 0.0:
-                continue
-            self.jacobian(int(b), xipos[:, b], jacp, jacr)
-            jacp *= m.body_mass[b]
-            total += jacp
-        total *= 1.0 / m.body_subtreemass[body]
-        return total
-
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         equalities = [int(eq) for eq in np.asarray(equalities, dtype=np.int64)]
         sizes = [self._equality_size(eq) for eq in equalities]
         n, nv = self.nworld, self.model.nv
-        residual, jacobian = np.empty((n, sum(sizes))), np.zeros((n, sum(sizes), nv))
+        residual, jacobian = (np.empty((n, sum(sizes))), np.zeros((n, sum(sizes), nv))) if out is None else out
         row = 0
         for eq, size in zip(equalities, sizes):
             rows = slice(row, row + size)
-            if size == 3:
-                self._connect_rows(eq, residual[:, rows], jacobian[:, rows])
-            else:
-                self._joint_rows(eq, residual[:, rows], jacobian[:, rows])
+            (self._connect_rows if size == 3 else self._joint_rows)(eq, residual[:, rows], jacobian[:, rows])
             row += size
         return residual, jacobian
 
@@ -308,10 +265,9 @@ class CpuBackend(HostIntegration, KinematicsBackend):
             return 3
         if kind == int(_EQ.mjEQ_JOINT):
             return 1
-        name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, eq) or f"#{eq}"
-        raise NotBatched(f"equality {name!r} is a {_EQ(kind).name}: the batched engine writes rows for "
-                         "connect and joint equalities only (weld and tendon equalities run in the serial "
-                         "qpik.EqualityTask)")
+        raise NotBatched(f"equality {equality_label(self.model, eq)!r} is a {_EQ(kind).name}: the batched engine "
+                         "writes rows for connect and joint equalities only (weld and tendon equalities run in the "
+                         "serial qpik.EqualityTask)")
 
     def _anchor(self, eq: int, side: int) -> tuple[int, np.ndarray]:
         """(body, world point) of one side of a connect equality (as mj_makeConstraint)."""
@@ -326,19 +282,20 @@ class CpuBackend(HostIntegration, KinematicsBackend):
 
     def _connect_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         """The anchors' difference and the difference of their Jacobians, written into
-        ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros."""
+        ``residual`` (N, 3) and ``jacobian`` (N, 3, nv), which holds zeros off the anchors'
+        chains. The difference is formed worlds last, then copied onto each chain's columns
+        (a copy across layouts costs less than arithmetic across them)."""
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
         np.subtract(point0, point1, out=residual)
-        for body, point, sign in ((body0, point0, 1.0), (body1, point1, -1.0)):
-            columns, jacp, _ = self._chain_jacobian(body, point, rotational=False)
-            if jacp is None:
-                continue
-            columns = slice(None) if columns is None else columns
-            if sign > 0:
-                jacobian[:, :, columns] += jacp  # 0 + J0 = J0: then J0 − J1 as one subtraction
-            else:
-                jacobian[:, :, columns] -= jacp
+        (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, rotational=False)
+                                                      for body, point in ((body0, point0), (body1, point1))]
+        difference = self._difference  # J0 − J1 (3, nv, N) on the chains' columns
+        difference[:, columns1] = 0.0
+        difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave
+        difference[:, columns1] -= jacp1.transpose(1, 2, 0)
+        for columns in (columns0, columns1):
+            jacobian[:, :, columns] = difference[:, columns].transpose(2, 0, 1)
 
     def _joint_rows(self, eq: int, residual: np.ndarray, jacobian: np.ndarray) -> None:
         m = self.model
@@ -379,18 +336,6 @@ class CpuBackend(HostIntegration, KinematicsBackend):
         return self._physics_qpos, unstable
 
 
-def _copy(model: mujoco.MjModel) -> mujoco.MjModel:
-    import copy
-
-    return copy.deepcopy(model)
-
-
-def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
-    while body > ancestor:
-        body = int(model.body_parentid[body])
-    return body == ancestor
-
-
 class _Integration:
     """``mj_integratePos`` across worlds: scalar joints add q̇Δt, ball and free joints
     integrate their quaternion (``mju_quatIntegrate``) in NumPy."""
@@ -426,17 +371,3 @@ class _Integration:
             quat = qpos[:, qadr:qadr + 4]
             qpos[:, qadr:qadr + 4] = quat_integrate(quat, qvel[:, vadr:vadr + 3], dt)
 
-
-def quat_integrate(quat: np.ndarray, velocity: np.ndarray, scale: float) -> np.ndarray:
-    """``mju_quatIntegrate`` across worlds: quat ⊗ exp(velocity·scale), normalised."""
-    norm = np.sqrt(np.einsum("ni,ni->n", velocity, velocity))
-    small = norm < rotations.MINVAL
-    axis = velocity * np.where(small, 0.0, 1.0 / np.where(small, 1.0, norm))[:, None]
-    axis[small] = (1.0, 0.0, 0.0)
-    angle = scale * np.where(small, 0.0, norm)
-    half = 0.5 * angle
-    rotation = np.empty_like(quat)
-    rotation[:, 0] = np.cos(half)
-    rotation[:, 1:] = axis * np.sin(half)[:, None]
-    rotation[angle == 0.0] = (1.0, 0.0, 0.0, 0.0)
-    return rotations.normalize4(rotations.mul(quat, rotation))

@@ -1,45 +1,43 @@
-r"""The GPU back-end: MuJoCo Warp for kinematics, Jacobians and constraint rows, and a
-dual active-set QP per world, on a Warp device (``"cuda:0"``, or ``"cpu"``: the same
-kernels on the CPU, slowly, which is how the test suite checks this back-end).
+r"""The GPU back-end: MuJoCo Warp for the worlds' kinematics, Jacobians and constraint rows
+on a Warp device (``"cuda:0"``, or ``"cpu"``: the same kernels on the CPU, slowly, which
+is how the test suite checks this back-end).
 
 What runs where:
 
 - the N configurations live on the host in float64 (``qpos``, as the interface asks)
-  and are copied to the device before each :meth:`WarpBackend.forward`; a
-  device-resident step (``QPController.step``, :mod:`qpik.batch.backends.warp_step`)
-  keeps them on the device, in float64, and ``qpos`` copies them back when read;
+  and are copied to the device before each :meth:`WarpBackend.forward`;
 - MuJoCo Warp computes the kinematics (``kinematics``, ``com_pos``), the Jacobians
   (``jac``) and the equality-constraint rows (``make_constraint``, its own rows: loop
   closures are never rebuilt on the host) on the device, in float32, MuJoCo Warp's only
   precision; the host reads them as float64;
-- :class:`WarpQP` solves the N QPs on the device in float64
-  (:mod:`qpik.batch.backends.warp_qp`) and checks each answer on the host, as the CPU
-  back-end does; a world the device method could not settle goes to DAQP.
+- the engine's step (the tasks' rows, the limits, the QP) runs on the host, as on the
+  CPU back-end: a controller built on these worlds says so once
+  (:class:`~qpik.errors.HostStepWarning`). The engine's numerical primitives have device
+  mirrors (:mod:`qpik.batch.backends.warp_mirror`), its tasks, limits, cost assembly and
+  held-bounds iteration do not, so no part of the step moves to the device;
+- the physics rollouts step MuJoCo Warp's ``step`` on the device.
 
 Install with the ``gpu`` extra: ``pip install -e ".[gpu]"``.
 """
 
 from __future__ import annotations
 
+import copy
+
 import mujoco
 import numpy as np
 
+from ...equalities import equality_label, equality_row_ids, equality_rows_flags
 from ...errors import InvalidInput, ModelError
 from ...extras import require
+from ...robot import FRAMES
 from ..errors import NotBatched
-from .base import BatchQP, KinematicsBackend, QPResult, QPStatus
-from .cpu import HostIntegration, _Integration
-from .daqp_fallback import answers_hold, daqp_solve
+from .base import KinematicsBackend
+from .cpu import _Integration
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 mjw = require("mujoco_warp", "the warp batch back-end", extra="gpu")
-from . import warp_qp  # noqa: E402  (needs warp, imported just above)
 
-_D = mujoco.mjtDisableBit
-# The kinematic copy makes equality rows only: no contact, joint-limit or friction rows.
-_KINEMATIC_DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)
-_KINEMATIC_ENABLE = int(_D.mjDSBL_CONSTRAINT) | int(_D.mjDSBL_EQUALITY)
-_FRAME_FIELDS = {"site": ("site_xpos", "site_xmat"), "body": ("xpos", "xmat"), "geom": ("geom_xpos", "geom_xmat")}
 _EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
 
 
@@ -58,9 +56,9 @@ def equality_row_index(kind: np.ndarray, ids: np.ndarray, equalities: np.ndarray
         mask = (kind == _EQUALITY_ROW) & (ids == eq)
         counts = mask.sum(axis=1)
         if counts.min() == 0 or counts.max() != counts.min():
-            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_EQUALITY, int(eq)) or f"#{int(eq)}"
             raise ModelError(f"MuJoCo Warp made {sorted(set(counts.tolist()))} constraint rows for equality "
-                             f"{name!r} across the worlds (inactive, or acting on no dof, somewhere)")
+                             f"{equality_label(model, eq)!r} across the worlds (inactive, or acting on no dof, "
+                             "somewhere)")
         blocks.append(np.nonzero(mask)[1].reshape(len(kind), int(counts[0])))  # row-major: each world's in order
     return np.concatenate(blocks, axis=1)
 
@@ -76,33 +74,7 @@ def warp_device(device: str | None):
     return wp.get_device(str(device))
 
 
-def _quiet() -> None:
-    """Warp logs a line per loaded module (and its banner) at its default level."""
-    wp.config.quiet = True
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-
-
-def _kinematic_copy(model: mujoco.MjModel) -> mujoco.MjModel:
-    import copy
-
-    kinematic = copy.deepcopy(model)
-    flags = int(kinematic.opt.disableflags)
-    kinematic.opt.disableflags = (flags | _KINEMATIC_DISABLE) & ~_KINEMATIC_ENABLE
-    return kinematic
-
-
-def _equality_row_count(model: mujoco.MjModel) -> int:
-    """MuJoCo's own count of the kinematic copy's constraint rows (equalities only)."""
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
-    if model.ntendon:
-        mujoco.mj_tendon(model, data)
-    mujoco.mj_makeConstraint(model, data)
-    return int(data.nefc)
-
-
-class WarpBackend(HostIntegration, KinematicsBackend):
+class WarpBackend(KinematicsBackend):
     """N worlds on a Warp device through MuJoCo Warp.
 
     Args:
@@ -120,12 +92,17 @@ class WarpBackend(HostIntegration, KinematicsBackend):
     name = "warp"
 
     def __init__(self, model: mujoco.MjModel, nworld: int, device: str | None = None):
-        _quiet()
+        # Warp logs a line per loaded module (and its banner) at its default level.
+        wp.config.quiet, wp.config.log_level = True, max(wp.config.log_level, wp.LOG_WARNING)
         self.model = model
         self.nworld = int(nworld)
         self.device = warp_device(device)
-        kinematic = _kinematic_copy(model)
-        self._nefc = _equality_row_count(kinematic)
+        kinematic = copy.deepcopy(model)  # it makes equality rows only: no contact, joint-limit or friction rows
+        kinematic.opt.disableflags = equality_rows_flags(int(kinematic.opt.disableflags))
+        data = mujoco.MjData(kinematic)
+        mujoco.mj_kinematics(kinematic, data)
+        mujoco.mj_comPos(kinematic, data)
+        self._nefc = len(equality_row_ids(kinematic, data))  # MuJoCo's own count of the copy's rows
         with wp.ScopedDevice(self.device):
             try:
                 self._m = mjw.put_model(kinematic)
@@ -137,42 +114,13 @@ class WarpBackend(HostIntegration, KinematicsBackend):
             self._points = wp.zeros(self.nworld, dtype=wp.vec3)
             self._jacp = wp.zeros((self.nworld, 3, model.nv), dtype=float)
             self._jacr = wp.zeros((self.nworld, 3, model.nv), dtype=float)
-        self._qpos = np.zeros((self.nworld, model.nq))
-        self._qpos[:] = model.qpos0
-        # A device-resident step (warp_step) keeps the float64 state on the device.
-        self._device_qpos = None
-        self._device_qpos_newer = False
-        self._host_qpos_touched = True
+        self.qpos = np.zeros((self.nworld, model.nq))
+        self.qpos[:] = model.qpos0
         self._host: dict[str, np.ndarray] = {}  # device field -> float64 host mirror
         self._rows_current = False
         self._integration = _Integration(model)
+        self._subtrees: dict[int, list[int]] = {}
         self._physics = None
-
-    # -- the state, on the host or the device ------------------------------------------
-    @property
-    def qpos(self) -> np.ndarray:
-        """``(N, nq)`` float64 on the host, writable; after a device-resident step it is
-        first copied back from the device (and goes up again before the next one)."""
-        if self._device_qpos_newer:
-            self._qpos[:] = self._device_qpos.numpy()
-            self._device_qpos_newer = False
-        self._host_qpos_touched = True
-        return self._qpos
-
-    def device_qpos(self):
-        """The state as a float64 device array (N, nq), current: what a device-resident
-        step reads and advances (the same array every call)."""
-        if self._device_qpos is None:
-            self._device_qpos = wp.zeros(self._qpos.shape, dtype=wp.float64, device=self.device)
-        if self._host_qpos_touched:
-            self._device_qpos.assign(self._qpos)
-            self._host_qpos_touched = False
-        return self._device_qpos
-
-    def device_qpos_moved(self) -> None:
-        """A device step advanced the state (and ran the kinematics on the device)."""
-        self._device_qpos_newer = True
-        self._rows_current = False
 
     # -- kinematics ------------------------------------------------------------------
     def forward(self) -> None:
@@ -184,16 +132,19 @@ class WarpBackend(HostIntegration, KinematicsBackend):
             host.reshape(self.nworld, -1)[:] = getattr(self._d, name).numpy().reshape(self.nworld, -1)
         self._rows_current = False
 
-    def _mirror(self, name: str) -> np.ndarray:
-        """The float64 host copy of a device field, refreshed by every :meth:`forward`."""
+    def _field(self, name: str) -> np.ndarray:
+        """The float64 host copy of a device field, refreshed by every :meth:`forward` (and
+        filled at once by one, as the CPU back-end's fields: current at ``qpos`` when a
+        task reads its start from it)."""
         if name not in self._host:
             field = getattr(self._d, name)
-            self._host[name] = field.numpy().astype(np.float64).reshape(field.shape + _inner(field))
+            self._host[name] = np.empty(field.shape + _inner(field))
+            self.forward()
         return self._host[name]
 
     def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
-        position, rotation = _FRAME_FIELDS[frame_type]
-        return self._mirror(position)[:, frame_id], self._mirror(rotation)[:, frame_id]
+        position, rotation = FRAMES[frame_type][1:3]
+        return self._field(position)[:, frame_id], self._field(rotation)[:, frame_id]
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
                  out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -208,23 +159,9 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         return jacp, jacr
 
     def subtree_com(self, body: int) -> np.ndarray:
-        return self._mirror("subtree_com")[:, body]
+        return self._field("subtree_com")[:, body]
 
-    def subtree_com_jacobian(self, body: int, out: np.ndarray | None = None) -> np.ndarray:
-        m = self.model
-        xipos = self._mirror("xipos")
-        total = np.zeros((self.nworld, 3, m.nv)) if out is None else out
-        total.fill(0.0)
-        jacp = np.empty((self.nworld, 3, m.nv))
-        jacr = np.empty((self.nworld, 3, m.nv))
-        for b in _subtree(m, body):
-            if m.body_mass[b] > 0.0:
-                self.jacobian(b, xipos[:, b], jacp, jacr)
-                total += m.body_mass[b] * jacp
-        total *= 1.0 / m.body_subtreemass[body]
-        return total
-
-    def equality_rows(self, equalities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def equality_rows(self, equalities: np.ndarray, out=None) -> tuple[np.ndarray, np.ndarray]:
         equalities = np.asarray(equalities, dtype=np.int64)
         self._make_rows()
         index = equality_row_index(self._efc_type[:, : self._nefc], self._efc_id[:, : self._nefc], equalities,
@@ -232,7 +169,10 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         residual = np.take_along_axis(self._d.efc.pos.numpy()[:, : self._nefc], index, axis=1)
         jacobian = np.take_along_axis(self._d.efc.J.numpy()[:, : self._nefc, : self.model.nv], index[:, :, None],
                                       axis=1)
-        return residual.astype(np.float64), jacobian.astype(np.float64)
+        if out is None:
+            return residual.astype(np.float64), jacobian.astype(np.float64)
+        out[0][...], out[1][...] = residual, jacobian
+        return out
 
     def _make_rows(self) -> None:
         """MuJoCo Warp's constraint rows at the current kinematics (once per forward)."""
@@ -272,128 +212,8 @@ class WarpBackend(HostIntegration, KinematicsBackend):
         unstable = ~(np.isfinite(qpos).all(axis=1) & np.isfinite(d.qvel.numpy()).all(axis=1))
         return qpos, unstable
 
-    # -- the QP ------------------------------------------------------------------------
-    def make_qp(self, nv: int, meq: int, max_iterations: int | None = None) -> WarpQP:
-        """The batched QP solver on this back-end's device (what ``batch.QPController``
-        uses with this back-end)."""
-        return WarpQP(self.nworld, nv, meq, device=str(self.device), max_iterations=max_iterations)
-
 
 def _inner(field) -> tuple:
     """The shape of one element of a Warp array (vec3 -> (3,), mat33 -> (3, 3))."""
     return tuple(getattr(field.dtype, "_shape_", ()))
 
-
-def _subtree(model: mujoco.MjModel, body: int) -> list[int]:
-    members = []
-    for b in range(body, model.nbody):
-        a = b
-        while a > body:
-            a = int(model.body_parentid[a])
-        if a == body:
-            members.append(b)
-    return members
-
-
-class WarpQP(BatchQP):
-    r"""N QPs on a Warp device, float64: one dual active set per world
-    (:mod:`qpik.batch.backends.warp_qp`), warm-started from the world's last active
-    bounds. Every answer is checked on the host (hard rows to ``1e-9 (1 + |b|)``, bounds
-    to 1e-9, then clipped into the box); a world the device method left FAILED, or whose
-    answer misses the check, or that it found INFEASIBLE, is solved again by DAQP
-    (``fallback``), so that a numerical stall on the device never decides a world.
-
-    Args:
-        nworld, nv, meq: as :class:`~qpik.batch.backends.base.BatchQP`.
-        device: the Warp device.
-        max_iterations: the device method's cap on active-set changes per world.
-    """
-
-    name = "warp"
-    scalar = "float64"
-
-    def __init__(self, nworld: int, nv: int, meq: int, device: str | None = None, max_iterations: int | None = None):
-        super().__init__(nworld, nv, meq)
-        _quiet()
-        self.device = warp_device(device)
-        self.max_iterations = int(max_iterations or 10 * (nv + meq) + 20)
-        n, rows = self.nv, max(1, self.meq)
-        f8 = wp.float64
-        with wp.ScopedDevice(self.device):
-            self._kernel = warp_qp.dual_active_set_kernel(f8)
-            self._H = wp.zeros((nworld, n, n), dtype=f8)
-            self._H_shared = wp.zeros((1, n, n), dtype=f8)
-            self._c, self._lb, self._ub, self._x = (wp.zeros((nworld, n), dtype=f8) for _ in range(4))
-            self._A = wp.zeros((nworld, rows, n), dtype=f8)
-            self._b = wp.zeros((nworld, rows), dtype=f8)
-            self._mask = wp.zeros(nworld, dtype=int)
-            self._warm = wp.zeros((nworld, n), dtype=int)
-            self._n_warm = wp.zeros(nworld, dtype=int)
-            self._status, self._iterations, self._n_bound = (wp.zeros(nworld, dtype=int) for _ in range(3))
-            self._work3, self._work2, self._act = warp_qp.workspace(nworld, n, f8)
-        self.x = np.zeros((nworld, n))
-
-    def reset(self) -> None:
-        self._n_warm.zero_()
-
-    def solve(self, H, c, A, b, lb, ub, active=None) -> QPResult:
-        N, n = self.nworld, self.nv
-        H = np.asarray(H, dtype=np.float64)
-        mask = np.ones(N, dtype=bool) if active is None else np.asarray(active, dtype=bool).copy()
-        status = np.full(N, QPStatus.SKIPPED, dtype=np.int8)
-        reasons: dict[int, str] = {}
-        self._refuse_bad_worlds(H, c, A, b, lb, ub, mask, status, reasons)
-        x = self._device_solve(H, c, A, b, lb, ub, mask, status)
-        fallback = np.zeros(N, dtype=bool)
-        unsure = np.flatnonzero(mask & ((status != QPStatus.SOLVED) | ~answers_hold(x, A, b, lb, ub)))
-        for w in unsure:
-            fallback[w] = True
-            hessian = H if H.ndim == 2 else H[w]
-            x[w], status[w], why = daqp_solve(hessian, c[w], A[w], b[w], lb[w], ub[w])
-            if why:
-                reasons[int(w)] = why
-        solved = status == QPStatus.SOLVED
-        x[~solved] = 0.0
-        np.clip(x, lb, ub, out=x, where=solved[:, None])
-        self.x[:] = x
-        closed = solved & (self._n_bound.numpy() == 0) & ~fallback
-        iterations = int(self._iterations.numpy()[mask].max()) if mask.any() else 0
-        return QPResult(self.x, status, reasons, closed, fallback, iterations)
-
-    def _refuse_bad_worlds(self, H, c, A, b, lb, ub, mask, status, reasons) -> None:
-        """Worlds whose data no solver should see: non-finite numbers, an empty box."""
-        finite = np.isfinite(c).all(axis=1) & np.isfinite(b).all(axis=1) & np.isfinite(A).all(axis=(1, 2))
-        finite &= ~np.isnan(lb).any(axis=1) & ~np.isnan(ub).any(axis=1)
-        if H.ndim == 3:
-            finite &= np.isfinite(H).all(axis=(1, 2))
-        elif not np.isfinite(H).all():
-            finite[:] = False
-        empty = (lb > ub).any(axis=1)
-        for w in np.flatnonzero(mask & ~finite):
-            status[w], reasons[int(w)] = QPStatus.FAILED, "NaN or inf in the QP's data"
-        for w in np.flatnonzero(mask & finite & empty):
-            j = int(np.flatnonzero(lb[w] > ub[w])[0])
-            status[w] = QPStatus.INFEASIBLE
-            reasons[int(w)] = f"empty box on variable {j}: lower {lb[w, j]:.6g} > upper {ub[w, j]:.6g}"
-        mask &= finite & ~empty
-
-    def _device_solve(self, H, c, A, b, lb, ub, mask, status) -> np.ndarray:
-        N, n = self.nworld, self.nv
-        with wp.ScopedDevice(self.device):
-            shared = H.ndim == 2
-            hessian = self._H_shared if shared else self._H
-            hessian.assign(H.reshape(hessian.shape))
-            self._c.assign(c)
-            if self.meq:
-                self._A.assign(A)
-                self._b.assign(b)
-            self._lb.assign(lb)
-            self._ub.assign(ub)
-            self._mask.assign(mask.astype(np.int32))
-            wp.launch(self._kernel, dim=N,
-                      inputs=[hessian, 0 if shared else 1, self._c, self._A, self._b, self._lb, self._ub, self._mask,
-                              self.meq, n, self.max_iterations, self._warm, self._n_warm, self._x, self._status,
-                              self._iterations, self._n_bound, *self._work3, *self._work2, self._act])
-        device_status = self._status.numpy()
-        status[mask] = device_status[mask]
-        return self._x.numpy().astype(np.float64, copy=True)

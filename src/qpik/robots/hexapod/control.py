@@ -33,7 +33,8 @@ from .rotations import matrices_from_rotvecs
 from .scene import assembly_qpos
 from ...robot import Robot
 from ...rollout.references import Reference, ReferenceRun
-from ...tasks import EqualityTask, FrameTask, PositionTask, Task, rotation_error
+from ...numerics import rotation_error
+from ...tasks import EqualityTask, FrameTask, PositionTask, Task
 from ...trajectories import sample_many
 
 CHARACTERISTIC_LENGTH = 0.1  # m, the platform radius: makes rotations commensurate
@@ -166,10 +167,12 @@ class PlatformManipulabilityTask(Task):
         self.model = model
         self.gain = float(gain)
 
-    def update(self) -> None:
-        self.robot.site_jacobian(self.model.center_site, None, self.jacobian)
+    def measure_rows(self) -> None:
+        self.robot.site_jacobian(self.model.center_site, None, self.jacobians[0])
+
+    def track(self) -> None:
         position, R = self.model.platform_pose()
-        self.target_velocity[:] = self.gain * self.model.manipulability_gradient(position, R)
+        self.target_velocities[0] = self.gain * self.model.manipulability_gradient(position, R)
 
 
 class HexapodClassicalController:
@@ -268,7 +271,7 @@ class PlatformReference(Reference):
         position, R = self.model.platform_pose(robot)
         sample = {"x": position}
         if isinstance(self.task, FrameTask):
-            sample["orientation_error"] = float(np.linalg.norm(rotation_error(self._desired_rotation, R)))
+            sample["orientation_error"] = float(np.linalg.norm(rotation_error(self._desired_rotation[None], R[None])[0]))
         sample["constraint_violation"] = self.loop_residual(robot)
         return sample
 

@@ -29,9 +29,7 @@ model :math:`δq = J(0)\,θ` (for legs, J stacks the diagonal blocks
 :math:`θ \leftarrow θ + J(θ)^+ (q^{meas} - q(θ))` with the Jacobian at the current
 estimate, undamped (the residual is tiny and the model nearly linear, so the pure
 Gauss–Newton step converges quadratically); ``lm`` is MINPACK's Levenberg–Marquardt
-through :func:`scipy.optimize.least_squares`. SciPy (the ``calibration`` extra) is
-imported when :func:`calibrate` starts or a :class:`StrokeModel` is built: a
-:class:`~qpik.errors.MissingExtra` before any work where it is not installed.
+through :func:`scipy.optimize.least_squares`.
 
 Identifiability (the SVD of the Jacobian in :func:`identifiability`; see the tests):
 
@@ -58,7 +56,6 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ....errors import ConvergenceError, InvalidInput, UnreachablePose
-from ....extras import require
 from ..kinematics import N_LEGS, Hexapod, HexapodGeometry, rotation_from_rpy
 
 UM = 1e-6  # metres per micrometre; the solvers work in µm so tolerances are meaningful
@@ -175,7 +172,6 @@ class StrokeModel:
     """Predicted strokes q(θ) at fixed poses for one parameter set about a nominal geometry."""
 
     def __init__(self, nominal: HexapodGeometry, params: ParameterSet, poses: np.ndarray):
-        require("scipy", "the hexapod calibration", extra="calibration")
         self.nominal, self.params = nominal, params
         self.poses = validate_poses(poses)
         self.rotations = [rotation_from_rpy(p[3:]) for p in self.poses]
@@ -435,9 +431,7 @@ def calibrate(method: str = "linear", poses: str | int | np.ndarray | Sequence =
     Raises:
         InvalidInput, UnreachablePose (naming pose and leg), ConvergenceError (also when the
         noise is so large that the fit leaves the geometries that reach the poses),
-        MissingExtra (SciPy not installed: the ``calibration`` extra).
     """
-    require("scipy", "the hexapod calibration", extra="calibration")
     if not (np.isfinite(noise_um) and noise_um >= 0):
         raise InvalidInput(f"noise must be a finite standard deviation ≥ 0 µm, got {noise_um}")
     if repeats < 1:

@@ -1,0 +1,138 @@
+"""The any-robot fuzz's batched path (benchmarks/fuzz/batched.py; the full run:
+``python benchmarks/fuzz_any_robot.py --batched 1``): a handful of cases on N = 4 worlds,
+every world equal to its own one-world run; and the harness itself: the recipe builds the
+case's own problem again, and a world made to differ (its q̇, its state, its error) is
+caught.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from benchmarks.fuzz import batched
+from benchmarks.fuzz.cases import DT, STEPS, Case, run_case
+from benchmarks.fuzz.sweep import _batch_site
+from qpik.errors import WorldsFailed
+
+# (seed, what it covers): every controller, the exact solvers, generated and third-party
+# models, steps whose condition number makes 10·nv·ε·κ the tolerance (55, 137), a world
+# that fails alone mid-run (67: InfeasibleProblem in world 1 at step 5, the others
+# compared to the end), every world failing at step 0 (1) and an invalid parameter
+# refused at the same step of every world's build (3).
+CASES = {5: "sns", 9: "qp/quadprog", 12: "pinv, ball_in_cup", 21: "hqp/daqp", 120: "qp/daqp, humanoid",
+         137: "qp/daqp, κ ~ 1e12", 55: "pinv, κ ~ 5e6", 67: "qp/osqp, world 1 infeasible at step 5",
+         1: "pinv, DivergenceError everywhere", 3: "sns, an invalid parameter refused"}
+
+
+@pytest.mark.parametrize("seed", CASES)
+def test_each_world_equals_its_own_one_world_run(tmp_path, seed):
+    result = run_case(seed, tmp_path, batched=True)
+    record = result["details"]["batched"]
+    assert "batch_same" in result["classes"], record.get("difference", record)
+    if seed == 67:
+        assert record["failed"] == {"1": "InfeasibleProblem at step 5"} and record["steps"] == STEPS
+    if seed in (55, 137):
+        assert record["conditioned_steps"] and record["max_gap"] > batched.TOLERANCE
+
+
+@pytest.mark.parametrize("seed", [21, 120])
+def test_the_recipe_builds_the_cases_own_problem(tmp_path, seed):
+    """Replayed on a fresh robot at the case's start, the recipe's controller rolls out the
+    case's own trajectory, bit for bit."""
+    result = run_case(seed, tmp_path)
+    case = Case(seed, tmp_path)
+    case.build()
+    robot = batched.support.one_robot(case.recipe.model, case.recipe.q)
+    controller = case.recipe.replay(robot).get(case.controller)
+    digest = hashlib.sha256()
+    for _ in range(STEPS):
+        robot.integrate(controller.compute_velocity(), DT)
+        robot.update_kinematics()
+        digest.update(robot.q.tobytes())
+    assert result["classes"] == ["ok"] and digest.hexdigest() == result["q_hash"]
+
+
+def _batch_steps(monkeypatch, change):
+    """The batch's answers ((N, nv), the one-world runs' are (nv,)) passed through
+    ``change(qdots, call)``, which may raise WorldsFailed instead."""
+    step, calls = batched._step, []
+
+    def changed(controller):
+        qdot, error = step(controller)
+        if qdot is None or qdot.ndim != 2:
+            return qdot, error
+        calls.append(1)
+        try:
+            return change(qdot, len(calls)), None
+        except WorldsFailed as exc:
+            return None, exc
+    monkeypatch.setattr(batched, "_step", changed)
+
+
+def test_a_world_whose_answer_is_off_by_1e_8_is_caught(tmp_path, monkeypatch):
+    def nudged(qdots, call):
+        qdots[2] *= 1.0 + 1e-8
+        return qdots
+    _batch_steps(monkeypatch, nudged)
+    result = run_case(9, tmp_path, batched=True)
+    difference = result["details"]["batched"]["difference"]
+    assert "batch_differs" in result["classes"] and "ok" not in result["classes"]
+    assert (difference["at"], difference["world"], difference["what"]) == ("step 0", 2, "qdot")
+    assert 5e-9 < difference["gap"] < 1e-8
+
+
+def test_a_world_given_another_worlds_state_is_caught(tmp_path, monkeypatch):
+    build = batched._batch_robot
+
+    def mixed(model, starts):
+        return build(model, [starts[0], starts[1], starts[3], starts[3]])
+    monkeypatch.setattr(batched, "_batch_robot", mixed)
+    result = run_case(5, tmp_path, batched=True)
+    difference = result["details"]["batched"]["difference"]
+    assert "batch_differs" in result["classes"] and (difference["world"], difference["what"]) == (2, "qdot")
+
+
+def test_a_world_failing_where_its_own_run_is_solved_is_caught(tmp_path, monkeypatch):
+    def failed(qdots, call):
+        if call == 4:
+            qdots[1] = 0.0
+            raise WorldsFailed({1: "InfeasibleProblem: made up"}, qdots)
+        return qdots
+
+    _batch_steps(monkeypatch, failed)
+    result = run_case(9, tmp_path, batched=True)
+    difference = result["details"]["batched"]["difference"]
+    assert "batch_differs" in result["classes"]
+    assert (difference["at"], difference["world"], difference["what"], difference["alone"]) == \
+        ("step 3", 1, "error", "solved")
+
+
+def test_an_ill_conditioned_step_still_catches_a_world_apart(tmp_path, monkeypatch):
+    """Case 137's steps have κ ~ 1e12 (a cost only the 1e-12 regulariser makes definite):
+    held to 10·nv·ε·κ, at most 1e-2, a world 10 % off is still caught."""
+    def nudged(qdots, call):
+        qdots[1] *= 1.1 if call == 3 else 1.0
+        return qdots
+    _batch_steps(monkeypatch, nudged)
+    result = run_case(137, tmp_path, batched=True)
+    difference = result["details"]["batched"]["difference"]
+    assert "batch_differs" in result["classes"] and (difference["at"], difference["world"]) == ("step 2", 1)
+
+
+def test_the_gap_of_answers_near_the_float_range_or_not_finite_warns_nothing():
+    """(The suite runs with warnings as errors; in a case, a warning of the harness's own
+    would count as the library's stray one.)"""
+    huge = np.array([1e308, -1e308, 1.0])
+    assert batched.gap(huge, -huge) == pytest.approx(2.0)
+    assert batched.gap(np.array([np.inf, 1.0]), np.array([np.inf, 1.0 + 1e-6])) == pytest.approx(1e-6 / 2)
+    assert batched.gap(np.array([np.inf, 1.0]), np.array([1.0, 1.0])) == np.inf
+    assert batched.gap(np.array([np.nan, 1.0]), np.array([-np.inf, 1.0])) == np.inf
+    assert batched.gap(np.array([3.0, 4.0]), np.zeros(2)) == 5.0
+    result = {"params": {"controller": "pinv"}, "details": {"batched": {"difference": {"at": "step 3", "what": "qdot",
+                                                                                       "gap": "inf"}}}}
+    assert _batch_site(result) == "pinv step qdot inf"
+    result["details"]["batched"]["difference"]["gap"] = 0.031
+    assert _batch_site(result) == "pinv step qdot ~1e-2"
