@@ -357,9 +357,9 @@ class _EqualityRows:
         return True
 
     def __call__(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._in_place is not None and len(self.batched):
+        if len(self.batched) and self._in_place is not None:
             self.backend.equality_rows(self.batched, self._in_place)
-        elif len(self.batched):
+        elif len(self.batched):  # rows not consecutive: the back-end's new arrays, scattered
             residual, jacobian = self.backend.equality_rows(self.batched)
             self.residual[:, self.batched_rows] = residual
             self.jacobian[:, self.batched_rows] = jacobian

@@ -32,14 +32,14 @@ class WorldSolver:
 
     def __init__(self, solver: str, nv: int, meq: int, mineq: int, native: bool = True, **settings):
         self.name = solver
-        self._backend = lambda: make_backend(solver, nv, meq, mineq, native=native, **settings)
-        self.backend = self._backend()  # world 0's (and what any world's is: exact or not)
+        self._make_backend = lambda: make_backend(solver, nv, meq, mineq, native=native, **settings)
+        self.backend = self._make_backend()  # world 0's (and what any world's is: exact or not)
         self.exact = self.backend.exact
         self._guards: dict[int, GuardedSolve] = {}
 
     def guard(self, world: int) -> GuardedSolve:
         if world not in self._guards:
-            self._guards[world] = GuardedSolve(self.backend if world == 0 else self._backend(), self.name)
+            self._guards[world] = GuardedSolve(self.backend if world == 0 else self._make_backend(), self.name)
         return self._guards[world]
 
     def solve(self, world: int, qp: WorldQP, hessian_changed: bool = True) -> np.ndarray:
