@@ -141,8 +141,7 @@ class PseudoinverseController(_StackedTasks):
     def _diverged(self, world: int) -> np.ndarray:
         """The error of a world whose law diverged (``solve_each`` names it)."""
         if not self._solved[world]:
-            raise DivergenceError(f"pseudoinverse: J Jᵀ is singular (the arm is at a singularity: condition past "
-                                  f"{SINGULAR_RATIO**2:g})")
+            raise DivergenceError(f"pseudoinverse: J Jᵀ is singular (a singularity: condition past {SINGULAR_RATIO**2:g})")
         raise DivergenceError(f"pseudoinverse produced a joint velocity beyond {DIVERGED_SPEED:g} or not "
                               "finite (singularity): give the law some damping")
 

@@ -113,7 +113,7 @@ class QPController:
         else:
             x, solved = self.held.solve(self.cost, problem.box, *self._rows, worlds)
         if worlds is None and (solved is self._everywhere or solved.all()):
-            np.copyto(self.qdots, x)
+            self.qdots[...] = x
             return self.qdot
         self._finish(x, solved, worlds)
         return self.qdot

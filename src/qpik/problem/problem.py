@@ -92,6 +92,6 @@ class Problem:
         for update in self._updates:
             update()
         if self._writes:
-            np.copyto(self.box, self.box0)
+            self.box[...] = self.box0
             for apply, arguments in self._writes:
                 apply(*arguments)

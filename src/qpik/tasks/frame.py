@@ -55,8 +55,8 @@ class PoseTask(Task):
                                                                     "target angular velocity")
         self.target_positions[...] = position  # every argument checked before any is written
         self.target_rotations[...] = rotation
-        np.copyto(self._linear_twist, linear)
-        np.copyto(self._angular_twist, angular)
+        self._linear_twist[...] = linear
+        self._angular_twist[...] = angular
 
     def set_target_from_configuration(self) -> None:
         """Desired pose: the pose at the current configuration, in every world."""

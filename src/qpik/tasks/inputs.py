@@ -97,9 +97,9 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
 
 def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     """``rotation`` (a 3x3 matrix, or a w-x-y-z unit quaternion, converted by
-    ``mju_quat2Mat``) as a checked (3, 3) float rotation: orthonormal to 1e-6 (each entry of
-    RᵀR − I), no reflection, a quaternion of unit norm to 1e-6. Checked in floats: a step's
-    target costs a few NumPy calls less so.
+    ``mju_quat2Mat``) as a checked (3, 3) float rotation: orthonormal to 1e-6 (the norm
+    of RᵀR − I's six distinct entries), no reflection, a quaternion of unit norm to 1e-6.
+    Checked in floats: a step's target costs a few NumPy calls less so.
 
     Raises:
         InvalidInput: not a finite 3x3 matrix or (4,) quaternion, or not a rotation.
@@ -113,10 +113,10 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
     elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
     gram, det = _orthonormality(rot.reshape(9).tolist())
-    if not all(-1e-6 <= x <= 1e-6 for x in gram):  # NaN fails too
+    if not math.hypot(*gram) <= 1e-6:  # NaN and inf fail too
         if not math.isfinite(sum(gram)):
             raise InvalidInput(f"{what} contains NaN or inf")
-        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {max(abs(x) for x in gram):.2g})")
+        raise InvalidInput(f"{what} is not a rotation matrix (|RᵀR − I| = {math.hypot(*gram):.2g})")
     if det < 0:
         raise InvalidInput(f"{what} is a reflection (det < 0), not a rotation")
     return rot
@@ -164,7 +164,7 @@ def world_rotations(robot, value, what: str = "target rotation") -> np.ndarray:
             mujoco.mju_quat2Mat(matrix, quat)
         arr = matrices.reshape(-1, 3, 3)
     gram, det = _orthonormality(arr.reshape(robot.n, 9).T)
-    deviation = np.abs(np.stack(gram)).max(axis=0)
+    deviation = np.hypot.reduce(np.stack(gram), axis=0)  # as math.hypot for one world
     _refuse_worlds(~(deviation <= 1e-6) | (det < 0),
                    f"{what}: not a rotation matrix (NaN, not orthonormal to 1e-6, or a reflection)")
     return arr
