@@ -29,14 +29,15 @@ get what its own run gets:
   relative (``PROXQP_COST_TOLERANCE``, as its repeat in another process is judged:
   :func:`.sweep.same_run`), the batch's answer on the world's hard rows to 1e-6 and inside
   its limits to 1e-9 ("batch_same_minimum"). It stops where its residuals pass its
-  tolerance, so a rounding can end it an iteration earlier or later; and one workspace,
-  warm-started from the answer before, serves all N worlds (``WorldSolver``), so that a
-  world starts where the previous world ended, not where its own run's last step did;
+  tolerance, so a rounding can end it an iteration earlier or later (each world has its
+  own workspace, ``WorldSolver``, warm-started from that world's last answer, as its own
+  run's is);
 - or the same typed error: a world that fails is named by a
   :class:`~qpik.errors.WorldsFailed` whose reason is the type its own run raises (the
   other worlds still compared), and an error of the whole batch is its every world's
   (an :class:`~qpik.errors.InvalidWorlds` raised by the worlds it names, as an
-  :class:`~qpik.errors.InvalidInput`, and by no other).
+  :class:`~qpik.errors.InvalidInput`, and by no other: a world it does not name was not
+  solved, so its own run may still fail in the solve, with any other error).
 
 After each step the batch's q is checked against MuJoCo's integration of its own q̇
 (``mj_integratePos``, to 1e-10), then the one-world robot is put at the batch's q: each
@@ -190,10 +191,14 @@ def _values(targets: dict, world: int | None):
 # Comparing ----------------------------------------------------------------------------------
 
 def _same_error(batch_error: Exception, alone: Exception | None, world: int) -> bool:
-    """Whether world ``world``'s own run raised what the batch's error says of it."""
+    """Whether world ``world``'s own run raised what the batch's error says of it. An
+    InvalidWorlds stops the batch before it solves: a world it does not name must pass
+    the checks (no InvalidInput), and its own run's later failure is one the batch never
+    reached (any-robot case 8480: world 3's own run fails DivergenceError where the batch
+    stops on world 0's configuration at 1.1e10)."""
     if isinstance(batch_error, InvalidWorlds):
         named = world in batch_error.worlds.tolist()
-        return isinstance(alone, InvalidInput) if named else alone is None
+        return isinstance(alone, InvalidInput) == named
     return alone is not None and type(alone) is type(batch_error)
 
 
