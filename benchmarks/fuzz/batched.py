@@ -354,7 +354,10 @@ class Judge:
         nv = len(qdot)
         jacobian = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
         v = np.concatenate([np.asarray(t.target_velocity, dtype=float).ravel() for t in self.levels[0]])
-        secondary = np.zeros(nv) if len(self.levels) < 2 else np.asarray(self.levels[1][0].target_velocity, float)
+        secondary = np.zeros(nv)  # q̇₀ = I[dofs]ᵀ v of the joint-space secondary task
+        if len(self.levels) > 1:
+            task = self.levels[1][0]
+            secondary[np.asarray(task.dofs)] = np.asarray(task.target_velocity, dtype=float)
         with np.errstate(all="ignore"):
             system = jacobian @ jacobian.T + self.damping**2 * np.eye(len(jacobian))
             try:
