@@ -21,7 +21,8 @@ get what its own run gets:
   under ~1e5/nv. The fuzz's steps go far past that (a cost only the 1e-12 regulariser
   makes definite, an undamped pseudoinverse near a singularity: κ of 1e11 to 1e17, seen
   with bit-identical J and v in both runs and q̇ 1e-9 to 1e-5 apart), so a step whose κ
-  (:meth:`Judge.condition`) makes 10·nv·ε·κ the larger is held to that, up to 1e-2
+  (:meth:`Judge.condition`) makes 10·nv·ε·κ the larger is held to that (the
+  pseudoinverse's at the size of the terms its law sums: :meth:`Judge.magnification`), up to 1e-2
   (``conditioned_steps``, ``max_condition`` in the details say how often and how far);
 - an iterative solver's (OSQP, ProxQP: ``ITERATIVE_SOLVERS``) the same q̇ to 1e-6, its
   promise, or the same minimum where its q̇ is not determined that well (flat directions):
@@ -29,14 +30,15 @@ get what its own run gets:
   relative (``PROXQP_COST_TOLERANCE``, as its repeat in another process is judged:
   :func:`.sweep.same_run`), the batch's answer on the world's hard rows to 1e-6 and inside
   its limits to 1e-9 ("batch_same_minimum"). It stops where its residuals pass its
-  tolerance, so a rounding can end it an iteration earlier or later; and one workspace,
-  warm-started from the answer before, serves all N worlds (``WorldSolver``), so that a
-  world starts where the previous world ended, not where its own run's last step did;
+  tolerance, so a rounding can end it an iteration earlier or later (each world has its
+  own workspace, ``WorldSolver``, warm-started from that world's last answer, as its own
+  run's is);
 - or the same typed error: a world that fails is named by a
   :class:`~qpik.errors.WorldsFailed` whose reason is the type its own run raises (the
   other worlds still compared), and an error of the whole batch is its every world's
   (an :class:`~qpik.errors.InvalidWorlds` raised by the worlds it names, as an
-  :class:`~qpik.errors.InvalidInput`, and by no other).
+  :class:`~qpik.errors.InvalidInput`, and by no other: a world it does not name was not
+  solved, so its own run may still fail in the solve, with any other error).
 
 After each step the batch's q is checked against MuJoCo's integration of its own q̇
 (``mj_integratePos``, to 1e-10), then the one-world robot is put at the batch's q: each
@@ -190,10 +192,14 @@ def _values(targets: dict, world: int | None):
 # Comparing ----------------------------------------------------------------------------------
 
 def _same_error(batch_error: Exception, alone: Exception | None, world: int) -> bool:
-    """Whether world ``world``'s own run raised what the batch's error says of it."""
+    """Whether world ``world``'s own run raised what the batch's error says of it. An
+    InvalidWorlds stops the batch before it solves: a world it does not name must pass
+    the checks (no InvalidInput), and its own run's later failure is one the batch never
+    reached (any-robot case 8480: world 3's own run fails DivergenceError where the batch
+    stops on world 0's configuration at 1.1e10)."""
     if isinstance(batch_error, InvalidWorlds):
         named = world in batch_error.worlds.tolist()
-        return isinstance(alone, InvalidInput) if named else alone is None
+        return isinstance(alone, InvalidInput) == named
     return alone is not None and type(alone) is type(batch_error)
 
 
@@ -303,7 +309,8 @@ class Judge:
         if not self.iterative:
             kappa = self.condition(len(qdot))
             record["max_condition"] = max(record.get("max_condition", 0.0), kappa)
-            if difference <= min(CONDITIONED_CAP, CONDITIONED * len(qdot) * EPSILON * kappa):
+            spread = CONDITIONED * len(qdot) * EPSILON * kappa * self.magnification(qdot)
+            if difference <= min(CONDITIONED_CAP, spread):
                 record["conditioned_steps"] = record.get("conditioned_steps", 0) + 1
                 return "same"
             return {"what": "qdot", "gap": difference, "condition": kappa, "batch": batch_qdot.tolist(),
@@ -331,6 +338,34 @@ class Judge:
                 return _condition(jacobian @ jacobian.T + self.damping**2 * np.eye(len(jacobian)))
         groups = self.levels if self.kind in ("hqp", "sns") else [[task for level in self.levels for task in level]]
         return max((_condition(_normal(tasks, nv)) for tasks in groups), default=1.0)
+
+    def magnification(self, qdot: np.ndarray) -> float:
+        """How much larger than q̇ the terms are that the step's solve sums into it:
+        (1 + that size) / (1 + ‖q̇‖), at least 1. The rounding a solve leaves is ε·κ of
+        the size of what it computes, not of the answer that remains once those terms
+        cancel. The pseudoinverse law q̇ = Jᵀz + q̇₀ − Jᵀz₀, z = (J Jᵀ + λ² I)⁻¹ v and
+        z₀ = (J Jᵀ + λ² I)⁻¹ J q̇₀, sums terms of sizes ‖J‖‖z‖, ‖q̇₀‖, ‖J‖‖z₀‖: case 7270,
+        a posture 1e6 rad away, q̇₀ 9.5e6 projected to a q̇ of 15 (the worlds 1.9e-9 apart,
+        ε·‖q̇₀‖); case 2110, a singular J damped by λ = 8e-4, z 1.1e9 for a q̇ of 0.9 (the
+        worlds one ulp of 1e9, 1.2e-7, apart). The QP controllers' answers are judged at
+        their own size (1)."""
+        if self.kind != "pinv":
+            return 1.0
+        nv = len(qdot)
+        jacobian = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
+        v = np.concatenate([np.asarray(t.target_velocity, dtype=float).ravel() for t in self.levels[0]])
+        secondary = np.zeros(nv)  # q̇₀ = I[dofs]ᵀ v of the joint-space secondary task
+        if len(self.levels) > 1:
+            task = self.levels[1][0]
+            secondary[np.asarray(task.dofs)] = np.asarray(task.target_velocity, dtype=float)
+        with np.errstate(all="ignore"):
+            system = jacobian @ jacobian.T + self.damping**2 * np.eye(len(jacobian))
+            try:
+                z = np.linalg.solve(system, np.stack([v, jacobian @ secondary], axis=1))
+            except np.linalg.LinAlgError:
+                return 1.0  # singular: κ is inf, the cap decides
+            size = np.linalg.norm(jacobian, 2) * np.linalg.norm(z, axis=0).sum() + np.linalg.norm(secondary)
+        return max(1.0, (1.0 + size) / (1.0 + float(np.linalg.norm(qdot)))) if np.isfinite(size) else 1.0
 
     def _promises(self, robot, batch_qdot, qdot, q_before) -> dict | None:
         costs = max((cost_gap(a, b) for a, b in zip(level_costs(self.levels, batch_qdot),
