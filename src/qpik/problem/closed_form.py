@@ -71,7 +71,7 @@ class DampedLeastSquares:
         """``(x (N, nv), z (N, m) or None, ok (N,))``: ``ok`` where the system is numerically
         positive definite (:func:`~qpik.numerics.cholesky_solve` within ``SINGULAR_RATIO``),
         x is finite and the system's residual (the hard rows' miss among it) is within
-        ``EQUALITY_TOLERANCE`` of 1 + |rhs|; x and z mean nothing elsewhere (buffers,
+        ``EQUALITY_TOLERANCE`` (1 + |rhs_i|) row by row; x and z mean nothing elsewhere (buffers,
         overwritten by the next solve). z is None where the hard rows alone fix x
         (:meth:`_point`).
 
@@ -135,14 +135,12 @@ class DampedLeastSquares:
         return met if met.all() else self._fits(R, rhs, EQUALITY_TOLERANCE)
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
-        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` (the system's residual), its
-        soft part and its hard rows' part each at its own scale (a soft target far away must
-        not excuse a hard row's miss), leaving the miss in ``_fit``."""
+        """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` row by row (the system's
+        residual, :func:`rows_met`), leaving the miss in ``_fit``."""
         fit, m = matvec(R, self.x, self._fit), self.soft_rows
-        if not m:
-            return rows_met(fit, rhs, tolerance)
-        fit[:, :m] += self.z[:, :m]
-        return both(rows_met(fit[:, :m], rhs[:, :m], tolerance), rows_met(fit[:, m:], rhs[:, m:], tolerance))
+        if m:
+            fit[:, :m] += self.z[:, :m]
+        return rows_met(fit, rhs, tolerance)
 
     def gradient(self, damping, R, c) -> np.ndarray:
         """Dx + c − Rᵀz of the last solve (D = ``damping``, c None for zero): zero on the
@@ -175,18 +173,15 @@ def active_bounds(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[
     return at_lower, at_upper
 
 
-def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float, all_worlds: np.ndarray | None = None) -> np.ndarray:
-    """(N,) whether |Ax − b| <= tolerance (1 + |b|) in each world (Euclidean norms; NaN
-    fails), from A x (N, meq) (overwritten with the residual); ``all_worlds``: what to
-    return when every world meets them (default ``everywhere``)."""
+def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
+    """(N,) whether every row's miss |A_i x − b_i| <= tolerance (1 + |b_i|) in each world
+    (NaN fails), from A x (N, m) (overwritten with the residual). Row by row: a far row (a
+    soft target 1e9 away) must not excuse a near row's miss, which a norm-wise test lets
+    hide the digits a closed form loses (refinement would not start)."""
     np.subtract(Ax, b, Ax)
-    if len(b) == 1:  # one world: two dot products
-        met = Ax[0].dot(Ax[0]) <= tolerance * tolerance * (1.0 + b[0].dot(b[0]))
-        return (everywhere(1) if all_worlds is None else all_worlds) if met else nowhere(1)
-    if squared_norm(Ax) <= tolerance * tolerance:  # every world's miss is below the least bound
-        return everywhere(len(b)) if all_worlds is None else all_worlds
-    miss = np.einsum("ni,ni->n", Ax, Ax)
-    return miss <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))
+    if squared_norm(Ax) <= tolerance * tolerance:  # every row's miss is below the least bound
+        return everywhere(len(b))
+    return (np.abs(Ax) <= tolerance * (1.0 + np.abs(b))).all(axis=1)
 
 
 _SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >= 0

@@ -327,24 +327,13 @@ def skew(v: wp.vec3d) -> wp.mat33d:
 
 @wp.func
 def rows_met(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), w: int, tolerance: F64) -> int:
-    """``closed_form.rows_met``: 1 where |Ax − b| <= tolerance (1 + |b|) (Euclidean norms,
-    compared squared; NaN fails)."""
-    return _rows_met(Ax, b, w, tolerance, 0, b.shape[1])
-
-
-@wp.func
-def _rows_met(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), w: int, tolerance: F64, start: int,
-              stop: int) -> int:
-    """:func:`rows_met` of the rows start … stop − 1."""
-    miss = F64(0.0)
-    scale = F64(0.0)
-    for i in range(start, stop):
-        d = Ax[w, i] - b[w, i]
-        miss = miss + d * d
-        scale = scale + b[w, i] * b[w, i]
-    if miss <= tolerance * tolerance * (F64(1.0) + scale):
-        return 1
-    return 0
+    """``closed_form.rows_met``: 1 where every row's |Ax − b| <= tolerance (1 + |b|) (NaN
+    fails)."""
+    for i in range(b.shape[1]):
+        if wp.abs(Ax[w, i] - b[w, i]) <= tolerance * (F64(1.0) + wp.abs(b[w, i])):
+            continue
+        return 0
+    return 1
 
 
 @wp.func
@@ -407,14 +396,12 @@ def _add(y: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64), w: int, sign: F64):
 @wp.func
 def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, tolerance: F64,
           arrays: DampedLeastSquaresArrays) -> int:
-    """``DampedLeastSquares._fits``: whether R x + [z₁; 0] meets rhs to ``tolerance``
-    (:func:`rows_met`), the soft part and the hard rows each at its own scale, the miss
-    left in ``fit``."""
+    """``DampedLeastSquares._fits``: whether R x + [z₁; 0] meets rhs to ``tolerance`` row by
+    row (:func:`rows_met`), the miss left in ``fit``."""
     matvec(R, arrays.x, w, arrays.fit)
     for i in range(arrays.soft_rows):
         arrays.fit[w, i] = arrays.fit[w, i] + arrays.z[w, i]
-    met = _rows_met(arrays.fit, rhs, w, tolerance, 0, arrays.soft_rows) * \
-        _rows_met(arrays.fit, rhs, w, tolerance, arrays.soft_rows, rhs.shape[1])
+    met = rows_met(arrays.fit, rhs, w, tolerance)
     _add(arrays.fit, rhs, w, F64(-1.0))
     return met
 
