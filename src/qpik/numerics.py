@@ -2,9 +2,11 @@ r"""The engine's small numerical primitives, each over a leading world axis N.
 
 Every task, cost and solve is written once over (N, ...) arrays. For one world (a
 :class:`qpik.Robot`) NumPy's per-call cost outweighs the arithmetic of a control step's
-tiny systems, so three primitives take MuJoCo's own routines when N = 1 — the same
+tiny systems, so a few primitives take MuJoCo's own routines when N = 1 — the same
 formulas, in C: the rotation error (``mju_mat2Quat``/``mju_subQuat``), :math:`J^TWJ`
-(``mju_sqrMatTD``), and LAPACK's Cholesky solve (``dposv``, through SciPy). Above
+(``mju_sqrMatTD``), :math:`AB^T` (``mju_mulMatMatT``) and the Cholesky solve
+(``mju_cholFactor``/``mju_cholSolve``: BLAS's and LAPACK's blocked routines pack these
+small matrices first, which costs more than the arithmetic). Above
 one world the arithmetic runs across worlds with the world axis last, one vector
 operation per step of the algorithm (NumPy's stacked routines call LAPACK once per
 matrix, which on these sizes is mostly overhead).
@@ -21,7 +23,7 @@ from scipy.linalg.lapack import dgesv, dposv
 
 MINVAL = 1e-15  # mjMINVAL
 _TINY = 5e-324  # the least positive float
-SMALL_DOT = 4096  # entries below which BLAS runs a dot product on one thread
+SMALL_DOT = 4096  # entries up to which a sum of squares is one MuJoCo dot product (see squared_norm)
 
 __all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
            "worlds_last"]
@@ -129,19 +131,33 @@ def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray,
 
 
 def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
-    """:func:`cholesky_solve` of one world: LAPACK's ``dposv`` (factor and solve in one call)."""
+    """:func:`cholesky_solve` of one world: MuJoCo's factor and solve, on a copy of M."""
     b = B[0]
-    factor, X, info = dposv(M, b, 0, 0, in_place and B.ndim == 2)  # (lower, overwrite_a, overwrite_b)
-    ok = info == 0
-    if ok and ratio < math.inf:  # M_jj <= ratio² L_jj² on every pivot, in floats
-        square = ratio * ratio
-        for diagonal, pivot in zip(M.diagonal().tolist(), factor.diagonal().tolist()):
-            if diagonal > square * pivot * pivot:
-                ok = False
-                break
+    if b.ndim == 2:  # several right sides: LAPACK's dposv
+        factor, X, info = dposv(M, b)
+        ok = info == 0
+    else:
+        factor = _scratch(M.shape)
+        factor[...] = M
+        ok = mujoco.mju_cholFactor(factor, _TINY) == len(M)  # a pivot below _TINY lowers the rank
+        X = b if in_place else np.empty(len(b))
+        mujoco.mju_cholSolve(X, factor, b)
+    square = ratio * ratio  # M_jj <= ratio² L_jj² on every pivot, in floats (NaN fails)
+    for diagonal, pivot in zip(M.diagonal().tolist(), factor.diagonal().tolist()):
+        if not diagonal <= square * pivot * pivot:
+            ok = False
+            break
+    if not ok:
+        X[...] = 0.0  # finite, as N worlds leave a refused world's (no caller's arithmetic warns)
     if in_place and X is not b:
         b[...] = X
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
+
+
+@functools.cache
+def _scratch(shape: tuple) -> np.ndarray:
+    """A scratch matrix of one shape (one world's factor; MuJoCo factors in place)."""
+    return np.empty(shape)
 
 
 def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:
@@ -376,12 +392,12 @@ class ConfigurationDifference:
 
 
 def squared_norm(a: np.ndarray) -> float:
-    """The sum of squares of a contiguous array's entries: BLAS's dot on a small one, NumPy's
-    own loop on a large one (BLAS's dot wakes its threads past ~10,000 entries, which on a
-    busy machine costs milliseconds)."""
+    """The sum of squares of a contiguous array's entries: MuJoCo's dot on a small one (BLAS's
+    dispatch costs more than its arithmetic), NumPy's own loop on a large one (BLAS's dot
+    wakes its threads past ~10,000 entries, which on a busy machine costs milliseconds)."""
     if a.size <= SMALL_DOT:
         flat = a.reshape(-1)
-        return float(flat.dot(flat))
+        return mujoco.mju_dot(flat, flat)
     return float(np.einsum("ij,ij->", a, a))
 
 
@@ -423,7 +439,7 @@ def vecmat(y: np.ndarray, A: np.ndarray, out: np.ndarray) -> np.ndarray:
 def outer_product(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out`` (N, m, p) = A Bᵀ in every world, A (N, m, k), B (N, p, k)."""
     if len(A) == 1:
-        A[0].dot(B[0].T, out[0])
+        mujoco.mju_mulMatMatT(out[0], A[0], B[0])
     elif A.shape[1] * B.shape[1] > SMALL_PRODUCT:  # a new array, copied (matmul writes a strided out slowly)
         out[...] = np.matmul(A, B.transpose(0, 2, 1))
     else:  # (m, k, N) times (p, k, N), worlds last

@@ -1,5 +1,6 @@
 """engine.numerics.cholesky_solve: every world's answer equals LAPACK's (NumPy's solve) at
-N = 1 (its dposv path) and N > 1 (its worlds-last path), and its flags say which worlds
+N = 1 (MuJoCo's factor and solve; dposv for several right sides) and N > 1 (its
+worlds-last path), and its flags say which worlds
 solved — the shared :func:`~qpik.numerics.everywhere` when all did, so that a caller's
 fast path (``solved is everywhere(n)``) is taken on the usual step."""
 
