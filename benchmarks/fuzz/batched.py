@@ -21,7 +21,9 @@ get what its own run gets:
   under ~1e5/nv. The fuzz's steps go far past that (a cost only the 1e-12 regulariser
   makes definite, an undamped pseudoinverse near a singularity: κ of 1e11 to 1e17, seen
   with bit-identical J and v in both runs and q̇ 1e-9 to 1e-5 apart), so a step whose κ
-  (:meth:`Judge.condition`) makes 10·nv·ε·κ the larger is held to that (the
+  (:meth:`Judge.condition`: of the tasks' normal matrix, and of the system a QP with
+  equality rows solves on its active set, ``_active_condition``) makes 10·nv·ε·κ the
+  larger is held to that (the
   pseudoinverse's at the size of the terms its law sums: :meth:`Judge.magnification`), up to 1e-2
   (``conditioned_steps``, ``max_condition`` in the details say how often and how far);
 - an iterative solver's (OSQP, ProxQP: ``ITERATIVE_SOLVERS``) the same q̇ to 1e-6, its
@@ -59,6 +61,8 @@ import mujoco
 import numpy as np
 
 from qpik.errors import InvalidInput, InvalidWorlds, WorldsFailed
+
+from qpik.problem import active_bounds
 
 from .cases import ITERATIVE_HARD_TOLERANCE, ITERATIVE_SOLVERS, TOLERANCE as LIMIT_TOLERANCE, level_costs
 from .checks import crossing, hard_residual, velocity_excess
@@ -121,7 +125,8 @@ def check_batched(case, result: dict, steps: int, dt: float) -> None:
     difference = _build_difference(batch, alone)
     controller = getattr(case, "controller", None)
     if difference is None and batch.failed is None and controller is not None:
-        runs = [(robot, made.get(controller), Judge(case, made, dt, record)) for robot, made in zip(singles, alone)]
+        runs = [(robot, made.get(controller), Judge(case, made, dt, record, made.get(controller)))
+                for robot, made in zip(singles, alone)]
         difference = _roll_out(batch.get(controller), robots, runs, steps, dt, record)
     if difference is not None:
         record["difference"] = difference
@@ -291,7 +296,8 @@ class Judge:
     of the step (each level's cost equal to ``PROXQP_COST_TOLERANCE``, the batch's answer
     on the hard rows to 1e-6 and inside the limits to 1e-9); else how they differ."""
 
-    def __init__(self, case, made, dt: float, record: dict):
+    def __init__(self, case, made, dt: float, record: dict, controller=None):
+        self.controller = controller  # the world's own (its last step's QP data, read by condition)
         self.iterative = case.params.get("solver") in ITERATIVE_SOLVERS
         self.kind = case.params["controller"]
         self.levels = [[made.get(task) for task in level] for level in case.levels or []]
@@ -307,7 +313,7 @@ class Judge:
         if difference <= TOLERANCE:
             return "same"
         if not self.iterative:
-            kappa = self.condition(len(qdot))
+            kappa = self.condition(len(qdot), qdot)
             record["max_condition"] = max(record.get("max_condition", 0.0), kappa)
             spread = CONDITIONED * len(qdot) * EPSILON * kappa * self.magnification(qdot)
             if difference <= min(CONDITIONED_CAP, spread):
@@ -323,7 +329,7 @@ class Judge:
             return "minimum"
         return {"what": "qdot", "gap": difference, **verdict}
 
-    def condition(self, nv: int) -> float:
+    def condition(self, nv: int, qdot: np.ndarray | None = None) -> float:
         """κ of the matrix the step's solve factors, on the world's own tasks as last
         updated — the factor by which the solve can carry a rounding into q̇. The
         pseudoinverse law: J Jᵀ + λ² I of its primary tasks. The QP controllers: Σ w JᵀJ
@@ -331,13 +337,31 @@ class Judge:
         reach (a dof no row reaches is a block of its own, ε q̇ = 0, solved exactly), the
         largest over the levels a hierarchy or SNS solves one after the other (a level
         restricted to the null space of those above keeps its eigenvalues within its
-        own: Cauchy's interlacing)."""
+        own: Cauchy's interlacing); and, where a QP has equality rows (hard rows; a
+        hierarchy level's rows above it), κ of the system its answer solves on its
+        active set (:func:`_active_condition`), the largest over the levels."""
         if self.kind == "pinv":
             jacobian = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
             with np.errstate(over="ignore", invalid="ignore"):
                 return _condition(jacobian @ jacobian.T + self.damping**2 * np.eye(len(jacobian)))
         groups = self.levels if self.kind in ("hqp", "sns") else [[task for level in self.levels for task in level]]
-        return max((_condition(_normal(tasks, nv)) for tasks in groups), default=1.0)
+        kappa = max((_condition(_normal(tasks, nv)) for tasks in groups), default=1.0)
+        return max([kappa, *self._active_conditions(qdot)])
+
+    def _active_conditions(self, qdot: np.ndarray | None) -> list[float]:
+        """κ of each equality-constrained QP the step solved (:func:`_active_condition`),
+        from the world's own controller's last step: the QP controller's hard rows, H and
+        box at its answer; each hierarchy level's rows (those above it, then its hard
+        rows), Hessian (its regularisation included) and box at that level's answer."""
+        controller = self.controller
+        if controller is None or qdot is None:
+            return []
+        if self.kind == "qp":
+            return [_active_condition(controller.H, controller.A, qdot, controller.lb, controller.ub)]
+        if self.kind != "hqp":
+            return []
+        return [_active_condition(level.cost.world_hessian(0), level.A[0], answer, controller.lb, controller.ub)
+                for level, answer in zip(controller.levels, np.atleast_2d(controller.level_velocities))]
 
     def magnification(self, qdot: np.ndarray) -> float:
         """How much larger than q̇ the terms are that the step's solve sums into it:
@@ -400,6 +424,51 @@ def _condition(matrix: np.ndarray) -> float:
     eigenvalues = np.linalg.eigvalsh(matrix)
     smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
     return largest / smallest if smallest > 0.0 and largest < smallest * 1e300 else np.inf
+
+
+def _active_condition(hessian: np.ndarray, rows: np.ndarray, answer: np.ndarray, lower: np.ndarray,
+                      upper: np.ndarray) -> float:
+    """κ of the system a QP min ½ xᵀHx + cᵀx, C x = d, lb ≤ x ≤ ub solves at ``answer``:
+    with the bounds it holds fixed (F the dofs it does not hold), x_F is the solution of
+    the KKT system [[H_F, C_Fᵀ], [C_F, 0]], and what the solvers factor for it is H_F
+    (quadprog's Cholesky) and its Schur complement M = C_F H_F⁻¹ C_Fᵀ (the dual active-set
+    solvers, DAQP and quadprog, factor M over their active rows, bounds among them:
+    ``qpik.solvers.nullspace``; the closed form's K = R D⁻¹ Rᵀ is M for the hard rows). A
+    rounding of d is carried into the multipliers by κ(M) and into x through H_F⁻¹ C_Fᵀ:
+    κ = max(κ(H_F), κ(M)), κ(M) = κ(C_F H_F^(-1/2))². Where C_F's rows depend on each other
+    (more rows than free dofs, or the free part of a row in the span of the others, as
+    when the answer of the level above holds a bound of a dof they reach) M is singular:
+    the rows fix a point only while d is exactly consistent, the worlds' rounding of d
+    (J_above q̇*_{k-1}, each world's own) makes it inconsistent by ε‖d‖, and where the
+    answer lands is the solver's handling of that (the dependent row DAQP drops; quadprog
+    failing, then the guard's retry with 1e-9 of damping, which it keeps for its next 8
+    steps): κ is inf (or past 1/ε, M's smallest singular value a rounding). Any-robot case 110 (level 1: 6 rows above on the 5 free dofs they
+    reach, d 3e-14 apart, q̇ 1.7e-9) and case 3730 (level 1: 3 rows on 3 dofs, one held at
+    its bound; quadprog failed at step 0 in one run and not the other, whose guard then
+    damped steps 1–4: q̇ 3e-9 apart on a dof of curvature 0.23, 1e-9/0.23 of its velocity).
+    1 where there are no rows or no free dof."""
+    rows = np.asarray(rows, dtype=float)
+    if not rows.size:
+        return 1.0
+    at_lower, at_upper = active_bounds(answer, lower, upper)
+    free = ~(at_lower | at_upper)
+    if not free.any():
+        return 1.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        hessian = np.asarray(hessian, dtype=float)[np.ix_(free, free)]
+        if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(rows))):
+            return np.inf
+        curvatures, basis = np.linalg.eigh(hessian)
+        if not curvatures[0] > 0.0:
+            return np.inf
+        scaled = (rows[:, free] @ basis) / np.sqrt(curvatures)  # C_F H_F^(-1/2), in H_F's eigenbasis
+        if len(scaled) > scaled.shape[1]:
+            return np.inf  # more rows than free dofs: dependent
+        singular = np.linalg.svd(scaled, compute_uv=False)
+        kappa_h = float(curvatures[-1] / curvatures[0])
+    if not singular[-1] > 0.0 or not singular[0] < singular[-1] * 1e150:
+        return np.inf
+    return max(kappa_h, float(singular[0] / singular[-1]) ** 2)
 
 
 def _whole_error(error: Exception, singles: list, alive: list[int], step: int, record: dict) -> dict | None:

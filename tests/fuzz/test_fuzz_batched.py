@@ -24,7 +24,8 @@ from qpik.errors import WorldsFailed
 # refused at the same step of every world's build (3).
 CASES = {5: "sns", 9: "qp/quadprog", 12: "pinv, ball_in_cup", 21: "hqp/daqp", 120: "qp/daqp, humanoid",
          137: "qp/daqp, κ ~ 1e12", 55: "pinv, κ ~ 5e6", 67: "qp/osqp, world 1 infeasible at step 5",
-         1: "pinv, DivergenceError everywhere", 3: "sns, an invalid parameter refused"}
+         1: "pinv, DivergenceError everywhere", 3: "sns, an invalid parameter refused",
+         110: "hqp/quadprog, level 1's rows above dependent on its free dofs (κ inf)"}
 
 
 @pytest.mark.parametrize("seed", CASES)
@@ -34,7 +35,7 @@ def test_each_world_equals_its_own_one_world_run(tmp_path, seed):
     assert "batch_same" in result["classes"], record.get("difference", record)
     if seed == 67:
         assert record["failed"] == {"1": "InfeasibleProblem at step 5"} and record["steps"] == STEPS
-    if seed in (55, 137):
+    if seed in (55, 137, 110):
         assert record["conditioned_steps"] and record["max_gap"] > batched.TOLERANCE
 
 
@@ -136,3 +137,17 @@ def test_the_gap_of_answers_near_the_float_range_or_not_finite_warns_nothing():
     assert _batch_site(result) == "pinv step qdot inf"
     result["details"]["batched"]["difference"]["gap"] = 0.031
     assert _batch_site(result) == "pinv step qdot ~1e-2"
+
+
+def test_the_active_systems_condition_sees_dependent_rows():
+    """A QP's equality rows restricted to the dofs its answer leaves free: κ(H_F) and
+    κ(C_F H_F⁻¹ C_Fᵀ); rows that depend on each other there (a dof they reach held at its
+    bound) make it past 1/ε (its smallest singular value a rounding), however well conditioned the rows are over every dof."""
+    hessian = np.diag([1.0, 1e-2, 1.0])
+    rows = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 1.0]])  # dependent once dof 2 is held
+    lower, upper = np.full(3, -1.0), np.full(3, 1.0)
+    inside = batched._active_condition(hessian, rows, np.array([0.5, 0.2, 0.1]), lower, upper)
+    scaled = rows / np.sqrt(np.diag(hessian))
+    assert inside == pytest.approx(max(100.0, np.linalg.cond(scaled) ** 2))
+    assert batched._active_condition(hessian, rows, np.array([0.5, 0.2, 1.0]), lower, upper) > 1 / batched.EPSILON
+    assert batched._active_condition(hessian, rows[:0], np.zeros(3), lower, upper) == 1.0
