@@ -15,7 +15,7 @@ get what its own run gets:
   figure for a world against its own run). Why it holds: the engine computes every world
   with the same formulas; N worlds go through its N > 1 primitives (NumPy across the
   world axis, the CPU back-end's Jacobians formed from ``cdof``), one world through its
-  N = 1 ones (LAPACK on 2-D views, ``mj_jac`` in C) — the same arithmetic up to the order
+  N = 1 ones (MuJoCo's routines on 2-D views, ``mj_jac`` in C) — the same arithmetic up to the order
   of sums, ~1e-16 relative per operation. A solve carries such a rounding of its data into
   q̇ multiplied by its condition number κ: up to about nv·ε·κ, below 1e-10 while κ stays
   under ~1e5/nv. The fuzz's steps go far past that (a cost only the 1e-12 regulariser
@@ -25,7 +25,11 @@ get what its own run gets:
   equality rows solves on its active set, ``_active_condition``) makes 10·nv·ε·κ the
   larger is held to that (the
   pseudoinverse's at the size of the terms its law sums: :meth:`Judge.magnification`), up to 1e-2
-  (``conditioned_steps``, ``max_condition`` in the details say how often and how far);
+  (``conditioned_steps``, ``max_condition`` in the details say how often and how far).
+  Past 1e-2 the step's data does not determine q̇ (a rounding moves it farther along the
+  cost's flat directions), and what it does determine is judged: the same minimum, as an
+  iterative solver's below, with the hard rows to the exact solvers' 1e-9
+  (``undetermined_steps``);
 - an iterative solver's (OSQP, ProxQP: ``ITERATIVE_SOLVERS``) the same q̇ to 1e-6, its
   promise, or the same minimum where its q̇ is not determined that well (flat directions):
   each level's cost at the batch's answer equal to that at the world's own to 1e-6
@@ -319,9 +323,11 @@ class Judge:
             if difference <= min(CONDITIONED_CAP, spread):
                 record["conditioned_steps"] = record.get("conditioned_steps", 0) + 1
                 return "same"
-            return {"what": "qdot", "gap": difference, "condition": kappa, "batch": batch_qdot.tolist(),
-                    "alone": qdot.tolist()}
-        if difference <= ITERATIVE_HARD_TOLERANCE:
+            if spread <= CONDITIONED_CAP:  # q̇ is determined to the spread: they differ
+                return {"what": "qdot", "gap": difference, "condition": kappa, "batch": batch_qdot.tolist(),
+                        "alone": qdot.tolist()}
+            record["undetermined_steps"] = record.get("undetermined_steps", 0) + 1
+        elif difference <= ITERATIVE_HARD_TOLERANCE:
             return "same"
         verdict = self._promises(robot, batch_qdot, qdot, q_before)
         if verdict is None:
@@ -392,13 +398,18 @@ class Judge:
         return max(1.0, (1.0 + size) / (1.0 + float(np.linalg.norm(qdot)))) if np.isfinite(size) else 1.0
 
     def _promises(self, robot, batch_qdot, qdot, q_before) -> dict | None:
-        costs = max((cost_gap(a, b) for a, b in zip(level_costs(self.levels, batch_qdot),
-                                                    level_costs(self.levels, qdot))), default=0.0)
+        """None where the batch's answer is a minimiser of the world's step as its own is:
+        each level's cost equal to ``PROXQP_COST_TOLERANCE``, the hard rows met to the
+        solver's promise (1e-6 iterative, 1e-9 exact), inside the limits to 1e-9."""
+        hard = self.kind == "pinv"  # the law weighs its hard rows as its soft ones
+        costs = max((cost_gap(a, b) for a, b in zip(level_costs(self.levels, batch_qdot, hard),
+                                                    level_costs(self.levels, qdot, hard))), default=0.0)
         self.record["max_cost_gap"] = max(self.record["max_cost_gap"], costs)
         missed = max((hard_residual(task, batch_qdot) for task in self.hard), default=0.0)
         excess = max(crossing(robot, self.limits, q_before, batch_qdot, self.dt),
                      velocity_excess(self.limits, batch_qdot))
-        if costs <= PROXQP_COST_TOLERANCE and missed <= ITERATIVE_HARD_TOLERANCE and excess <= LIMIT_TOLERANCE:
+        hard_tolerance = ITERATIVE_HARD_TOLERANCE if self.iterative else LIMIT_TOLERANCE
+        if costs <= PROXQP_COST_TOLERANCE and missed <= hard_tolerance and excess <= LIMIT_TOLERANCE:
             return None
         return {"cost_gap": costs, "hard_residual": missed, "limit_excess": excess}
 

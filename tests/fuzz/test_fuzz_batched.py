@@ -39,6 +39,18 @@ def test_each_world_equals_its_own_one_world_run(tmp_path, seed):
         assert record["conditioned_steps"] and record["max_gap"] > batched.TOLERANCE
 
 
+@pytest.mark.parametrize("seed", [4360, 6430])
+def test_a_step_its_data_does_not_determine_is_judged_by_its_minimum(tmp_path, seed):
+    """4360 (qp/daqp, a cost only the 1e-12 regulariser makes definite, κ ~ 1e12) and 6430
+    (hqp/daqp, level 2's rows above nearly dependent on its free dofs): 10·nv·ε·κ is past
+    the cap, so a rounding moves q̇ by more than it; the worlds' answers are judged by what
+    the data determines, the minimum (each level's cost, the hard rows, the limits)."""
+    result = run_case(seed, tmp_path, batched=True)
+    record = result["details"]["batched"]
+    assert "batch_same_minimum" in result["classes"], record.get("difference", record)
+    assert record["undetermined_steps"] and record["minimum_steps"] == record["undetermined_steps"]
+
+
 @pytest.mark.parametrize("seed", [21, 120])
 def test_the_recipe_builds_the_cases_own_problem(tmp_path, seed):
     """Replayed on a fresh robot at the case's start, the recipe's controller rolls out the
