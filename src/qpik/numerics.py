@@ -75,8 +75,8 @@ def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place
         B: (N, k) or (N, k, m).
         ratio: the most any √M_ii / L_ii may be for a world to count as solved: 1 where
             M's rows are orthogonal, growing as a row depends on those before it (whatever
-            the rows' scales; the condition number of M scaled to a unit diagonal is at
-            most about ratio²).
+            the rows' scales; a refused M scaled to a unit diagonal has a condition number
+            past ratio², an accepted one may too: a lower bound, not an estimate).
         in_place: write X into B instead of a new array.
 
     Returns:

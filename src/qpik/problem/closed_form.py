@@ -32,8 +32,8 @@ import numpy as np
 from ..numerics import (all_finite, both, cholesky_solve, everywhere, lu_solve, matvec, nowhere, outer_product,
                         squared_norm, vecmat, worlds_first)
 
-# The system is treated as singular (dependent hard rows) when its Cholesky factor's
-# diagonal spans more than this ratio (its condition number is the square of it: 1e12).
+# The system is treated as singular (dependent hard rows) when a Cholesky pivot falls
+# below 1/this of its row's scale (its condition number is then past the square: 1e12).
 SINGULAR_RATIO = 1e6
 # Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
 # answer as the solvers' are: a nearly singular system loses digits no cheaper test foresees.
