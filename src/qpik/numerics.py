@@ -137,8 +137,7 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
         factor, X, info = dposv(M, b)
         ok = info == 0
     else:
-        factor = _scratch(M.shape)
-        factor[...] = M
+        factor = M.copy()  # MuJoCo factors in place; a copy of its own keeps threads apart
         ok = mujoco.mju_cholFactor(factor, _TINY) == len(M)  # a pivot below _TINY lowers the rank
         X = b if in_place else np.empty(len(b))
         mujoco.mju_cholSolve(X, factor, b)
@@ -152,12 +151,6 @@ def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bo
     if in_place and X is not b:
         b[...] = X
     return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
-
-
-@functools.cache
-def _scratch(shape: tuple) -> np.ndarray:
-    """A scratch matrix of one shape (one world's factor; MuJoCo factors in place)."""
-    return np.empty(shape)
 
 
 def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:
