@@ -23,8 +23,8 @@ get what its own run gets:
   with bit-identical J and v in both runs and q̇ 1e-9 to 1e-5 apart), so a step whose κ
   (:meth:`Judge.condition`: of the tasks' normal matrix, and of the system a QP with
   equality rows solves on its active set, ``_active_condition``) makes 10·nv·ε·κ the
-  larger is held to that (the
-  pseudoinverse's at the size of the terms its law sums: :meth:`Judge.magnification`), up to 1e-2
+  larger is held to that (the pseudoinverse's at the size of the terms its law sums:
+  :meth:`Judge.magnification`), up to 1e-2
   (``conditioned_steps``, ``max_condition`` in the details say how often and how far).
   Past 1e-2 the step's data does not determine q̇ (a rounding moves it farther along the
   cost's flat directions), and what it does determine is judged: the same minimum, as an
@@ -347,12 +347,16 @@ class Judge:
         hierarchy level's rows above it), κ of the system its answer solves on its
         active set (:func:`_active_condition`), the largest over the levels."""
         if self.kind == "pinv":
-            jacobian = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
+            jacobian = self._primary_jacobian(nv)
             with np.errstate(over="ignore", invalid="ignore"):
                 return _condition(jacobian @ jacobian.T + self.damping**2 * np.eye(len(jacobian)))
         groups = self.levels if self.kind in ("hqp", "sns") else [[task for level in self.levels for task in level]]
         kappa = max((_condition(_normal(tasks, nv)) for tasks in groups), default=1.0)
         return max([kappa, *self._active_conditions(qdot)])
+
+    def _primary_jacobian(self, nv: int) -> np.ndarray:
+        """The pseudoinverse law's primary tasks' J, stacked (as last updated)."""
+        return np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
 
     def _active_conditions(self, qdot: np.ndarray | None) -> list[float]:
         """κ of each equality-constrained QP the step solved (:func:`_active_condition`),
@@ -382,7 +386,7 @@ class Judge:
         if self.kind != "pinv":
             return 1.0
         nv = len(qdot)
-        jacobian = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in self.levels[0]])
+        jacobian = self._primary_jacobian(nv)
         v = np.concatenate([np.asarray(t.target_velocity, dtype=float).ravel() for t in self.levels[0]])
         secondary = np.zeros(nv)  # q̇₀ = I[dofs]ᵀ v of the joint-space secondary task
         if len(self.levels) > 1:
