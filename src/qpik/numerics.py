@@ -19,14 +19,14 @@ import math
 
 import mujoco
 import numpy as np
-from scipy.linalg.lapack import dgesv, dposv
+from scipy.linalg.lapack import dgesv, dpotrs
 
 MINVAL = 1e-15  # mjMINVAL
 _TINY = 5e-324  # the least positive float
 SMALL_DOT = 4096  # entries up to which a sum of squares is one MuJoCo dot product (see squared_norm)
 
-__all__ = ["cholesky_solve", "mat2quat", "mul", "normalize4", "quat2mat", "quat2vel", "quat_integrate", "rotation_error",
-           "worlds_last"]
+__all__ = ["cholesky_factor", "cholesky_solve", "cholesky_substitute", "mat2quat", "mul", "normalize4", "quat2mat",
+           "quat2vel", "quat_integrate", "rotation_error", "worlds_last"]
 
 
 @functools.cache
@@ -68,45 +68,75 @@ def worlds_first(a: np.ndarray) -> np.ndarray:
 # -- Cholesky solves ------------------------------------------------------------------
 def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place: bool = False):
     """Solve M_k X_k = B_k in every world, M_k symmetric positive definite, by Cholesky
-    (only M's lower triangle is read; M is not written).
+    (only M's lower triangle is read; M is not written): :func:`cholesky_factor` then
+    :func:`cholesky_substitute`.
 
     Args:
         M: (N, k, k).
         B: (N, k) or (N, k, m).
-        ratio: the most any √M_ii / L_ii may be for a world to count as solved: 1 where
-            M's rows are orthogonal, growing as a row depends on those before it (whatever
-            the rows' scales; a refused M scaled to a unit diagonal has a condition number
-            past ratio², an accepted one may too: a lower bound, not an estimate).
+        ratio: as for :func:`cholesky_factor`.
         in_place: write X into B instead of a new array.
 
     Returns:
         ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
-        (every pivot > 0) within ``ratio`` (:func:`everywhere` itself when that holds in
-        every world); X means nothing elsewhere.
+        within ``ratio`` (:func:`everywhere` itself when that holds in every world); X
+        means nothing elsewhere (zero).
     """
-    if not M.shape[1]:  # no rows (a level whose rows are all masked): nothing to solve
-        return (B if in_place else B.copy()), everywhere(len(M))
-    if len(M) == 1:
-        return _cholesky_solve_one(M[0], B, ratio, in_place)
-    # (k, k, N) (a view where M is stored worlds last: it is only read), (k, m, N)
-    Mt, Xt = np.ascontiguousarray(M.transpose(1, 2, 0)), worlds_last(B[..., None] if B.ndim == 2 else B)
-    # A world not positive definite runs to NaN; one whose solve overflows gets inf or NaN,
-    # silently, as LAPACK gives one robot (its caller's checks refuse it): no warning that
-    # its one-world run would not give.
+    factor, ok = cholesky_factor(M, ratio)
+    return cholesky_substitute(factor, B, ok, in_place), ok
+
+
+def cholesky_factor(M: np.ndarray, ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Every world's Cholesky factor L (L Lᵀ = M_k; only M's lower triangle is read, M is
+    not written), kept for :func:`cholesky_substitute` (a refinement solves again with it).
+
+    Args:
+        M: (N, k, k).
+        ratio: the most any √M_ii / L_ii may be for a world to count as factored: 1 where
+            M's rows are orthogonal, growing as a row depends on those before it (whatever
+            the rows' scales; a refused M scaled to a unit diagonal has a condition number
+            past ratio², an accepted one may too: a lower bound, not an estimate).
+
+    Returns:
+        ``(factor, ok (N,))``: ``ok`` where M is numerically positive definite (every pivot
+        > 0) within ``ratio`` (:func:`everywhere` itself when that holds in every world).
+        The factor is MuJoCo's (k, k) for one world, (k, k, N) with the worlds last for N.
+    """
+    if len(M) == 1 and M.shape[1]:
+        return _cholesky_factor_one(M[0], ratio)
+    # (k, k, N) (a view where M is stored worlds last: it is only read)
+    Mt = np.ascontiguousarray(M.transpose(1, 2, 0))
+    # A world not positive definite runs to NaN, one that overflows to inf or NaN, silently,
+    # as LAPACK gives one robot (its caller refuses it): no warning its one-world run lacks.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         Lt = _cholesky_factor_last(Mt)
-        _substitute(Lt, Xt)
         # Every pivot within ratio (NaN fails; a zero pivot fails against the least positive M_jj).
         pivots = np.einsum("iin->in", Lt)  # (k, N), NaN (or 0) from the first non-positive one on
         ok = (ratio * ratio * pivots * pivots >= np.maximum(np.einsum("iin->in", Mt), _TINY)).all(axis=0)
+    return Lt, (everywhere(len(ok)) if ok.all() else ok)
+
+
+def cholesky_substitute(factor: np.ndarray, B: np.ndarray, ok: np.ndarray, in_place: bool = False) -> np.ndarray:
+    """X with L Lᵀ X_k = B_k in every world, from :func:`cholesky_factor`'s ``factor`` and
+    ``ok``, B (N, k) or (N, k, m): the worlds not ``ok`` get zero (finite, so that no
+    caller's arithmetic warns on a refused world). ``in_place``: X is written into B."""
+    if factor.ndim == 2:
+        X = _cholesky_substitute_one(factor, B[0], in_place)
+        if ok is not everywhere(1):
+            X[...] = 0.0
+        return B if in_place else X[None]
+    if not B.shape[1]:  # no rows (a level whose rows are all masked): nothing to solve
+        return B if in_place else B.copy()
+    Xt = worlds_last(B[..., None] if B.ndim == 2 else B)  # (k, m, N)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # as for the factor
+        _substitute(factor, Xt)
     X = worlds_first(Xt[:, 0] if B.ndim == 2 else Xt)
-    all_ok = ok.all()
-    if not all_ok:
-        X[~ok] = 0.0  # finite, so that no caller's arithmetic warns on a refused world
+    if ok is not everywhere(len(X)):
+        X[~ok] = 0.0
     if in_place:
         B[...] = X
-        X = B
-    return X, (everywhere(len(ok)) if all_ok else ok)
+        return B
+    return X
 
 
 def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -130,27 +160,31 @@ def lu_solve(M: np.ndarray, B: np.ndarray, out: np.ndarray) -> tuple[np.ndarray,
         return out, ok
 
 
-def _cholesky_solve_one(M: np.ndarray, B: np.ndarray, ratio: float, in_place: bool):
-    """:func:`cholesky_solve` of one world: MuJoCo's factor and solve, on a copy of M."""
-    b = B[0]
-    if b.ndim == 2:  # several right sides: LAPACK's dposv
-        factor, X, info = dposv(M, b)
-        ok = info == 0
-    else:
-        factor = M.copy()  # MuJoCo factors in place; a copy of its own keeps threads apart
-        ok = mujoco.mju_cholFactor(factor, _TINY) == len(M)  # a pivot below _TINY lowers the rank
-        X = b if in_place else np.empty(len(b))
-        mujoco.mju_cholSolve(X, factor, b)
+def _cholesky_factor_one(M: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cholesky_factor` of one world: MuJoCo's, on a copy of M (MuJoCo factors in
+    place; a copy of its own keeps threads apart)."""
+    factor = M.copy()
+    ok = mujoco.mju_cholFactor(factor, _TINY) == len(M)  # a pivot below _TINY lowers the rank
     square = ratio * ratio  # M_jj <= ratio² L_jj² on every pivot, in floats (NaN fails)
     for diagonal, pivot in zip(M.diagonal().tolist(), factor.diagonal().tolist()):
         if not diagonal <= square * pivot * pivot:
             ok = False
             break
-    if not ok:
-        X[...] = 0.0  # finite, as N worlds leave a refused world's (no caller's arithmetic warns)
-    if in_place and X is not b:
-        b[...] = X
-    return B if in_place else X[None], everywhere(1) if ok else nowhere(1)
+    return factor, everywhere(1) if ok else nowhere(1)
+
+
+def _cholesky_substitute_one(factor: np.ndarray, b: np.ndarray, in_place: bool) -> np.ndarray:
+    """One world's solve with its MuJoCo factor: b (k,) by MuJoCo, b (k, m) by LAPACK's
+    ``potrs`` (which reads the same lower triangle)."""
+    if b.ndim == 2:
+        X, _ = dpotrs(factor, b, lower=1)
+        if in_place:
+            b[...] = X
+            return b
+        return X
+    X = b if in_place else np.empty(len(b))
+    mujoco.mju_cholSolve(X, factor, b)
+    return X
 
 
 def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:

@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from ..numerics import (all_finite, both, cholesky_solve, everywhere, lu_solve, matvec, nowhere, outer_product,
-                        squared_norm, vecmat, worlds_first)
+from ..numerics import (all_finite, both, cholesky_factor, cholesky_substitute, everywhere, lu_solve, matvec, nowhere,
+                        outer_product, squared_norm, vecmat, worlds_first)
 
 # The system is treated as singular (dependent hard rows) when a Cholesky pivot falls
 # below 1/this of its row's scale (its condition number is then past the square: 1e12).
@@ -69,7 +69,7 @@ class DampedLeastSquares:
 
     def solve(self, dinv, R, rhs, c=None, fixed=None, values=None):
         """``(x (N, nv), z (N, m) or None, ok (N,))``: ``ok`` where the system is numerically
-        positive definite (:func:`~qpik.numerics.cholesky_solve` within ``SINGULAR_RATIO``),
+        positive definite (:func:`~qpik.numerics.cholesky_factor` within ``SINGULAR_RATIO``),
         x is finite and the system's residual (the hard rows' miss among it) is within
         ``EQUALITY_TOLERANCE`` (1 + |rhs_i|) row by row; x and z mean nothing elsewhere (buffers,
         overwritten by the next solve). z is None where the hard rows alone fix x
@@ -98,7 +98,8 @@ class DampedLeastSquares:
             np.copyto(z, right)
         else:
             np.add(right, matvec(scaled, c, z), z)
-        _, solved = cholesky_solve(K, z, SINGULAR_RATIO, in_place=True)
+        self._factor, solved = cholesky_factor(K, SINGULAR_RATIO)
+        cholesky_substitute(self._factor, z, solved, in_place=True)
         vecmat(z, R, x)
         if c is not None:
             x -= c
@@ -107,7 +108,7 @@ class DampedLeastSquares:
             x += values
         met = self._fits(R, rhs, REFINE_TOLERANCE)
         if met is not self._everywhere:
-            met = self._refined(K, R, rhs, met)
+            met = self._refined(R, rhs, met, solved)
         if R.shape[1]:  # a non-finite x leaves a non-finite residual (NaN even where R is 0)
             return x, z, solved if met is solved else both(solved, met)
         return x, z, self._everywhere if all_finite(x) else np.isfinite(x).all(axis=1)
@@ -120,14 +121,15 @@ class DampedLeastSquares:
         met = self._fits(A, b, EQUALITY_TOLERANCE)
         return x, None, solved if met is solved else both(solved, met)
 
-    def _refined(self, K, R, rhs, met) -> np.ndarray:
+    def _refined(self, R, rhs, met, solved) -> np.ndarray:
         """Up to ``REFINEMENTS`` steps of iterative refinement of x and z while some world's
-        residual is above ``REFINE_TOLERANCE``; whether each world's residual is then within
+        residual is above ``REFINE_TOLERANCE``, with the solve's factor of K (``solved``
+        where it was accepted); whether each world's residual is then within
         ``EQUALITY_TOLERANCE``."""
         for _ in range(REFINEMENTS):
             if met.all():
                 return self._everywhere
-            correction, _ = cholesky_solve(K, self._fit)  # K δz = −residual (K as solved above)
+            correction = cholesky_substitute(self._factor, self._fit, solved)  # K δz = −residual
             correction[met] = 0.0  # only where the residual asks: each world's answer its own
             self.z -= correction
             self.x -= vecmat(correction, self.scaled, self._Rz)

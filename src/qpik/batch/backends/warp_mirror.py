@@ -14,6 +14,8 @@ engine primitive                               device function
 ``numerics.quat2mat``                          :func:`quat2mat`
 ``numerics.RotationError``                     :func:`rotation_error`
 ``numerics.ConfigurationDifference``           :func:`configuration_difference`
+``numerics.cholesky_factor``                   :func:`cholesky_factor`
+``numerics.cholesky_substitute``               :func:`cholesky_substitute`
 ``numerics.cholesky_solve``                    :func:`cholesky_solve`
 ``numerics.all_finite``                        :func:`all_finite`
 ``numerics.matvec``                            :func:`matvec`
@@ -52,8 +54,9 @@ from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
-__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_solve", "configuration_difference",
-           "damped_least_squares_arrays", "damped_least_squares_gradient", "damped_least_squares_solve", "inside",
+__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_factor", "cholesky_solve", "cholesky_substitute",
+           "configuration_difference", "damped_least_squares_arrays", "damped_least_squares_gradient",
+           "damped_least_squares_solve", "inside",
            "mat2quat", "matvec", "normalize4", "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul",
            "rotation_error", "rows_met", "skew", "vecmat"]
 
@@ -225,10 +228,11 @@ def configuration_difference(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dty
 
 # -- linear algebra ------------------------------------------------------------------------
 @wp.func
-def _cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64), ratio: F64) -> int:
-    """L (lower) with L Lᵀ = M[w] (its lower triangle read), a pivot of 1 where the
-    Schur complement is not positive (the engine refuses such a world too); whether
-    every pivot L_jj is positive with √M_jj <= ``ratio`` L_jj."""
+def cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64), ratio: F64) -> int:
+    """``numerics.cholesky_factor`` of world w: L (lower) with L Lᵀ = M[w] (its lower
+    triangle read), a pivot of 1 where the Schur complement is not positive (the engine
+    refuses such a world too); whether every pivot L_jj is positive with √M_jj <=
+    ``ratio`` L_jj."""
     k = M.shape[1]
     ok = int(1)
     for j in range(k):
@@ -253,16 +257,10 @@ def _cholesky_factor(M: wp.array3d(dtype=F64), w: int, L: wp.array3d(dtype=F64),
 
 
 @wp.func
-def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, ratio: F64,
-                   L: wp.array3d(dtype=F64)) -> int:
-    """``numerics.cholesky_solve(M, B, ratio, in_place=True)`` of world w: B[w] (k, m)
-    overwritten with X, M[w] X = B[w], by L Y = B then Lᵀ X = Y (L in ``L[w]``).
-    Returns 1 where M[w] is numerically positive definite (every pivot > 0) within
-    ``ratio`` (√M_jj <= ratio L_jj for every j), else 0 (X then means nothing); 1 for k = 0."""
-    k = M.shape[1]
-    if k == 0:
-        return 1
-    ok = _cholesky_factor(M, w, L, ratio)
+def cholesky_substitute(L: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int):
+    """``numerics.cholesky_substitute`` of world w: B[w] (k, m) overwritten with X,
+    L Lᵀ X = B[w], by L Y = B then Lᵀ X = Y (L from :func:`cholesky_factor`)."""
+    k = L.shape[1]
     for c in range(B.shape[2]):
         for j in range(k):
             s = F64(0.0)
@@ -275,6 +273,19 @@ def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, r
             for i in range(j + 1, k):
                 s = s + L[w, i, j] * B[w, i, c]
             B[w, j, c] = (B[w, j, c] - s) / L[w, j, j]
+
+
+@wp.func
+def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, ratio: F64,
+                   L: wp.array3d(dtype=F64)) -> int:
+    """``numerics.cholesky_solve(M, B, ratio, in_place=True)`` of world w: B[w] (k, m)
+    overwritten with X, M[w] X = B[w] (L in ``L[w]``). Returns 1 where M[w] is
+    numerically positive definite within ``ratio`` (:func:`cholesky_factor`), else 0 (X
+    then means nothing); 1 for k = 0."""
+    if M.shape[1] == 0:
+        return 1
+    ok = cholesky_factor(M, w, L, ratio)
+    cholesky_substitute(L, B, w)
     return ok
 
 
@@ -445,7 +456,7 @@ def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=
     met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
     for _ in range(REFINEMENTS):
         if met == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
-            cholesky_solve(arrays.K, arrays.fit_column, w, SINGULAR_RATIO, arrays.factor)
+            cholesky_substitute(arrays.factor, arrays.fit_column, w)  # K as factored above
             _add(arrays.z, arrays.fit, w, F64(-1.0))
             vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
             _add(arrays.x, arrays.Rz, w, F64(-1.0))
