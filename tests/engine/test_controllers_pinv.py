@@ -8,12 +8,16 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
 import qpik
 import qpik.tasks as engine_tasks
+from qpik import numerics
 from qpik.controllers import JacobianTransposeController, PseudoinverseController
+from qpik.controllers.pinv import scaled_condition
+from qpik.problem.closed_form import SINGULAR_RATIO
 from qpik.errors import DivergenceError, InvalidInput, WorldsFailed
 from qpik.robots.arm.scenarios import ARM_START, JT_ALPHA, SEED_DURATION, SEED_PATH
 from qpik.trajectories import Segment
@@ -215,3 +219,63 @@ def test_a_diverging_world_is_named_and_the_others_are_solved():
     for w in (0, 1, 3):
         single, _ = _pinv(_arm(q[w]), "pinv+sigma", target=targets[w])
         assert _close(failed.value.qdot[w], single.compute_velocity(), WORLD_TOLERANCE)
+
+
+def _kahan(m: int, angle: float) -> np.ndarray:
+    """Kahan's upper triangular matrix: RᵀR's Cholesky pivots (R's diagonal, sin^i) stay
+    far from revealing how nearly singular it is."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.diag(s ** np.arange(m)) @ (np.eye(m) + np.triu(np.full((m, m), -c), 1))
+
+
+class _FixedRows(engine_tasks.Task):
+    """A user task whose Jacobian is a given matrix (its error: ones)."""
+
+    def __init__(self, robot, jacobian):
+        self.jacobian_rows = np.asarray(jacobian, dtype=float)
+        super().__init__(robot, dim=len(self.jacobian_rows), gain=1.0)
+
+    def compute_error(self, robot):
+        return np.ones(self.dim)
+
+    def compute_jacobian(self, robot):
+        return self.jacobian_rows
+
+
+def test_a_gram_matrix_singular_to_rounding_is_refused_whatever_its_pivots():
+    """J = Rᵀ, R Kahan's 8x8 matrix (angle 0.2): every Cholesky pivot of J Jᵀ passes the
+    ratio test (√M_jj / L_jj below 1e6), yet J Jᵀ scaled to a unit diagonal has a condition
+    number past 1e14 (NumPy's SVD), so a solve's rounding is most of y: the law refuses it
+    as singular (any-robot case 6230: pivots within 1e6, κ 1.8e15, two runs' q̇ 4 % apart)."""
+    chain = "".join(f'<body pos="0 0 0.1"><joint type="hinge" axis="0 1 0"/><geom size="0.02" mass="1"/>'
+                    for _ in range(8)) + "</body>" * 8
+    robot = qpik.Robot(mujoco.MjModel.from_xml_string(
+        f'<mujoco><compiler angle="radian"/><worldbody>{chain}</worldbody></mujoco>'))
+    J = _kahan(8, 0.2).T
+    M = J @ J.T
+    pivots = np.diag(np.linalg.cholesky(M))
+    scale = 1.0 / np.sqrt(np.diag(M))
+    assert np.max(np.sqrt(np.diag(M)) / pivots) < SINGULAR_RATIO
+    assert np.linalg.cond(M * scale[:, None] * scale[None, :]) > 1e14
+    with pytest.raises(DivergenceError, match="singular"):
+        PseudoinverseController(robot, [_FixedRows(robot, J)]).compute_velocity()
+    well = PseudoinverseController(robot, [_FixedRows(robot, _kahan(8, 1.2).T)]).compute_velocity()
+    assert np.all(np.isfinite(well))
+
+
+def test_scaled_condition_is_the_frobenius_condition_of_the_unit_diagonal_matrix():
+    """Every world's ‖SMS‖_F ‖(SMS)⁻¹‖_F, S = diag(M)^(-1/2), against NumPy's inverse of
+    SMS formed explicitly: the same number to 1e-9 relative (κ below 1e6 here, the inverse
+    carrying a rounding of the data by κ), for one world and for three."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(3, 5, 7)) * rng.uniform(0.1, 10.0, (3, 5, 1))
+    M = A @ A.transpose(0, 2, 1)
+    for worlds in (M[:1], M):
+        factor, ok = numerics.cholesky_factor(worlds)
+        identity = np.tile(np.eye(5), (len(worlds), 1, 1))
+        got = scaled_condition(worlds, factor, ok, identity)
+        for value, m in zip(got, worlds):
+            s = 1.0 / np.sqrt(np.diag(m))
+            scaled = m * s[:, None] * s[None, :]
+            expected = np.linalg.norm(scaled) * np.linalg.norm(np.linalg.inv(scaled))
+            assert abs(value - expected) <= 1e-9 * expected

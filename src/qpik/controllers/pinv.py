@@ -12,7 +12,9 @@ r"""Classical closed-loop inverse kinematics on the same task objects as the QP,
 
 Neither enforces limits: that is the point of the comparison. Both run over the worlds'
 leading axis: one Cholesky solve of :math:`J J^T + \lambda^2 I` per world
-(:func:`~qpik.numerics.cholesky_solve`), no loop over worlds.
+(:func:`~qpik.numerics.cholesky_factor`), no loop over worlds. A world whose
+:math:`J J^T + \lambda^2 I` is singular to rounding (:func:`scaled_condition` past
+``SINGULAR_CONDITION``) is refused: its q̇ would not be determined by J and v.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import DivergenceError, InvalidInput
-from ..numerics import cholesky_solve, everywhere
+from ..numerics import both, cholesky_factor, cholesky_substitute, everywhere
 from ..problem import Problem, Stack
 from ..problem.closed_form import SINGULAR_RATIO
 from ..tasks import Task
@@ -32,6 +34,23 @@ from .worlds import solve_each
 # A joint speed beyond this (rad/s or m/s) is divergence, not an answer: its square and
 # a step's kinematics of it stay finite, so the error comes before any overflow.
 DIVERGED_SPEED = 1e100
+# J Jᵀ + λ²I is singular past this condition number (scaled to a unit diagonal): the solve's
+# rounding, ε·κ of y, is then 1e-4 of it and more.
+SINGULAR_CONDITION = SINGULAR_RATIO**2
+
+
+def scaled_condition(gram: np.ndarray, factor: np.ndarray, ok: np.ndarray, identity: np.ndarray) -> np.ndarray:
+    """(N,) the condition number of every world's M (N, m, m) scaled to a unit diagonal,
+    S M S with S = diag(M)^(-1/2), in the Frobenius norm: ‖SMS‖ ‖S⁻¹M⁻¹S⁻¹‖ (at least
+    the 2-norm one, at most m times it), M⁻¹ from M's Cholesky ``factor`` (``ok`` where
+    it was accepted; ``identity`` (N, m, m)). The scaled κ is what a Cholesky solve's
+    rounding grows with (van der Sluis); the factor's pivots only bound it from below
+    (any-robot case 6230: pivots within 1e6, κ 1.8e15)."""
+    inverse = cholesky_substitute(factor, identity, ok)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):  # refused: inf or NaN
+        root = np.sqrt(np.einsum("nii->ni", gram))
+        outer = root[:, :, None] * root[:, None, :]
+        return np.linalg.norm(gram / outer, axis=(1, 2)) * np.linalg.norm(inverse * outer, axis=(1, 2))
 
 
 class _StackedTasks:
@@ -97,6 +116,7 @@ class PseudoinverseController(_StackedTasks):
         self._gram = np.zeros((n, m, m))
         self._gram_diagonal = np.einsum("nii->ni", self._gram)  # a writable view
         self._squared_damping = self.damping**2
+        self._identity = np.tile(np.eye(m), (n, 1, 1))
         self._qdot0 = np.zeros((n, nv))  # q̇0 = I[dofs]ᵀ v of the secondary task
         self._dofs = None if secondary is None else as_index(secondary.dofs)
         self._Jq0, self._rhs = np.zeros((n, m, 1)), np.zeros((n, m))
@@ -120,9 +140,12 @@ class PseudoinverseController(_StackedTasks):
         np.matmul(J, J.transpose(0, 2, 1), self._gram)
         if self._squared_damping:
             self._gram_diagonal += self._squared_damping
-        # Singular within SINGULAR_RATIO, not at an exactly zero pivot: whether a Schur
+        # Singular within SINGULAR_CONDITION, not at an exactly zero pivot: whether a Schur
         # complement of a singular J Jᵀ rounds to +ε or −ε is no decision to act on.
-        y, self._solved = cholesky_solve(self._gram, rhs, SINGULAR_RATIO)
+        factor, solved = cholesky_factor(self._gram, SINGULAR_RATIO)
+        conditioned = scaled_condition(self._gram, factor, solved, self._identity) <= SINGULAR_CONDITION
+        self._solved = both(solved, everywhere(len(conditioned)) if conditioned.all() else conditioned)
+        y = cholesky_substitute(factor, rhs, self._solved)
         np.matmul(y[:, None, :], J, self._qdot_rows)
         if self.secondary is not None:
             self.qdots += self._qdot0
@@ -141,7 +164,8 @@ class PseudoinverseController(_StackedTasks):
     def _diverged(self, world: int) -> np.ndarray:
         """The error of a world whose law diverged (``solve_each`` names it)."""
         if not self._solved[world]:
-            raise DivergenceError(f"pseudoinverse: J Jᵀ is singular (a singularity: condition past {SINGULAR_RATIO**2:g})")
+            raise DivergenceError(f"pseudoinverse: J Jᵀ is singular (a singularity: condition past "
+                                  f"{SINGULAR_CONDITION:g})")
         raise DivergenceError(f"pseudoinverse produced a joint velocity beyond {DIVERGED_SPEED:g} or not "
                               "finite (singularity): give the law some damping")
 
