@@ -40,17 +40,14 @@ SINGULAR_CONDITION = SINGULAR_RATIO**2
 
 
 def scaled_condition(gram: np.ndarray, factor: np.ndarray, ok: np.ndarray, identity: np.ndarray) -> np.ndarray:
-    """(N,) the condition number of every world's M (N, m, m) scaled to a unit diagonal,
-    S M S with S = diag(M)^(-1/2), in the Frobenius norm: ‖SMS‖ ‖S⁻¹M⁻¹S⁻¹‖ (at least
-    the 2-norm one, at most m times it), M⁻¹ from M's Cholesky ``factor`` (``ok`` where
-    it was accepted; ``identity`` (N, m, m)). The scaled κ is what a Cholesky solve's
-    rounding grows with (van der Sluis); the factor's pivots only bound it from below
-    (any-robot case 6230: pivots within 1e6, κ 1.8e15)."""
-    inverse = cholesky_substitute(factor, identity, ok)
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):  # refused: inf or NaN
-        root = np.sqrt(np.einsum("nii->ni", gram))
-        outer = root[:, :, None] * root[:, None, :]
-        return np.linalg.norm(gram / outer, axis=(1, 2)) * np.linalg.norm(inverse * outer, axis=(1, 2))
+    """(N,) Σ_i M_ii (M⁻¹)_ii = trace((SMS)⁻¹), S = diag(M)^(-1/2), of every world's M
+    (N, m, m), M⁻¹ from its Cholesky ``factor`` (``ok`` where accepted; ``identity``
+    (N, m, m)): the condition number of M scaled to a unit diagonal within a factor m
+    (SMS's largest eigenvalue lies in [1, m], the trace of its inverse in [1, m] times the
+    inverse's largest), and at least every pivot's (√M_jj / L_jj)². The scaled κ is what
+    a Cholesky solve's rounding grows with (van der Sluis); the pivots only bound it from
+    below (any-robot case 6230: pivots within 1e6, κ 1.8e15)."""
+    return np.einsum("nii,nii->n", gram, cholesky_substitute(factor, identity, ok))
 
 
 class _StackedTasks:
