@@ -3,11 +3,10 @@ r"""The engine's small numerical primitives, each over a leading world axis N.
 Every task, cost and solve is written once over (N, ...) arrays. For one world (a
 :class:`qpik.Robot`) NumPy's per-call cost outweighs the arithmetic of a control step's
 tiny systems, so a few primitives take MuJoCo's own routines when N = 1 — the same
-formulas, in C: the rotation error (``mju_mat2Quat``/``mju_subQuat``), :math:`J^TWJ`
-(``mju_sqrMatTD``), :math:`AB^T` (``mju_mulMatMatT``) and the Cholesky solve
+formulas, in C: the rotation error (``mju_mat2Quat``/``mju_subQuat``), :math:`AB^T`
+(``mju_mulMatMatT``), small dot products (``mju_dot``) and the Cholesky factor and solve
 (``mju_cholFactor``/``mju_cholSolve``: BLAS's and LAPACK's blocked routines pack these
-small matrices first, which costs more than the arithmetic). Above
-one world the arithmetic runs across worlds with the world axis last, one vector
+small matrices first, which costs more than the arithmetic). Above one world the arithmetic runs across worlds with the world axis last, one vector
 operation per step of the algorithm (NumPy's stacked routines call LAPACK once per
 matrix, which on these sizes is mostly overhead).
 """
@@ -25,7 +24,7 @@ MINVAL = 1e-15  # mjMINVAL
 _TINY = 5e-324  # the least positive float
 SMALL_DOT = 4096  # entries up to which a sum of squares is one MuJoCo dot product (see squared_norm)
 
-__all__ = ["cholesky_factor", "cholesky_solve", "cholesky_substitute", "mat2quat", "mul", "normalize4", "quat2mat",
+__all__ = ["cholesky_factor", "cholesky_substitute", "mat2quat", "mul", "normalize4", "quat2mat",
            "quat2vel", "quat_integrate", "rotation_error", "worlds_last"]
 
 
@@ -66,26 +65,6 @@ def worlds_first(a: np.ndarray) -> np.ndarray:
 
 
 # -- Cholesky solves ------------------------------------------------------------------
-def cholesky_solve(M: np.ndarray, B: np.ndarray, ratio: float = np.inf, in_place: bool = False):
-    """Solve M_k X_k = B_k in every world, M_k symmetric positive definite, by Cholesky
-    (only M's lower triangle is read; M is not written): :func:`cholesky_factor` then
-    :func:`cholesky_substitute`.
-
-    Args:
-        M: (N, k, k).
-        B: (N, k) or (N, k, m).
-        ratio: as for :func:`cholesky_factor`.
-        in_place: write X into B instead of a new array.
-
-    Returns:
-        ``(X, ok (N,))``, X shaped as B: ``ok`` where M is numerically positive definite
-        within ``ratio`` (:func:`everywhere` itself when that holds in every world); X
-        means nothing elsewhere (zero).
-    """
-    factor, ok = cholesky_factor(M, ratio)
-    return cholesky_substitute(factor, B, ok, in_place), ok
-
-
 def cholesky_factor(M: np.ndarray, ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Every world's Cholesky factor L (L Lᵀ = M_k; only M's lower triangle is read, M is
     not written), kept for :func:`cholesky_substitute` (a refinement solves again with it).

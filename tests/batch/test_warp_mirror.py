@@ -24,6 +24,8 @@ from qpik.problem import closed_form  # noqa: E402
 from qpik.problem.closed_form import (EQUALITY_TOLERANCE, REFINE_TOLERANCE, DampedLeastSquares, inside,  # noqa: E402
                                       rows_met)
 
+from qpik.batch.backends.warp_mirror import F64, DampedLeastSquaresArrays  # noqa: E402
+
 DEVICE = "cpu"
 N = 64
 EPS = np.finfo(float).eps
@@ -55,6 +57,121 @@ def _unit_quaternions(rng, n: int) -> np.ndarray:
     return q
 
 
+# -- one thread per world: each device function mapped over the worlds ----------------------------------------------------------------------
+@wp.kernel
+def normalize4_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
+    w = wp.tid()
+    out[w] = mirror.normalize4(q[w])
+
+
+@wp.kernel
+def mat2quat_worlds(R: wp.array(dtype=wp.mat33d), out: wp.array(dtype=wp.vec4d)):
+    w = wp.tid()
+    out[w] = mirror.mat2quat(R[w])
+
+
+@wp.kernel
+def quat_mul_worlds(a: wp.array(dtype=wp.vec4d), b: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
+    w = wp.tid()
+    out[w] = mirror.quat_mul(a[w], b[w])
+
+
+@wp.kernel
+def quat2vel_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec3d)):
+    w = wp.tid()
+    out[w] = mirror.quat2vel(q[w])
+
+
+@wp.kernel
+def quat_integrate_worlds(quat: wp.array(dtype=wp.vec4d), velocity: wp.array(dtype=wp.vec3d), scale: F64,
+                          out: wp.array(dtype=wp.vec4d)):
+    w = wp.tid()
+    out[w] = mirror.quat_integrate(quat[w], velocity[w], scale)
+
+
+@wp.kernel
+def quat2mat_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.mat33d)):
+    w = wp.tid()
+    out[w] = mirror.quat2mat(q[w])
+
+
+@wp.kernel
+def rotation_error_worlds(desired: wp.array(dtype=wp.mat33d), current: wp.array(dtype=wp.mat33d), local: int,
+                          out: wp.array(dtype=wp.vec3d)):
+    w = wp.tid()
+    out[w] = mirror.rotation_error(desired[w], current[w], local)
+
+
+@wp.kernel
+def configuration_difference_worlds(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dtype=F64),
+                                    joint_type: wp.array(dtype=int), joint_qpos: wp.array(dtype=int),
+                                    joint_dof: wp.array(dtype=int), out: wp.array2d(dtype=F64)):
+    w = wp.tid()
+    mirror.configuration_difference(q_from, q_to, w, joint_type, joint_qpos, joint_dof, out)
+
+
+@wp.kernel
+def cholesky_worlds(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), ratio: F64,
+                          L: wp.array3d(dtype=F64), ok: wp.array(dtype=int)):
+    w = wp.tid()
+    ok[w] = mirror.cholesky_factor(M, w, L, ratio)
+    mirror.cholesky_substitute(L, B, w)
+
+
+@wp.kernel
+def matvec_worlds(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), out: wp.array2d(dtype=F64)):
+    w = wp.tid()
+    mirror.matvec(A, x, w, out)
+
+
+@wp.kernel
+def vecmat_worlds(y: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), out: wp.array2d(dtype=F64)):
+    w = wp.tid()
+    mirror.vecmat(y, A, w, out)
+
+
+@wp.kernel
+def outer_product_worlds(A: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), out: wp.array3d(dtype=F64)):
+    w = wp.tid()
+    mirror.outer_product(A, B, w, out)
+
+
+@wp.kernel
+def skew_worlds(v: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.mat33d)):
+    w = wp.tid()
+    out[w] = mirror.skew(v[w])
+
+
+@wp.kernel
+def all_finite_worlds(a: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
+    w = wp.tid()
+    ok[w] = mirror.all_finite(a, w)
+
+
+@wp.kernel
+def rows_met_worlds(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), tolerance: F64, met: wp.array(dtype=int)):
+    w = wp.tid()
+    met[w] = mirror.rows_met(Ax, b, w, tolerance)
+
+
+@wp.kernel
+def inside_worlds(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.array3d(dtype=F64),
+                  h: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
+    w = wp.tid()
+    ok[w] = mirror.inside(x, box, G, h, w)
+
+
+@wp.kernel
+def damped_least_squares_worlds(dinv: wp.array2d(dtype=F64), damping: wp.array2d(dtype=F64),
+                                R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
+                                fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), linear: int, held: int,
+                                arrays: DampedLeastSquaresArrays, g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
+    """:func:`damped_least_squares_solve` then :func:`damped_least_squares_gradient` in every world."""
+    w = wp.tid()
+    ok[w] = mirror.damped_least_squares_solve(dinv, R, rhs, c, fixed, values, linear, held, w, arrays)
+    mirror.damped_least_squares_gradient(damping, R, c, linear, w, arrays, g)
+
+
 # -- quaternions and rotations ----------------------------------------------------------------
 def test_quaternion_functions_equal_the_engines_in_every_branch():
     rng = np.random.default_rng(0)
@@ -64,19 +181,19 @@ def test_quaternion_functions_equal_the_engines_in_every_branch():
     assert (trace > 0).sum() > 4 and (trace <= 0).sum() > 4  # the first branch and the others
 
     out4, out3 = _output(N, wp.vec4d), _output(N, wp.vec3d)
-    _run(mirror.mat2quat_worlds, N, _device(R, wp.mat33d), out4)
+    _run(mat2quat_worlds, N, _device(R, wp.mat33d), out4)
     np.testing.assert_allclose(out4.numpy(), numerics.mat2quat(R), rtol=0, atol=QUATERNION)
-    _run(mirror.quat_mul_worlds, N, _device(qa, wp.vec4d), _device(qb, wp.vec4d), out4)
+    _run(quat_mul_worlds, N, _device(qa, wp.vec4d), _device(qb, wp.vec4d), out4)
     np.testing.assert_allclose(out4.numpy(), numerics.mul(qa, qb), rtol=0, atol=QUATERNION)
-    _run(mirror.quat2vel_worlds, N, _device(qa, wp.vec4d), out3)
+    _run(quat2vel_worlds, N, _device(qa, wp.vec4d), out3)
     np.testing.assert_allclose(out3.numpy(), numerics.quat2vel(qa), rtol=0, atol=ROTATION_VECTOR)
     matrices = _output(N, wp.mat33d)
-    _run(mirror.quat2mat_worlds, N, _device(qa, wp.vec4d), matrices)
+    _run(quat2mat_worlds, N, _device(qa, wp.vec4d), matrices)
     np.testing.assert_allclose(matrices.numpy(), R, rtol=0, atol=QUATERNION)
 
     raw = rng.normal(size=(N, 4)) * rng.uniform(0.5, 2.0, (N, 1))
     raw[0], raw[1] = 0.0, 1e-16  # below mjMINVAL: the identity
-    _run(mirror.normalize4_worlds, N, _device(raw, wp.vec4d), out4)
+    _run(normalize4_worlds, N, _device(raw, wp.vec4d), out4)
     np.testing.assert_allclose(out4.numpy(), numerics.normalize4(raw), rtol=0, atol=QUATERNION)
     assert out4.numpy()[:2].tolist() == [[1.0, 0.0, 0.0, 0.0]] * 2
 
@@ -88,7 +205,7 @@ def test_quat_integrate_equals_the_engines_with_its_small_branch():
     velocity[0], velocity[1] = 0.0, 1e-17  # no turn; below mjMINVAL: no turn either
     out = _output(N, wp.vec4d)
     for scale in (0.002, 0.7):
-        _run(mirror.quat_integrate_worlds, N, _device(quats, wp.vec4d), _device(velocity, wp.vec3d), scale, out)
+        _run(quat_integrate_worlds, N, _device(quats, wp.vec4d), _device(velocity, wp.vec3d), scale, out)
         np.testing.assert_allclose(out.numpy(), numerics.quat_integrate(quats, velocity, scale), rtol=0,
                                    atol=QUATERNION)
 
@@ -99,7 +216,7 @@ def test_rotation_error_equals_the_engines(local):
     desired = numerics.quat2mat(_unit_quaternions(rng, N))
     current = numerics.quat2mat(_unit_quaternions(rng, N)[::-1].copy())
     out = _output(N, wp.vec3d)
-    _run(mirror.rotation_error_worlds, N, _device(desired, wp.mat33d), _device(current, wp.mat33d), local, out)
+    _run(rotation_error_worlds, N, _device(desired, wp.mat33d), _device(current, wp.mat33d), local, out)
     # rotated into world axes by R (entries <= 1): three more roundings of the same size
     np.testing.assert_allclose(out.numpy(), numerics.rotation_error(desired, current, bool(local)), rtol=0,
                                atol=2 * ROTATION_VECTOR)
@@ -129,7 +246,7 @@ def test_configuration_difference_equals_the_engines_on_every_joint_type():
     expected = numerics.ConfigurationDifference(model, N)(q_from, q_to, np.empty((N, model.nv)))
     out = _output(N, wp.float64, (model.nv,))
     joints = [_device(a.astype(np.int32), wp.int32) for a in (model.jnt_type, model.jnt_qposadr, model.jnt_dofadr)]
-    _run(mirror.configuration_difference_worlds, N, _device(q_from), _device(q_to), *joints, out)
+    _run(configuration_difference_worlds, N, _device(q_from), _device(q_to), *joints, out)
     got = out.numpy()
     turns = np.r_[3:6, 6:9, 11:14]  # the quaternion joints' dofs (angles up to π)
     scalars = np.setdiff1d(np.arange(model.nv), turns)
@@ -149,23 +266,24 @@ def _cholesky(M: np.ndarray, B: np.ndarray, ratio: float) -> tuple[np.ndarray, n
     n, k = M.shape[:2]
     X = _device(B)
     ok = _output(n, wp.int32)
-    _run(mirror.cholesky_solve_worlds, n, _device(M), X, ratio, _output(n, wp.float64, (k, k)), ok)
+    _run(cholesky_worlds, n, _device(M), X, ratio, _output(n, wp.float64, (k, k)), ok)
     return X.numpy(), ok.numpy().astype(bool)
 
 
 @pytest.mark.parametrize("k, columns", [(1, 1), (2, 3), (7, 1), (7, 4)])
-def test_cholesky_solve_equals_the_engines(k, columns):
+def test_cholesky_factor_and_substitute_equal_the_engines(k, columns):
     rng = np.random.default_rng(10 + k + columns)
     M, B = _spd(rng, N, k), rng.normal(size=(N, k, columns))
     X, ok = _cholesky(M, B, np.inf)
-    expected, expected_ok = numerics.cholesky_solve(M, B)
+    factor, expected_ok = numerics.cholesky_factor(M)
+    expected = numerics.cholesky_substitute(factor, B, expected_ok)
     assert ok.all() and expected_ok.all()
     # Two backward-stable solves: |X − X*| <= 10 k ε κ(M) |X*| per world (κ below 1e6 here).
     for x, e, m in zip(X, expected, M):
         assert np.linalg.norm(x - e) <= 10 * k * EPS * np.linalg.cond(m) * np.linalg.norm(e)
 
 
-def test_cholesky_solve_refuses_what_the_engine_refuses():
+def test_cholesky_factor_refuses_what_the_engine_refuses():
     rng = np.random.default_rng(8)
     Q = np.linalg.qr(rng.normal(size=(5, 5)))[0][:3]  # three orthonormal rows of 5
     rows = np.diag([1e-6, 1.0, 1e5]) @ Q  # orthogonal, of wildly different scales: solved (scale-free)
@@ -178,7 +296,8 @@ def test_cholesky_solve_refuses_what_the_engine_refuses():
     B = np.ones((len(M), 3, 1))
     X, ok = _cholesky(M, B, 1e6)
     with np.errstate(invalid="ignore"):  # the NaN world
-        expected_X, expected = numerics.cholesky_solve(M, B, ratio=1e6)
+        factor, expected = numerics.cholesky_factor(M, ratio=1e6)
+        expected_X = numerics.cholesky_substitute(factor, B, expected)
     assert ok.tolist() == expected.tolist() == [True] * 3 + [False] * 4 + [True]
     np.testing.assert_allclose(X[[0, -1]], expected_X[[0, -1]], rtol=0, atol=2 * EPS)  # √2 · √2 rounded
     # The scaled rows' M is diagonal but for roundings: each X_i = 1 / M_ii to a few ε, relative.
@@ -196,23 +315,23 @@ def test_products_equal_the_engines():
         assert np.linalg.norm(got - expected) <= 2 * terms * EPS * np.linalg.norm(magnitudes)
 
     out = _output(N, wp.float64, (3,))
-    _run(mirror.matvec_worlds, N, _device(A), _device(x), out)
+    _run(matvec_worlds, N, _device(A), _device(x), out)
     assert_sums_close(out.numpy(), numerics.matvec(A, x, np.empty((N, 3))),
                       np.einsum("nij,nj->ni", np.abs(A), np.abs(x)), 7)
     out = _output(N, wp.float64, (7,))
-    _run(mirror.vecmat_worlds, N, _device(y), _device(A), out)
+    _run(vecmat_worlds, N, _device(y), _device(A), out)
     assert_sums_close(out.numpy(), numerics.vecmat(y, A, np.empty((N, 7))),
                       np.einsum("ni,nij->nj", np.abs(y), np.abs(A)), 3)
     for p in (3, 7):  # 3 x 3 (the engine's worlds-last path), 3 x 7 (its matmul)
         B = rng.normal(size=(N, p, 7))
         out = _output(N, wp.float64, (3, p))
-        _run(mirror.outer_product_worlds, N, _device(A), _device(B), out)
+        _run(outer_product_worlds, N, _device(A), _device(B), out)
         assert_sums_close(out.numpy(), numerics.outer_product(A, B, np.empty((N, 3, p))),
                           np.abs(A) @ np.abs(B).transpose(0, 2, 1), 7)
 
     v, columns = rng.normal(size=(N, 3)), rng.normal(size=(N, 3, 7))
     matrices = _output(N, wp.mat33d)
-    _run(mirror.skew_worlds, N, _device(v, wp.vec3d), matrices)
+    _run(skew_worlds, N, _device(v, wp.vec3d), matrices)
     expected = numerics.skew(v, np.zeros((N, 3, 3)))
     np.testing.assert_array_equal(matrices.numpy(), expected)  # entries copied or negated: exact
     np.testing.assert_allclose(matrices.numpy() @ columns, np.cross(v[:, :, None], columns, axis=1), rtol=0,
@@ -226,7 +345,7 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
     a = rng.normal(size=(n, nv))
     a[1, 2], a[2, 0], a[3, 3] = np.nan, np.inf, -np.inf
     flags = _output(n, wp.int32)
-    _run(mirror.all_finite_worlds, n, _device(a), flags)
+    _run(all_finite_worlds, n, _device(a), flags)
     assert flags.numpy().tolist() == [int(numerics.all_finite(row[None])) for row in a] == [1, 0, 0, 0, 1, 1, 1, 1]
 
     b = rng.normal(size=(n, 3))
@@ -234,7 +353,7 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
     allowed = EQUALITY_TOLERANCE * np.sqrt(1.0 + (b * b).sum(axis=1))
     Ax = b + (np.array([0.1, 0.5, 2.0, 10.0, 0.0, 0.0, 0.0, 0.0]) * allowed)[:, None] / np.sqrt(3.0)
     Ax[5, 1], Ax[6, 0] = np.nan, np.inf
-    _run(mirror.rows_met_worlds, n, _device(Ax), _device(b), EQUALITY_TOLERANCE, flags)
+    _run(rows_met_worlds, n, _device(Ax), _device(b), EQUALITY_TOLERANCE, flags)
     expected = rows_met(Ax.copy(), b, EQUALITY_TOLERANCE)
     assert flags.numpy().astype(bool).tolist() == expected.tolist() == [True, True, False, False, True, False,
                                                                          False, True]
@@ -248,7 +367,7 @@ def test_all_finite_rows_met_and_inside_decide_as_the_engine():
     G, h = rng.normal(size=(n, 2, nv)), np.full((n, 2), 10.0)
     h[7, 1] = -10.0  # a row that world 7 misses
     for rows in (None, (G, h)):
-        _run(mirror.inside_worlds, n, _device(x), _device(box), _device(np.zeros((n, 0, nv)) if rows is None else G),
+        _run(inside_worlds, n, _device(x), _device(box), _device(np.zeros((n, 0, nv)) if rows is None else G),
              _device(np.zeros((n, 0)) if rows is None else h), flags)
         with np.errstate(invalid="ignore"):  # ±inf − ±inf: NaN, outside
             expected = inside(x, box, *(rows or ()))
@@ -298,7 +417,7 @@ def test_damped_least_squares_equals_the_engines(soft_rows, rows, linear, held, 
     dinv, damping, R, rhs, c, fixed, values = _problems(np.random.default_rng(20), n, soft_rows, rows, held)
     arrays = mirror.damped_least_squares_arrays(n, NV, soft_rows, rows, DEVICE)
     g, ok = _output(n, wp.float64, (NV,)), _output(n, wp.int32)
-    _run(mirror.damped_least_squares_worlds, n, _device(dinv), _device(damping), _device(R), _device(rhs),
+    _run(damped_least_squares_worlds, n, _device(dinv), _device(damping), _device(R), _device(rhs),
          _device(c), _device(fixed.astype(np.int32), wp.int32), _device(values), int(linear), int(held), arrays, g, ok)
     x, z, g, ok = arrays.x.numpy(), arrays.z.numpy(), g.numpy(), ok.numpy().astype(bool)
     form, held_arguments = DampedLeastSquares(n, NV, soft_rows, rows), (fixed, values) if held else ()

@@ -1,17 +1,24 @@
-"""engine.numerics.cholesky_solve: every world's answer equals LAPACK's (NumPy's solve) at
-N = 1 (MuJoCo's factor and solve; dposv for several right sides) and N > 1 (its
-worlds-last path), and its flags say which worlds
-solved — the shared :func:`~qpik.numerics.everywhere` when all did, so that a caller's
-fast path (``solved is everywhere(n)``) is taken on the usual step."""
+"""engine.numerics.cholesky_factor and cholesky_substitute: every world's answer equals
+LAPACK's (NumPy's solve) at N = 1 (MuJoCo's factor and solve; LAPACK's potrs on MuJoCo's
+factor for several right sides) and N > 1 (the worlds-last path), a factor serves further
+right sides (a refinement's), and the flags say which worlds factored — the shared
+:func:`~qpik.numerics.everywhere` when all did, so that a caller's fast path
+(``solved is everywhere(n)``) is taken on the usual step."""
 
 import numpy as np
 import pytest
 
-from qpik.numerics import cholesky_solve, everywhere
+from qpik.numerics import cholesky_factor, cholesky_substitute, everywhere
 
 # Well-conditioned SPD systems of entries ~1 (cond < 1e3): the two solves agree to a few
 # hundred roundings.
 ROUNDING = 1e-12
+
+
+def cholesky_solve(M, B, ratio=np.inf):
+    """The engine's solve: the factor, then its substitution (refused worlds zero)."""
+    factor, ok = cholesky_factor(M, ratio)
+    return cholesky_substitute(factor, B, ok), ok
 
 
 def _systems(n: int, k: int, seed: int):
@@ -96,3 +103,29 @@ def test_a_world_whose_solve_overflows_is_silent_as_its_one_world_solve():
     alone = [cholesky_solve(M[w:w + 1], b[w:w + 1])[0][0] for w in range(2)]
     np.testing.assert_allclose(X[0], alone[0], rtol=ROUNDING, atol=ROUNDING * np.abs(alone[0]).max())
     assert not np.isfinite(X[1]).all() and not np.isfinite(alone[1]).all()
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_cholesky_solve_of_no_rows_is_empty_and_solved(n):
+    """A system of zero rows (a hierarchy level whose rows are all masked) is solved, not
+    an untyped error of LAPACK's (as the hand-solved small systems once raised ValueError)."""
+    X, ok = cholesky_solve(np.zeros((n, 0, 0)), np.zeros((n, 0)), ratio=1e6)
+    assert X.shape == (n, 0) and ok.all()
+
+
+@pytest.mark.parametrize("n", [1, 5])
+def test_a_factor_solves_further_right_sides_as_a_fresh_solve(n):
+    """A refinement's second right side, through the factor kept: each world's answer is a
+    fresh solve's bit for bit (the same factor, the same substitution), in place or not,
+    and a refused world's is zero."""
+    M, b, _ = _systems(n, 4, seed=7)
+    M[-1] = -np.eye(4)
+    factor, ok = cholesky_factor(M, 1e6)
+    first = cholesky_substitute(factor, b.copy(), ok)
+    second_rhs = b[::-1].copy()
+    in_place = second_rhs.copy()
+    assert cholesky_substitute(factor, in_place, ok, in_place=True) is in_place
+    again, _ = cholesky_solve(M, second_rhs, 1e6)
+    np.testing.assert_array_equal(in_place, again)
+    np.testing.assert_array_equal(first, cholesky_solve(M, b, 1e6)[0])
+    assert not np.asarray(ok)[-1] and not in_place[-1].any()

@@ -16,7 +16,6 @@ engine primitive                               device function
 ``numerics.ConfigurationDifference``           :func:`configuration_difference`
 ``numerics.cholesky_factor``                   :func:`cholesky_factor`
 ``numerics.cholesky_substitute``               :func:`cholesky_substitute`
-``numerics.cholesky_solve``                    :func:`cholesky_solve`
 ``numerics.all_finite``                        :func:`all_finite`
 ``numerics.matvec``                            :func:`matvec`
 ``numerics.vecmat``                            :func:`vecmat`
@@ -28,9 +27,8 @@ engine primitive                               device function
 ``closed_form.DampedLeastSquares.gradient``    :func:`damped_least_squares_gradient`
 =============================================  ================================================
 
-Each function is mapped over N worlds by a thin kernel (``*_worlds``), one thread per
-world; tests/batch/test_warp_mirror.py holds every one to its engine primitive on Warp's
-CPU device. Where NumPy hands a sum to BLAS or ``einsum`` (a matrix product, a norm) the
+tests/batch/test_warp_mirror.py maps each function over N worlds by a thin kernel, one
+thread per world, and holds every one to its engine primitive on Warp's CPU device. Where NumPy hands a sum to BLAS or ``einsum`` (a matrix product, a norm) the
 device sums in index order, so the two agree to rounding, not bit for bit; everything
 else (the branches, the order of the arithmetic, what counts as solved) is the engine's.
 
@@ -54,7 +52,7 @@ from ...extras import require
 
 wp = require("warp", "the warp batch back-end", extra="gpu")
 
-__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_factor", "cholesky_solve", "cholesky_substitute",
+__all__ = ["DampedLeastSquaresArrays", "all_finite", "cholesky_factor", "cholesky_substitute",
            "configuration_difference", "damped_least_squares_arrays", "damped_least_squares_gradient",
            "damped_least_squares_solve", "inside",
            "mat2quat", "matvec", "normalize4", "outer_product", "quat2mat", "quat2vel", "quat_integrate", "quat_mul",
@@ -276,20 +274,6 @@ def cholesky_substitute(L: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: i
 
 
 @wp.func
-def cholesky_solve(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), w: int, ratio: F64,
-                   L: wp.array3d(dtype=F64)) -> int:
-    """``numerics.cholesky_solve(M, B, ratio, in_place=True)`` of world w: B[w] (k, m)
-    overwritten with X, M[w] X = B[w] (L in ``L[w]``). Returns 1 where M[w] is
-    numerically positive definite within ``ratio`` (:func:`cholesky_factor`), else 0 (X
-    then means nothing); 1 for k = 0."""
-    if M.shape[1] == 0:
-        return 1
-    ok = cholesky_factor(M, w, L, ratio)
-    cholesky_substitute(L, B, w)
-    return ok
-
-
-@wp.func
 def all_finite(a: wp.array2d(dtype=F64), w: int) -> int:
     """``numerics.all_finite`` of world w's row a[w]: 1 where every entry is finite."""
     for i in range(a.shape[1]):
@@ -445,7 +429,8 @@ def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=
     if linear != 0:
         matvec(arrays.scaled, c, w, arrays.fit)
         _add(arrays.z, arrays.fit, w, F64(1.0))
-    solved = cholesky_solve(arrays.K, arrays.z_column, w, SINGULAR_RATIO, arrays.factor)
+    solved = cholesky_factor(arrays.K, w, arrays.factor, SINGULAR_RATIO)
+    cholesky_substitute(arrays.factor, arrays.z_column, w)
     vecmat(arrays.z, R, w, arrays.x)
     if linear != 0:
         _add(arrays.x, c, w, F64(-1.0))
@@ -480,117 +465,3 @@ def damped_least_squares_gradient(damping: wp.array2d(dtype=F64), R: wp.array3d(
         _add(g, c, w, F64(1.0))
     vecmat(arrays.z, R, w, arrays.Rz)
     _add(g, arrays.Rz, w, F64(-1.0))
-
-
-# -- one thread per world ----------------------------------------------------------------------
-@wp.kernel
-def normalize4_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
-    w = wp.tid()
-    out[w] = normalize4(q[w])
-
-
-@wp.kernel
-def mat2quat_worlds(R: wp.array(dtype=wp.mat33d), out: wp.array(dtype=wp.vec4d)):
-    w = wp.tid()
-    out[w] = mat2quat(R[w])
-
-
-@wp.kernel
-def quat_mul_worlds(a: wp.array(dtype=wp.vec4d), b: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
-    w = wp.tid()
-    out[w] = quat_mul(a[w], b[w])
-
-
-@wp.kernel
-def quat2vel_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.vec3d)):
-    w = wp.tid()
-    out[w] = quat2vel(q[w])
-
-
-@wp.kernel
-def quat_integrate_worlds(quat: wp.array(dtype=wp.vec4d), velocity: wp.array(dtype=wp.vec3d), scale: F64,
-                          out: wp.array(dtype=wp.vec4d)):
-    w = wp.tid()
-    out[w] = quat_integrate(quat[w], velocity[w], scale)
-
-
-@wp.kernel
-def quat2mat_worlds(q: wp.array(dtype=wp.vec4d), out: wp.array(dtype=wp.mat33d)):
-    w = wp.tid()
-    out[w] = quat2mat(q[w])
-
-
-@wp.kernel
-def rotation_error_worlds(desired: wp.array(dtype=wp.mat33d), current: wp.array(dtype=wp.mat33d), local: int,
-                          out: wp.array(dtype=wp.vec3d)):
-    w = wp.tid()
-    out[w] = rotation_error(desired[w], current[w], local)
-
-
-@wp.kernel
-def configuration_difference_worlds(q_from: wp.array2d(dtype=F64), q_to: wp.array2d(dtype=F64),
-                                    joint_type: wp.array(dtype=int), joint_qpos: wp.array(dtype=int),
-                                    joint_dof: wp.array(dtype=int), out: wp.array2d(dtype=F64)):
-    w = wp.tid()
-    configuration_difference(q_from, q_to, w, joint_type, joint_qpos, joint_dof, out)
-
-
-@wp.kernel
-def cholesky_solve_worlds(M: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), ratio: F64,
-                          L: wp.array3d(dtype=F64), ok: wp.array(dtype=int)):
-    w = wp.tid()
-    ok[w] = cholesky_solve(M, B, w, ratio, L)
-
-
-@wp.kernel
-def matvec_worlds(A: wp.array3d(dtype=F64), x: wp.array2d(dtype=F64), out: wp.array2d(dtype=F64)):
-    w = wp.tid()
-    matvec(A, x, w, out)
-
-
-@wp.kernel
-def vecmat_worlds(y: wp.array2d(dtype=F64), A: wp.array3d(dtype=F64), out: wp.array2d(dtype=F64)):
-    w = wp.tid()
-    vecmat(y, A, w, out)
-
-
-@wp.kernel
-def outer_product_worlds(A: wp.array3d(dtype=F64), B: wp.array3d(dtype=F64), out: wp.array3d(dtype=F64)):
-    w = wp.tid()
-    outer_product(A, B, w, out)
-
-
-@wp.kernel
-def skew_worlds(v: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.mat33d)):
-    w = wp.tid()
-    out[w] = skew(v[w])
-
-
-@wp.kernel
-def all_finite_worlds(a: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
-    w = wp.tid()
-    ok[w] = all_finite(a, w)
-
-
-@wp.kernel
-def rows_met_worlds(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), tolerance: F64, met: wp.array(dtype=int)):
-    w = wp.tid()
-    met[w] = rows_met(Ax, b, w, tolerance)
-
-
-@wp.kernel
-def inside_worlds(x: wp.array2d(dtype=F64), box: wp.array3d(dtype=F64), G: wp.array3d(dtype=F64),
-                  h: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
-    w = wp.tid()
-    ok[w] = inside(x, box, G, h, w)
-
-
-@wp.kernel
-def damped_least_squares_worlds(dinv: wp.array2d(dtype=F64), damping: wp.array2d(dtype=F64),
-                                R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), c: wp.array2d(dtype=F64),
-                                fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64), linear: int, held: int,
-                                arrays: DampedLeastSquaresArrays, g: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
-    """:func:`damped_least_squares_solve` then :func:`damped_least_squares_gradient` in every world."""
-    w = wp.tid()
-    ok[w] = damped_least_squares_solve(dinv, R, rhs, c, fixed, values, linear, held, w, arrays)
-    damped_least_squares_gradient(damping, R, c, linear, w, arrays, g)
