@@ -6,9 +6,10 @@ tiny systems, so a few primitives take MuJoCo's own routines when N = 1 — the 
 formulas, in C: the rotation error (``mju_mat2Quat``/``mju_subQuat``), :math:`AB^T`
 (``mju_mulMatMatT``), small dot products (``mju_dot``) and the Cholesky factor and solve
 (``mju_cholFactor``/``mju_cholSolve``: BLAS's and LAPACK's blocked routines pack these
-small matrices first, which costs more than the arithmetic). Above one world the arithmetic runs across worlds with the world axis last, one vector
-operation per step of the algorithm (NumPy's stacked routines call LAPACK once per
-matrix, which on these sizes is mostly overhead).
+small matrices first, which costs more than the arithmetic). Above one world the
+arithmetic runs across worlds with the world axis last, one vector operation per step of
+the algorithm (NumPy's stacked routines call LAPACK once per matrix, which on these sizes
+is mostly overhead).
 """
 
 from __future__ import annotations
