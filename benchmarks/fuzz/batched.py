@@ -34,8 +34,10 @@ get what its own run gets:
   promise, or the same minimum where its q̇ is not determined that well (flat directions):
   each level's cost at the batch's answer equal to that at the world's own to 1e-6
   relative (``PROXQP_COST_TOLERANCE``, as its repeat in another process is judged:
-  :func:`.sweep.same_run`), the batch's answer on the world's hard rows to 1e-6 and inside
-  its limits to 1e-9 ("batch_same_minimum"). It stops where its residuals pass its
+  :func:`.sweep.same_run`; a hierarchy's lower level past what the level above's two
+  answers move its minimum, :func:`_moved_minimum`: the level above is itself pinned
+  only to the solver's tolerance), the batch's answer on the world's hard rows to 1e-6 and
+  inside its limits to 1e-9 ("batch_same_minimum"). It stops where its residuals pass its
   tolerance, so a rounding can end it an iteration earlier or later (each world has its
   own workspace, ``WorldSolver``, warm-started from that world's last answer, as its own
   run's is);
@@ -63,13 +65,14 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from scipy.optimize import lsq_linear
 
 from qpik.errors import InvalidInput, InvalidWorlds, WorldsFailed
 
 from qpik.problem import active_bounds
 
 from .cases import ITERATIVE_HARD_TOLERANCE, ITERATIVE_SOLVERS, TOLERANCE as LIMIT_TOLERANCE, level_costs
-from .checks import crossing, hard_residual, velocity_excess
+from .checks import box_and_rows, crossing, hard_residual, velocity_excess
 from .sweep import PROXQP_COST_TOLERANCE, cost_gap
 
 # A step's rounding carried into q̇ by its solve (see the module): 10·nv·ε·κ relative (κ its
@@ -297,8 +300,9 @@ class Judge:
     own tasks and limits (``made``: its replay; see the module): "same" where q̇ agree to
     ``TOLERANCE``, or to nv·ε·κ where the step's condition number κ (:meth:`condition`)
     makes that larger; for an iterative solver, else "minimum" where both are minimisers
-    of the step (each level's cost equal to ``PROXQP_COST_TOLERANCE``, the batch's answer
-    on the hard rows to 1e-6 and inside the limits to 1e-9); else how they differ."""
+    of the step (each level's cost equal to ``PROXQP_COST_TOLERANCE``, a lower level's past
+    what the level above moves it, the batch's answer on the hard rows to 1e-6 and inside
+    the limits to 1e-9); else how they differ."""
 
     def __init__(self, case, made, dt: float, record: dict, controller=None):
         self.controller = controller  # the world's own (its last step's QP data, read by condition)
@@ -403,19 +407,101 @@ class Judge:
 
     def _promises(self, robot, batch_qdot, qdot, q_before) -> dict | None:
         """None where the batch's answer is a minimiser of the world's step as its own is:
-        each level's cost equal to ``PROXQP_COST_TOLERANCE``, the hard rows met to the
-        solver's promise (1e-6 iterative, 1e-9 exact), inside the limits to 1e-9."""
+        each level's cost equal to ``PROXQP_COST_TOLERANCE`` (a hierarchy's lower level:
+        past what the level above's two answers move its minimum, :func:`_moved_minimum`),
+        the hard rows met to the solver's promise (1e-6 iterative, 1e-9 exact), inside the
+        limits to 1e-9."""
         hard = self.kind == "pinv"  # the law weighs its hard rows as its soft ones
-        costs = max((cost_gap(a, b) for a, b in zip(level_costs(self.levels, batch_qdot, hard),
-                                                    level_costs(self.levels, qdot, hard))), default=0.0)
+        gaps, moved = [], []
+        box = None
+        for k, (a, b) in enumerate(zip(level_costs(self.levels, batch_qdot, hard),
+                                       level_costs(self.levels, qdot, hard))):
+            gaps.append(cost_gap(a, b))
+            if gaps[-1] > PROXQP_COST_TOLERANCE and k and self.kind == "hqp" and np.isfinite(a - b):
+                box = box_and_rows(robot, [], self.limits, self.dt)[2:] if box is None else box
+                low, high = _moved_minimum(self.levels, k, batch_qdot, qdot, *box) or (0.0, 0.0)
+                gaps[-1] = max(low - (a - b), (a - b) - high, 0.0) / (1.0 + abs(a))
+                moved.append(gaps[-1] <= PROXQP_COST_TOLERANCE)
+        costs = max(gaps, default=0.0)
         self.record["max_cost_gap"] = max(self.record["max_cost_gap"], costs)
         missed = max((hard_residual(task, batch_qdot) for task in self.hard), default=0.0)
         excess = max(crossing(robot, self.limits, q_before, batch_qdot, self.dt),
                      velocity_excess(self.limits, batch_qdot))
         hard_tolerance = ITERATIVE_HARD_TOLERANCE if self.iterative else LIMIT_TOLERANCE
         if costs <= PROXQP_COST_TOLERANCE and missed <= hard_tolerance and excess <= LIMIT_TOLERANCE:
+            if any(moved):
+                self.record["moved_minimum_steps"] = self.record.get("moved_minimum_steps", 0) + 1
             return None
         return {"cost_gap": costs, "hard_residual": missed, "limit_excess": excess}
+
+
+def _moved_minimum(levels, k: int, batch_qdot, qdot, lower, upper, G, h) -> tuple[float, float] | None:
+    """How far level ``k``'s minimum f_k moves between the two runs (batch minus own),
+    from below and above, because the level above answered each run differently; None
+    where an answer is not a minimiser of the level to 1e-6 (:func:`_multipliers`).
+
+    Level k minimises f_k (its soft tasks' cost) under C q̇ = d, d = J_above q̇*_{k-1}
+    (the levels above's rows at their answer), its hard rows and the limits. Its minimum
+    W(d) is convex in d (a convex QP's value as a function of the right side of its
+    equalities), and −λ, λ any multipliers of those rows at a minimiser, is a subgradient
+    of W at d. So with Δd = d_b − d_a: −λ_a·Δd ≤ W(d_b) − W(d_a) ≤ −λ_b·Δd, exactly, not
+    to first order. Each run's final q̇ keeps the rows above (Δd = J_above (q̇_b − q̇_a))
+    and level k's rows (f_k and ∇f_k there are the level's own), and the multipliers pair
+    with every minimiser; the level's own solve (its tolerance, the ε that breaks its ties)
+    adds its ``PROXQP_COST_TOLERANCE``. An
+    OSQP level's answer is pinned only to its tolerance at the level's scale: any-robot
+    case 9430, step 5, level 1 (a frame task 1e6 m away, c 2.3e10) answered 0.036 apart
+    (costs 1.1e-8 apart), so level 2's d differs by 0.042 and its cost by −1.9e-3 of
+    1.8e3 (1.06e-6), inside [−2.2e-3, −1.6e-3]."""
+    nv = len(qdot)
+    above = np.vstack([np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for level in levels[:k] for t in level])
+    rows = np.vstack([above, *(np.asarray(t.jacobian, dtype=float).reshape(-1, nv) for t in levels[k] if t.hard)])
+    soft = [t for t in levels[k] if not t.hard]
+    ends = []
+    with np.errstate(all="ignore"):
+        moved = above @ (batch_qdot - qdot)
+        for x in (qdot, batch_qdot):
+            multipliers = _multipliers(_gradient(soft, x, nv), rows, x, lower, upper, G, h)
+            if multipliers is None:
+                return None
+            ends.append(-float(multipliers[: len(above)] @ moved))
+    return (min(ends), max(ends)) if np.all(np.isfinite(ends)) else None
+
+
+def _gradient(tasks, qdot: np.ndarray, nv: int) -> np.ndarray:
+    """∇ of ½ Σ w (J q̇ − v)² over ``tasks`` at ``qdot``."""
+    gradient = np.zeros(nv)
+    for task in tasks:
+        jacobian = np.asarray(task.jacobian, dtype=float).reshape(-1, nv)
+        residual = jacobian @ qdot - np.asarray(task.target_velocity, dtype=float).ravel()
+        gradient += jacobian.T @ (np.broadcast_to(np.asarray(task.weight, dtype=float), len(residual)) * residual)
+    return gradient
+
+
+def _multipliers(gradient, rows, x, lower, upper, G, h) -> np.ndarray | None:
+    """Multipliers λ of the equality rows at ``x`` of min f, rows q̇ = d, lb ≤ q̇ ≤ ub,
+    G q̇ ≤ h (f's ``gradient`` at x): the least-squares fit of ∇f + rowsᵀλ − ν_lb + ν_ub
+    + Gᵀμ = 0 with ν, μ ≥ 0 on the bounds and rows x is on to 1e-6 (an iterative solver
+    leaves its answer that far inside a bound it holds; case 9430: 1.5e-8). None where the
+    data is not finite or the fit leaves more than 1e-6 of ∇f (x is then no minimiser, and
+    its fitted λ bounds nothing; case 9430's fits leave 1e-10 to 3e-9)."""
+    near = ITERATIVE_HARD_TOLERANCE
+    at_lower = np.isfinite(lower) & (x - lower <= near * (1.0 + np.abs(lower)))
+    at_upper = np.isfinite(upper) & (upper - x <= near * (1.0 + np.abs(upper)))
+    at_row = np.isfinite(h) & (h - G @ x <= near * (1.0 + np.abs(h)))
+    identity = np.eye(len(x))
+    columns = np.hstack([rows.T, -identity[:, at_lower], identity[:, at_upper], G[at_row].T])
+    if not (np.all(np.isfinite(columns)) and np.all(np.isfinite(gradient))):
+        return None
+    scale = np.linalg.norm(columns, axis=0)
+    scale[scale == 0.0] = 1.0  # (a zero row: its multiplier stays 0)
+    columns /= scale
+    free = np.zeros(columns.shape[1])
+    free[: len(rows)] = -np.inf
+    fit = lsq_linear(columns, -gradient, bounds=(free, np.inf), method="bvls")
+    if not np.linalg.norm(columns @ fit.x + gradient) <= near * (1.0 + np.linalg.norm(gradient)):
+        return None
+    return fit.x[: len(rows)] / scale[: len(rows)]
 
 
 def _normal(tasks, nv: int) -> np.ndarray:

@@ -59,7 +59,8 @@ CLASSES = (
                    "(q̇ to 1e-10; 10·nv·ε·κ on a step of condition number κ; OSQP, ProxQP: 1e-6) or the same typed "
                    "error at the same step", False),
     ("batch_same_minimum", "on N = 4 worlds, OSQP's or ProxQP's answers apart by more than 1e-6 but each the same "
-                           "minimum (each level's cost to 1e-6, hard rows, limits)", False),
+                           "minimum (each level's cost to 1e-6, a lower level's past what the level above moves it; "
+                           "hard rows, limits)", False),
     ("batch_differs", "on N = 4 worlds, a world's q̇ or error differed from its own one-world run's", True),
 )
 DEFECTS = tuple(key for key, _, bad in CLASSES if bad)

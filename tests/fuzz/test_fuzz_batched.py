@@ -8,6 +8,7 @@ caught.
 from __future__ import annotations
 
 import hashlib
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -49,6 +50,33 @@ def test_a_step_its_data_does_not_determine_is_judged_by_its_minimum(tmp_path, s
     record = result["details"]["batched"]
     assert "batch_same_minimum" in result["classes"], record.get("difference", record)
     assert record["undetermined_steps"] and record["minimum_steps"] == record["undetermined_steps"]
+
+
+def test_a_lower_level_is_judged_past_what_the_level_aboves_answers_move_its_minimum(tmp_path):
+    """9430 (hqp/osqp): OSQP pins level 1 (a frame task 1e6 m away) only to its tolerance,
+    its two answers 0.036 apart, so level 2's rows above differ and its cost moves by up to
+    5e-4 relative; each move lies within what level 2's multipliers bound it by."""
+    result = run_case(9430, tmp_path, batched=True)
+    record = result["details"]["batched"]
+    assert "batch_same_minimum" in result["classes"], record.get("difference", record)
+    assert record["moved_minimum_steps"] and record["max_cost_gap"] <= batched.PROXQP_COST_TOLERANCE
+
+
+def test_the_moved_minimum_is_the_levels_sensitivity_to_the_level_above():
+    """Level 1: min ½‖q̇ − (1, 2, 0)‖² under q̇₀ + q̇₁ = d (level 0's row) and q̇₁ ≤ 0.5,
+    its minimum W(d) = ½ ((d − 1.5)² + 1.5²), multiplier λ = 1.5 − d: from d = 1 to 1.1, W
+    moves by −0.045, between −λ(1)·0.1 and −λ(1.1)·0.1. A point of the level's set that
+    is no minimiser (q̇₂ = 0.1) leaves ∇f unbalanced: no bound."""
+    def task(jacobian, velocity):
+        return SimpleNamespace(jacobian=np.array(jacobian, dtype=float), target_velocity=np.array(velocity),
+                               weight=1.0, hard=False)
+    levels = [[task([[1.0, 1.0, 0.0]], [0.0])], [task(np.eye(3), [1.0, 2.0, 0.0])]]
+    box = np.full(3, -np.inf), np.array([np.inf, 0.5, np.inf]), np.zeros((0, 3)), np.zeros(0)
+    own, other = np.array([0.5, 0.5, 0.0]), np.array([0.6, 0.5, 0.0])
+    low, high = batched._moved_minimum(levels, 1, other, own, *box)
+    assert (low, high) == (pytest.approx(-0.05), pytest.approx(-0.04))
+    assert low < 0.5 * (0.4**2 - 0.5**2) < high
+    assert batched._moved_minimum(levels, 1, other + [0.0, 0.0, 0.1], own, *box) is None
 
 
 @pytest.mark.parametrize("seed", [21, 120])
