@@ -15,7 +15,8 @@
 - a solver's "infeasible", and any failure that no fallback overcomes, is checked by a
   phase-1 problem that has no cost to misjudge (:func:`has_feasible_point`): only a
   problem with no feasible point raises :class:`~qpik.errors.InfeasibleProblem`; a
-  feasible one is solved again with the cost capped harder, or ends in a
+  feasible one is solved again with the cost capped harder, down to the first cap whose
+  minimiser is small enough for its hard rows to be checked, or ends in a
   :class:`~qpik.errors.SolverError` that says so.
 """
 
@@ -258,7 +259,12 @@ class GuardedSolve:
         """A step the solvers failed on, solved by the exact solvers with the cost capped
         harder and harder (down to H's own scale): a soft cost 1e9 times H's scale makes
         |q̇| ~ 1e8, where A q̇ cannot even be computed to the hard rows' 1e-9 (any-robot
-        fuzz); the minimiser keeps the cost's direction. None if every try fails."""
+        fuzz); the minimiser keeps the cost's direction. The answer is the minimiser at the
+        first cap where it is small enough for its hard rows to be checked (every back-end
+        refuses a larger one: :func:`~qpik.solvers.base.equalities_checkable`), a size the
+        data fixes: two runs whose data differ by a rounding stop at the same cap. (Case
+        8160 stopped at 1e3 in one run and at 1 in the other, 1.0 apart: at 1e3 its hard
+        rows were left to rounding.) None if every try fails."""
         for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0):
             capped = tame(c, _scale(H), cap)
             for name in FALLBACK_SOLVERS:

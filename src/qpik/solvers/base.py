@@ -18,7 +18,8 @@ wants them, then calls :meth:`QPBackend.solve` with H and c.
 - its answer is checked: finite, within the box (a tolerance-based solver that lands a
   hair outside is projected back in; farther than ``bound_tolerance`` is a failure), the
   equalities met to ``equality_tolerance`` by :func:`equalities_met` (the one check every
-  answer of a controller goes through, the closed form's too) and the inequalities to
+  answer of a controller goes through, the closed form's too) at a size where rounding
+  cannot decide that check (:func:`equalities_checkable`), and the inequalities to
   ``constraint_tolerance`` (relative to the data's scale), so a stale or wrong answer
   never passes as a solution, whatever the solver;
 - every failure is a typed qpik error: :class:`~qpik.errors.InfeasibleProblem` or
@@ -73,6 +74,7 @@ def active_set_iterations(nv: int, rows: int) -> int:
 # promise): an active-set solver or the closed form meets it unless the rows are
 # ill-conditioned or contradictory, and then the answer is not one.
 EXACT_EQUALITY_TOLERANCE = 1e-9
+EPSILON = float(np.finfo(float).eps)
 
 
 def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
@@ -81,6 +83,17 @@ def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float
     residual = A.dot(x)  # array methods: NumPy's functions cost more on arrays this small
     residual -= b
     return residual.dot(residual) <= tolerance * tolerance * (1.0 + b.dot(b))
+
+
+def equalities_checkable(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
+    """Whether x is small enough for :func:`equalities_met` to mean something: ε |A||x|
+    (what rounding x's entries, and A x's products, can move A x by; Euclidean norm over
+    the rows) at most ``tolerance`` (1 + |b|). Past that the residual is rounding, and a
+    pass is luck: any-robot case 8160 (|x| 3e7, rows of entries ~400: 14 times the
+    tolerance) passed in one run and failed in another whose b was 1.4e-14 apart. |x| is
+    fixed by the data, so this decision does not hinge on a rounding."""
+    rounding = np.abs(A).dot(np.abs(x))
+    return EPSILON * EPSILON * rounding.dot(rounding) <= tolerance * tolerance * (1.0 + b.dot(b))
 
 
 class QPBackend:
@@ -172,8 +185,15 @@ class QPBackend:
                 x[i] = high
         if outside > self.bound_tolerance:
             raise SolverError(f"QP solver {self.name} returned a point {outside:.3g} outside its bounds")
-        if self.meq and not equalities_met(self.A, x, self.b, self.equality_tolerance):
-            x = self._refined(x)
+        if self.meq:  # the size first: no refinement can make a point too large checkable
+            if not equalities_checkable(self.A, x, self.b, self.equality_tolerance):
+                rounding = EPSILON * float(np.linalg.norm(np.abs(self.A) @ np.abs(x)))
+                raise SolverError(f"QP solver {self.name} returned a point too large to check against the "
+                                  f"equality constraints: at |x| = {float(np.linalg.norm(x)):.3g} rounding alone "
+                                  f"moves A x by up to {rounding:.2g}, past their tolerance "
+                                  f"{self.equality_tolerance:.0e} (1 + |b|)")
+            if not equalities_met(self.A, x, self.b, self.equality_tolerance):
+                x = self._refined(x)
         if self.mineq:
             finite = self.h < BIG
             if finite.any():
