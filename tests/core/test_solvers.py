@@ -130,3 +130,73 @@ def test_an_answer_that_lost_the_hard_rows_last_digits_is_moved_back_onto_them(s
     pinned = np.where(rng.random(nv) < 0.5, backend.lb, backend.ub)
     with pytest.raises(SolverError, match="misses the equality"):
         backend._check_result(pinned)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_an_answer_too_large_for_its_hard_rows_to_be_checked_is_refused(solver):
+    """A point 3e7 along the null space of rows with entries ~400 (|b| ~ 400): the
+    rounding of its entries leaves ~2.5e-6 in A x, 6 times the exact solvers' 1e-9
+    (1 + |b|) (3e10 for the iterative solvers' 1e-6), so whether its residual passes is
+    largely the rounding's (any-robot case 8160: passed in one run, failed in another).
+    It is refused though A x - b evaluates to exactly 0 here; the same rows at a size
+    they can be checked at pass."""
+    rng = np.random.default_rng(5)
+    nv, meq = 8, 2
+    backend = make_backend(solver, nv, meq)
+    A = backend.A
+    A[:] = rng.uniform(-400.0, 400.0, (meq, nv))
+    null = np.linalg.svd(A)[2][meq:].T
+    for size, checkable in ((3e7 * backend.equality_tolerance / 1e-9, False), (30.0, True)):
+        x = rng.normal(size=nv) + null @ rng.normal(size=nv - meq) * size
+        backend.b[:] = A.dot(x)  # as the check evaluates it: a residual of 0
+        if checkable:
+            assert np.array_equal(backend._check_result(x.copy()), x)
+        else:
+            with pytest.raises(SolverError, match="too large to check"):
+                backend._check_result(x.copy())
+
+
+@pytest.mark.parametrize("seed, pull", [(0, 3e7), (1, 3e7), (2, 1e7), (3, 3e11)])
+def test_the_capped_ladder_stops_where_its_answers_hard_rows_can_be_checked(seed, pull):
+    """Any-robot case 8160's level, cut down: two hard rows of entries ~400, half the dofs
+    boxed with curvature 1e7, half free with curvature 1 and a soft pull ``pull``. A
+    solver's answer at a cap 1e9 or 1e6 times H's scale lies ~1e7 along the rows' null
+    space, too large to check them at, so the guard's ladder goes on (1e3, 1, 1e-3, no
+    cost): its answer is the minimiser (H with the retry's damping) at the first cap where
+    that is small enough (u ‖A∘x‖ <= 1e-9 (1 + |b|)), the same for b moved by a rounding.
+    Before, an answer 3 to 6 times past that came back where the check happened to pass
+    (case 8160's two runs stopped at different caps, 1e3 and 1, 1.0 apart), and the
+    ladder ended at 1."""
+    from qpik.controllers.fallbacks import GuardedSolve
+    from qpik.problem.cost import COST_SCALE_CAP, tame
+    from qpik.solvers.base import EXACT_EQUALITY_TOLERANCE
+    from qpik.solvers.nullspace import NullSpaceBackend
+
+    rng = np.random.default_rng(seed)
+    nv, meq, half = 10, 2, 5
+    A = rng.uniform(-400.0, 400.0, (meq, nv))
+    H = np.diag(np.r_[np.full(half, 1e7), np.ones(nv - half)])
+    c = np.r_[rng.normal(size=half) * 1e11, rng.normal(size=nv - half) * pull]
+    b = rng.normal(size=meq) * 100.0
+    lb, ub = np.full(nv, -np.inf), np.full(nv, np.inf)
+    lb[:half], ub[:half] = -1.0, 1.0
+
+    def checkable(x):
+        rounding = 0.5 * np.finfo(float).eps * np.linalg.norm(A * x)
+        return rounding <= EXACT_EQUALITY_TOLERANCE * (1 + np.linalg.norm(b))
+
+    damped = H + 1e-9 * np.trace(H) / nv * np.eye(nv)  # the guard's retry's damping
+    minimisers = []
+    for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0, 1e-3, 0.0):  # the ladder docs/controllers.md states
+        reference = NullSpaceBackend(nv, meq, 0)
+        reference.A[:], reference.b[:], reference.lb[:], reference.ub[:] = A, b, lb, ub
+        reference.equality_tolerance = 1.0  # every cap's minimiser, checkable or not
+        minimisers.append(reference.solve(damped, tame(c, float(damped.diagonal().max()), cap)))
+    assert not checkable(minimisers[0])
+    expected = next(x for x in minimisers if checkable(x))
+    for moved in (0.0, 1e-15, -2e-15):
+        backend = make_backend("daqp", nv, meq)
+        backend.A[:], backend.b[:], backend.lb[:], backend.ub[:] = A, b * (1.0 + moved), lb, ub
+        x = GuardedSolve(backend, "daqp").solve(H, c)
+        assert checkable(x) and np.abs(A @ x - b).max() <= 1e-9 * (1 + np.linalg.norm(b))
+        assert np.linalg.norm(x - expected) <= 1e-8 * np.linalg.norm(expected)

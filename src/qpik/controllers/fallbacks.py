@@ -15,8 +15,9 @@
 - a solver's "infeasible", and any failure that no fallback overcomes, is checked by a
   phase-1 problem that has no cost to misjudge (:func:`has_feasible_point`): only a
   problem with no feasible point raises :class:`~qpik.errors.InfeasibleProblem`; a
-  feasible one is solved again with the cost capped harder, or ends in a
-  :class:`~qpik.errors.SolverError` that says so.
+  feasible one is solved again with the cost capped harder (at last, no cost), down to
+  the first cap whose minimiser is small enough for its hard rows to be checked, or ends
+  in a :class:`~qpik.errors.SolverError` that says so.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ FALLBACK_SOLVERS = ("daqp", "quadprog", NULL_SPACE)
 # still count as meeting it; the LP that decided before had the same tolerance (HiGHS's).
 FEASIBILITY_TOLERANCE = 1e-7
 
+
+# The capped solves' caps on c, relative to H's scale (tame); 0: no cost.
+CAPS = (COST_SCALE_CAP, 1e6, 1e3, 1.0, 1e-3, 0.0)
 
 # Steps skipped after a failure, doubled while failures follow, up to the maximum.
 PAUSE = 8
@@ -256,11 +260,22 @@ class GuardedSolve:
 
     def _solve_capped(self, H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
         """A step the solvers failed on, solved by the exact solvers with the cost capped
-        harder and harder (down to H's own scale): a soft cost 1e9 times H's scale makes
-        |q̇| ~ 1e8, where A q̇ cannot even be computed to the hard rows' 1e-9 (any-robot
-        fuzz); the minimiser keeps the cost's direction. None if every try fails."""
-        for cap in (COST_SCALE_CAP, 1e6, 1e3, 1.0):
+        harder and harder (``CAPS`` times H's scale, then no cost at all): a soft cost 1e9
+        times H's scale makes |q̇| ~ 1e8, where A q̇ cannot even be computed to the hard
+        rows' 1e-9 (any-robot fuzz); the minimiser keeps the cost's direction. The answer is
+        the minimiser at the first cap where it is small enough for its hard rows to be
+        checked (every back-end refuses a larger one:
+        :func:`~qpik.solvers.base.equalities_checkable`), a size the data fixes: two runs
+        whose data differ by a rounding stop at the same cap (case 8160 stopped at 1e3 in
+        one run and at 1 in the other, 1.0 apart, when a pass at 1e3 was the rounding's).
+        The last, no cost, is the smallest step in H's metric that meets the hard rows and
+        the limits. None if every try fails."""
+        previous = None
+        for cap in CAPS:
             capped = tame(c, _scale(H), cap)
+            if capped is previous:  # c as the last cap left it: the same problem
+                continue
+            previous = capped
             for name in FALLBACK_SOLVERS:
                 spare = self._spare(name)
                 if spare is None:

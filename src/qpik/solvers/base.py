@@ -18,7 +18,8 @@ wants them, then calls :meth:`QPBackend.solve` with H and c.
 - its answer is checked: finite, within the box (a tolerance-based solver that lands a
   hair outside is projected back in; farther than ``bound_tolerance`` is a failure), the
   equalities met to ``equality_tolerance`` by :func:`equalities_met` (the one check every
-  answer of a controller goes through, the closed form's too) and the inequalities to
+  answer of a controller goes through, the closed form's too) at a size where rounding
+  cannot decide that check (:func:`equalities_checkable`), and the inequalities to
   ``constraint_tolerance`` (relative to the data's scale), so a stale or wrong answer
   never passes as a solution, whatever the solver;
 - every failure is a typed qpik error: :class:`~qpik.errors.InfeasibleProblem` or
@@ -73,6 +74,7 @@ def active_set_iterations(nv: int, rows: int) -> int:
 # promise): an active-set solver or the closed form meets it unless the rows are
 # ill-conditioned or contradictory, and then the answer is not one.
 EXACT_EQUALITY_TOLERANCE = 1e-9
+ROUNDOFF = 0.5 * float(np.finfo(float).eps)  # the unit roundoff u
 
 
 def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
@@ -81,6 +83,20 @@ def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float
     residual = A.dot(x)  # array methods: NumPy's functions cost more on arrays this small
     residual -= b
     return residual.dot(residual) <= tolerance * tolerance * (1.0 + b.dot(b))
+
+
+def equalities_checkable(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
+    """Whether x is small enough for :func:`equalities_met` to tell an answer that meets
+    the rows from one that misses them: the rounding its entries leave in A x, u ‖A∘x‖
+    (u the unit roundoff, each x_j within u |x_j| of the value it stands for; the
+    Frobenius norm of the products A_ij x_j, as independent errors add up), at most
+    ``tolerance`` (1 + |b|). Past that the check of a correct answer is decided by its
+    last bits: under 1e-15 moves of b, one passed 30 to 36 times in 40 at 1.2 times the
+    tolerance (any-robot case 3516) and 10 in 40 at 3.5 (case 8160's cap 1e3, which one
+    run passed and the other failed), against 40 in 40 at 0.25 to 0.93 (cases 7488, 7477,
+    6711). The answer's size is fixed by the data, so this decision is not."""
+    products = A * x
+    return ROUNDOFF * ROUNDOFF * np.vdot(products, products) <= tolerance * tolerance * (1.0 + b.dot(b))
 
 
 class QPBackend:
@@ -172,8 +188,15 @@ class QPBackend:
                 x[i] = high
         if outside > self.bound_tolerance:
             raise SolverError(f"QP solver {self.name} returned a point {outside:.3g} outside its bounds")
-        if self.meq and not equalities_met(self.A, x, self.b, self.equality_tolerance):
-            x = self._refined(x)
+        if self.meq:  # the size first: no refinement can make a point too large checkable
+            if not equalities_checkable(self.A, x, self.b, self.equality_tolerance):
+                rounding = ROUNDOFF * float(np.linalg.norm(self.A * x))
+                raise SolverError(f"QP solver {self.name} returned a point too large to check against the "
+                                  f"equality constraints: at |x| = {float(np.linalg.norm(x)):.3g} its rounding "
+                                  f"leaves {rounding:.2g} in A x, past their tolerance "
+                                  f"{self.equality_tolerance:.0e} (1 + |b|)")
+            if not equalities_met(self.A, x, self.b, self.equality_tolerance):
+                x = self._refined(x)
         if self.mineq:
             finite = self.h < BIG
             if finite.any():
