@@ -23,7 +23,7 @@ from scipy.linalg.lapack import dgesv, dpotrs
 
 MINVAL = 1e-15  # mjMINVAL
 _TINY = 5e-324  # the least positive float
-SMALL_DOT = 4096  # entries up to which a sum of squares is one MuJoCo dot product (see squared_norm)
+SMALL_NORM, SMALL_DOT = 64, 4096  # entries up to which a norm is Python's hypot, then one MuJoCo dot (see norm)
 
 __all__ = ["cholesky_factor", "cholesky_substitute", "mat2quat", "mul", "normalize4", "quat2mat",
            "quat2vel", "quat_integrate", "rotation_error", "worlds_last"]
@@ -320,13 +320,14 @@ _CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 
 class RotationError:
     """e with R exp([e]) = R_d (the current frame's axes) or exp([e]) R = R_d (world axes)
-    in every world: ``mju_subQuat`` of the two rotations' quaternions. One instance per
-    task (its scratch arrays); at N = 1 MuJoCo's routines do it, on views of the arrays
-    made once (kept while the same arrays come)."""
+    in every world: the rotation vector (``mju_quat2Vel``) of the relative rotation
+    RᵀR_d, or R_d Rᵀ (``mju_mat2Quat``). One instance per task (its scratch arrays); at
+    N = 1 MuJoCo's routines do it, on views of the arrays made once (kept while the same
+    arrays come)."""
 
     def __init__(self, n: int):
         self.n = n
-        self._desired, self._current, self._local = np.empty(4), np.empty(4), np.empty(3)
+        self._relative, self._quaternion = np.empty((3, 3)), np.empty(4)
         self._arrays, self._views = (None, None, None), None
 
     def __call__(self, desired: np.ndarray, current: np.ndarray, out: np.ndarray, local: bool = False) -> np.ndarray:
@@ -335,24 +336,20 @@ class RotationError:
             arrays = self._arrays
             if arrays[0] is not desired or arrays[1] is not current or arrays[2] is not out:
                 self._arrays = (desired, current, out)
-                self._views = (np.ascontiguousarray(desired[0]).reshape(9), np.ascontiguousarray(current[0]),
-                               out[0], desired.flags.c_contiguous and current.flags.c_contiguous)
-            flat_desired, current0, out0, stable = self._views
+                self._views = (np.ascontiguousarray(desired[0]), np.ascontiguousarray(current[0]), out[0],
+                               desired.flags.c_contiguous and current.flags.c_contiguous)
+            desired0, current0, out0, stable = self._views
             if not stable:  # copies, refreshed every call
-                flat_desired[:], current0[...] = desired[0].reshape(9), current[0]
-            mujoco.mju_mat2Quat(self._desired, flat_desired)
-            mujoco.mju_mat2Quat(self._current, current0.reshape(9))
+                desired0[...], current0[...] = desired[0], current[0]
             if local:
-                mujoco.mju_subQuat(out0, self._desired, self._current)
+                mujoco.mju_mulMatTMat(self._relative, current0, desired0)
             else:
-                mujoco.mju_subQuat(self._local, self._desired, self._current)
-                current0.dot(self._local, out0)
+                mujoco.mju_mulMatMatT(self._relative, desired0, current0)
+            mujoco.mju_mat2Quat(self._quaternion, self._relative.reshape(9))
+            mujoco.mju_quat2Vel(out0, self._quaternion, 1.0)
             return out
-        error = quat2vel(mul(mat2quat(current) * _CONJUGATE, mat2quat(desired)))
-        if local:
-            out[...] = error
-        else:
-            np.einsum("nij,nj->ni", current, error, out=out)
+        relative = current.transpose(0, 2, 1) @ desired if local else desired @ current.transpose(0, 2, 1)
+        out[...] = quat2vel(mat2quat(relative))
         return out
 
 
@@ -398,14 +395,17 @@ class ConfigurationDifference:
         return out
 
 
-def squared_norm(a: np.ndarray) -> float:
-    """The sum of squares of a contiguous array's entries: MuJoCo's dot on a small one (BLAS's
-    dispatch costs more than its arithmetic), NumPy's own loop on a large one (BLAS's dot
-    wakes its threads past ~10,000 entries, which on a busy machine costs milliseconds)."""
+def norm(a: np.ndarray) -> float:
+    """The Euclidean norm of a contiguous array's entries (NaN if one is): Python's ``hypot``
+    of a small one's list, MuJoCo's dot on a mid-sized one (a NumPy or MuJoCo call costs
+    more than its arithmetic), NumPy's own loop on a large one (BLAS's dot wakes its
+    threads past ~10,000 entries, which on a busy machine costs milliseconds)."""
+    if a.size <= SMALL_NORM:
+        return math.hypot(*a.ravel().tolist())
     if a.size <= SMALL_DOT:
         flat = a.reshape(-1)
-        return mujoco.mju_dot(flat, flat)
-    return float(np.einsum("ij,ij->", a, a))
+        return math.sqrt(mujoco.mju_dot(flat, flat))
+    return math.sqrt(np.einsum("ij,ij->", a, a))
 
 
 def all_finite(a: np.ndarray) -> bool:

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from ..numerics import (all_finite, both, cholesky_factor, cholesky_substitute, everywhere, lu_solve, matvec, nowhere,
-                        outer_product, squared_norm, vecmat, worlds_first)
+                        outer_product, norm, vecmat, worlds_first)
 
 # The system is treated as singular (dependent hard rows) when a Cholesky pivot falls
 # below 1/this of its row's scale (its condition number is then past the square: 1e12).
@@ -181,7 +181,7 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
     soft target 1e9 away) must not excuse a near row's miss, which a norm-wise test lets
     hide the digits a closed form loses (refinement would not start)."""
     np.subtract(Ax, b, Ax)
-    if squared_norm(Ax) <= tolerance * tolerance:  # every row's miss is below the least bound
+    if norm(Ax) <= tolerance:  # every row's miss is below the least bound
         return everywhere(len(b))
     return (np.abs(Ax) <= tolerance * (1.0 + np.abs(b))).all(axis=1)
 

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InvalidInput
-from ..numerics import everywhere, squared_norm, vecmat
+from ..numerics import everywhere, norm, vecmat
 from ..tasks import Task
 from ..tasks.inputs import as_index
 from .rows import Stack
@@ -28,8 +28,7 @@ LM_RESCALE = 1e6
 # (see tame): the solvers' answers keep their digits. The closed form is tried only where
 # the cap leaves c as it is, so both give the same minimiser.
 COST_SCALE_CAP = 1e9
-# Below this squared norm no entry of c can reach the cap (at least COST_SCALE_CAP).
-UNCAPPED_NORM2 = COST_SCALE_CAP * COST_SCALE_CAP
+
 
 
 def tame(c: np.ndarray, hessian_scale: float, cap: float = COST_SCALE_CAP) -> np.ndarray:
@@ -148,9 +147,9 @@ class Cost:
         """(N,) whether :func:`tame` leaves each world's c as it is: only there may a closed
         form answer, or the solver's answer would differ."""
         c = self.c
-        if squared_norm(c) <= UNCAPPED_NORM2:  # the usual step: every world's c is small
+        if norm(c) <= COST_SCALE_CAP:  # the usual step: no entry of c can reach the cap
             return everywhere(len(c))
-        small = np.einsum("ni,ni->n", c, c) <= UNCAPPED_NORM2
+        small = np.einsum("ni,ni->n", c, c) <= COST_SCALE_CAP * COST_SCALE_CAP
         return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale()))
 
     def world_hessian(self, w: int) -> np.ndarray:

@@ -187,11 +187,10 @@ def quat2mat(q: wp.vec4d) -> wp.mat33d:
 @wp.func
 def rotation_error(desired: wp.mat33d, current: wp.mat33d, local: int) -> wp.vec3d:
     """``numerics.RotationError``: e with R exp([e]) = R_d (``local``: the current frame's
-    axes), else R e (world axes): ``quat2vel(conj(mat2quat(R)) ⊗ mat2quat(R_d))``."""
-    error = quat2vel(quat_mul(_conjugate(mat2quat(current)), mat2quat(desired)))
+    axes) or exp([e]) R = R_d (world axes): ``quat2vel(mat2quat(RᵀR_d))``, or of R_d Rᵀ."""
     if local != 0:
-        return error
-    return current @ error
+        return quat2vel(mat2quat(wp.transpose(current) @ desired))
+    return quat2vel(mat2quat(desired @ wp.transpose(current)))
 
 
 @wp.func
