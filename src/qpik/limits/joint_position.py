@@ -59,6 +59,7 @@ class JointPositionLimit(Limit):
         self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])[:, :, None]
         self._qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
         self._steps, self._factor = np.empty((2, k, n)), np.empty((2, k, n))
+        self._rate, self._rate_value = np.empty((2, k, n)), None  # gain/dt at full shape (a same-shape product)
         self._near, self._rows = np.empty((2, k, n), dtype=bool), tuple(self._steps)  # rows: low, high
         self._kept = None  # (the box it was given, _views' views of q and of the box), while consecutive
 
@@ -75,7 +76,10 @@ class JointPositionLimit(Limit):
             np.copyto(self._factor, min(self.damper_rate / self.influence, rate), where=self._near)
             np.multiply(steps, self._factor, steps)
         else:
-            np.multiply(steps, rate, steps)
+            if rate != self._rate_value:
+                self._rate.fill(rate)
+                self._rate_value = rate
+            np.multiply(steps, self._rate, steps)
         low, high = self._rows
         # Recovery from outside the range never asks for more than the speed box.
         np.minimum(low, speed_upper, low)

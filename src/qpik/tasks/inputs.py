@@ -112,7 +112,7 @@ def rotation_matrix(rotation, what: str = "target rotation") -> np.ndarray:
         rot = _quaternion_matrix(rot, what)
     elif rot.shape != (3, 3):
         raise InvalidInput(f"{what} must be a 3x3 matrix or a (4,) w-x-y-z quaternion, got shape {rot.shape}")
-    gram, det = _orthonormality(rot.reshape(9).tolist())
+    gram, det = _orthonormality(rot.ravel().tolist())
     if not math.hypot(*gram) <= 1e-6:  # NaN and inf fail too
         if not math.isfinite(sum(gram)):
             raise InvalidInput(f"{what} contains NaN or inf")
