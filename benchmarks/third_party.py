@@ -18,8 +18,10 @@ side-by-side rollouts are :mod:`benchmarks.peers.equivalence`):
   native convex collision on (the Jaco's MJCF turns it off; ``collision-mpr`` runs mink
   on the stock flags, where its distances come from libccd's MPR).
 
-Timing (:mod:`timing`): every contestant runs its own fresh copy of the problem; all
-advance side by side in blocks of 50 steps, the order rotated, ``--repeats`` times. Each
+Timing (:mod:`timing`): each case runs in a fresh process of its own (as pyperf and asv
+run each benchmark: no earlier case's heap or caches weigh on its timing), where every
+contestant runs its own fresh copy of the problem; all advance side by side in blocks of
+50 steps, the order rotated, ``--repeats`` times. Each
 contestant's timed step is exactly what its user writes, nothing else; the reference is
 sampled for every step beforehand into plain arrays (the arguments of each moving task's
 ``set_target``), and each side converts them to its own types inside its step:
@@ -47,8 +49,10 @@ writes benchmarks/results/third_party.json and third_party.md.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import platform
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -298,6 +302,16 @@ def measure(case: Case, repeats: int) -> dict:
     return result
 
 
+def measure_alone(name: str, repeats: int) -> dict:
+    """:func:`measure` of case ``name`` in a fresh process (spawned: nothing of this one's)."""
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_measure_named, name, repeats).result()
+
+
+def _measure_named(name: str, repeats: int) -> dict:
+    return measure(CASES[name], repeats)
+
+
 def _value(value, digits: int = 2) -> str:
     if value is None:
         return "-"
@@ -383,7 +397,7 @@ def main(argv=None) -> int:
     results = []
     for name in args.cases:
         print(f"{name} ...", file=sys.stderr, flush=True)
-        results.append(measure(CASES[name], args.repeats))
+        results.append(measure_alone(name, args.repeats))
         for check in results[-1]["checks"]:
             if not check["holds"]:
                 print(f"FAIL {name}: {check['check']} = {check['value']} (bound {check['bound']:g})", file=sys.stderr)
