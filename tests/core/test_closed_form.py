@@ -199,6 +199,42 @@ def test_inside_refuses_infinite_or_nan_answers_on_absent_bounds(n):
         assert np.asarray(inside(x, box, G, h)).tolist() == [w != 1 for w in range(n)]
 
 
+
+# Two steps of the any-robot fuzz (benchmarks/fuzz_any_robot.py --case 8850 / 3870 --batched 1)
+STEPS = Path(__file__).parents[1] / "data" / "fuzz_closed_form_steps.npz"
+
+
+@pytest.mark.parametrize("case", ["8850", "3870"])
+def test_an_answer_that_meets_its_rows_as_well_as_floats_can_is_kept(case):
+    """Two fuzz steps whose closed-form answer is the QP's minimiser (an exact KKT solve
+    in 80 digits agrees to 3e-13), bounds held as at it, but whose residual the row-by-row
+    1e-10 check refused in one run and not in the other (their roundings apart), the
+    refused world going to a solver that did worse: 8850 (step 20, world 3: the batch's
+    data) a soft row of terms |R_i||x| 2.3e8 for a target of 39, missed by 1.7e-8, its
+    rounding (ε |R_i||x| = 5e-8); 3870 (step 8, world 3: its own run's data) a hard row
+    of terms 2.2e7 times its target, missed by 1.4e-9 of it, the hard rows together by
+    6e-11 (the promise a solver's answer is held to: 1e-9). Kept in one world and in four
+    (the N-world arithmetic), the same answer."""
+    d = {key.split("_", 1)[1]: value for key, value in np.load(STEPS).items() if key.startswith(case)}
+    R, rhs, damping, soft_rows = d["R"], d["rhs"], d["damping"], int(d["soft_rows"])
+    nv, rows = R.shape[1], len(R) - soft_rows
+    answers = []
+    for n in (1, 4):
+        def tile(a):
+            return np.repeat(a[None], n, axis=0)
+
+        cost = SimpleNamespace(dinv=tile(1.0 / damping), damping=tile(damping), R=tile(R), rhs=tile(rhs),
+                               linear=tile(d["linear"]) if "linear" in d else None)
+        held = HeldBounds(n, nv, soft_rows, rows)
+        held.lower[:], held.upper[:], held.holding = d["held_lower"], d["held_upper"], True
+        x, solved = held.solve(cost, tile(np.stack([d["lower"], d["upper"]])), tile(d["G"]), tile(d["h"]))
+        assert solved.all(), n
+        assert (held.lower == d["held_lower"]).all() and (held.upper == d["held_upper"]).all()  # no bound let go
+        answers.append(x)
+    np.testing.assert_allclose(answers[1], np.repeat(answers[0], 4, axis=0), rtol=0,
+                               atol=1e-10 * np.abs(answers[0]).max())
+
+
 @pytest.mark.parametrize("soft_rows, hard_rows", [(1, 0), (2, 0), (1, 1), (0, 2), (3, 2), (1, 3), (6, 1)])
 @pytest.mark.parametrize("epsilon", [1e-10, 1e-3])
 def test_the_damped_least_squares_step_is_the_kkt_solution(soft_rows, hard_rows, epsilon):

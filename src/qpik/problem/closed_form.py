@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from ..solvers.base import EXACT_EQUALITY_TOLERANCE
 from ..numerics import (all_finite, both, cholesky_factor, cholesky_substitute, everywhere, lu_solve, matvec, nowhere,
                         outer_product, norm, vecmat, worlds_first)
 
@@ -38,12 +39,19 @@ SINGULAR_RATIO = 1e6
 # Equality residual (relative to 1 + |b|) a closed-form step may leave, checked on every
 # answer as the solvers' are: a nearly singular system loses digits no cheaper test foresees.
 EQUALITY_TOLERANCE = 1e-10
+# Past EQUALITY_TOLERANCE, a soft row's miss may be its rounding, nv·ε of its terms'
+# sizes, and the hard rows' the solvers' promise (see _within_rounding).
+EPSILON = float(np.finfo(float).eps)
 # Closed forms a step may try with held bounds before the solver takes the world.
 HELD_TRIES = 3
 # Steps of iterative refinement a closed form may take while its residual is above
 # REFINE_TOLERANCE (relative to 1 + |rhs|; a few roundings): a tiny ε on dofs the rows
-# constrain loses digits in x = D⁻¹(...), which the residual shows.
-REFINEMENTS, REFINE_TOLERANCE = 2, 1e-13
+# constrain loses digits in x = D⁻¹(...), which the residual shows. Past the first
+# PROMPT_REFINEMENTS (a floating base that only ε weighs needs one or two each step),
+# a step is taken only while the backward error is above ε and halved by the last one,
+# up to REFINEMENTS in all (LAPACK's xPORFS: ITMAX 5): on K of condition 1e24, a step
+# gains 1e-4 and the residual reached its rounding at the fourth (any-robot case 3870).
+REFINEMENTS, PROMPT_REFINEMENTS, REFINE_TOLERANCE = 5, 2, 1e-13
 # A bound is active at a solver's answer within this (relative to 1 + |bound|).
 ACTIVE_TOLERANCE = 1e-9
 
@@ -71,7 +79,8 @@ class DampedLeastSquares:
         """``(x (N, nv), z (N, m) or None, ok (N,))``: ``ok`` where the system is numerically
         positive definite (:func:`~qpik.numerics.cholesky_factor` within ``SINGULAR_RATIO``),
         x is finite and the system's residual (the hard rows' miss among it) is within
-        ``EQUALITY_TOLERANCE`` (1 + |rhs_i|) row by row; x and z mean nothing elsewhere (buffers,
+        ``EQUALITY_TOLERANCE`` (1 + |rhs_i|) row by row, or within what a float x can meet
+        (:meth:`_within_rounding`); x and z mean nothing elsewhere (buffers,
         overwritten by the next solve). z is None where the hard rows alone fix x
         (:meth:`_point`).
 
@@ -119,22 +128,73 @@ class DampedLeastSquares:
         computed: None), checked as every answer is."""
         x, solved = lu_solve(A, b, self.x)
         met = self._fits(A, b, EQUALITY_TOLERANCE)
+        if met is not self._everywhere and not met.all():
+            met = self._within_rounding(A, b, met)
         return x, None, solved if met is solved else both(solved, met)
 
     def _refined(self, R, rhs, met, solved) -> np.ndarray:
         """Up to ``REFINEMENTS`` steps of iterative refinement of x and z while some world's
         residual is above ``REFINE_TOLERANCE``, with the solve's factor of K (``solved``
         where it was accepted); whether each world's residual is then within
-        ``EQUALITY_TOLERANCE``."""
-        for _ in range(REFINEMENTS):
+        ``EQUALITY_TOLERANCE``, or within what a float x can meet (:meth:`_within_rounding`)."""
+        last = np.full(len(met), np.inf)
+        for step in range(REFINEMENTS):
             if met.all():
                 return self._everywhere
+            stop = met
+            if step >= PROMPT_REFINEMENTS:  # a slow one goes on while it gains (LAPACK's xPORFS)
+                error = self._backward_error(R, rhs)
+                stop = met | (error <= EPSILON) | (error > 0.5 * last)
+                if stop.all():
+                    break
+                last = error
             correction = cholesky_substitute(self._factor, self._fit, solved)  # K δz = −residual
-            correction[met] = 0.0  # only where the residual asks: each world's answer its own
+            correction[stop] = 0.0  # only where the residual asks: each world's answer its own
             self.z -= correction
             self.x -= vecmat(correction, self.scaled, self._Rz)
             met = self._fits(R, rhs, REFINE_TOLERANCE)
-        return met if met.all() else self._fits(R, rhs, EQUALITY_TOLERANCE)
+        if met.all():
+            return met
+        met = self._fits(R, rhs, EQUALITY_TOLERANCE)
+        return met if met.all() else self._within_rounding(R, rhs, met)
+
+    def _backward_error(self, R, rhs) -> np.ndarray:
+        """(N,) max_i |miss_i| / (|R_i||x| + |z_i| + |rhs_i|), the miss in ``_fit``."""
+        m = self.soft_rows
+        terms = matvec(np.abs(R), np.abs(self.x), np.empty_like(self._fit))
+        terms[:, :m] += np.abs(self.z[:, :m])
+        terms += np.abs(rhs)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            error = np.abs(self._fit) / terms
+        error[self._fit == 0.0] = 0.0
+        return error.max(axis=1)
+
+    def _within_rounding(self, R, rhs, met) -> np.ndarray:
+        """``met``, or where the miss (left in ``_fit`` by :meth:`_fits`) is within what can
+        be asked of a float x, a world with a non-finite term failing:
+
+        - a soft row's within ``EQUALITY_TOLERANCE`` (1 + |r_i|) plus the rounding of
+          computing it, nv·ε (|R_i||x| + |z_i|) (an nv-term sum's, x's own included). Its
+          residual only says whether x solves the system; where a large x cancels to a
+          small r_i that rounding is the most any float x meets, and the tolerance alone
+          would leave the verdict to it: any-robot case 8850, a soft row of terms 2.3e8
+          for a target of 39, missed by 3.7e-9 in one run and 1.7e-8 in the other (the
+          answers 9e-15 apart), both within ε (|R_i||x| + |z_i|) = 5e-8;
+        - the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each, or together within
+          the promise every solver's answer is held to, ``EXACT_EQUALITY_TOLERANCE``
+          (1 + |b|) (:func:`~qpik.solvers.base.equalities_met`): where a row's terms dwarf
+          its b_i the first is below its rounding (any-robot case 3870: |A_i||x| 2.2e7
+          |b_i|), and the solver, this world's alternative, meets no more than the second."""
+        m = self.soft_rows
+        allowed = EQUALITY_TOLERANCE * (1.0 + np.abs(rhs[:, :m]))
+        terms = matvec(np.abs(R[:, :m]), np.abs(self.x), np.empty((len(R), m)))
+        terms += np.abs(self.z[:, :m])
+        allowed += R.shape[2] * EPSILON * terms
+        soft = (np.abs(self._fit[:, :m]) <= allowed).all(axis=1) & np.isfinite(terms).all(axis=1)
+        miss, b = self._fit[:, m:], rhs[:, m:]
+        each = (np.abs(miss) <= EQUALITY_TOLERANCE * (1.0 + np.abs(b))).all(axis=1)
+        together = np.einsum("ni,ni->n", miss, miss) <= EXACT_EQUALITY_TOLERANCE**2 * (1.0 + np.einsum("ni,ni->n", b, b))
+        return met | (soft & (each | together))
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
         """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` row by row (the system's

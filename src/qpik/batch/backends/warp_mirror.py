@@ -69,6 +69,9 @@ EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EQUALITY_TOLERANCE))
 REFINE_TOLERANCE = wp.constant(F64(_closed_form.REFINE_TOLERANCE))
 SINGULAR_RATIO = wp.constant(F64(_closed_form.SINGULAR_RATIO))
 REFINEMENTS = wp.constant(_closed_form.REFINEMENTS)
+PROMPT_REFINEMENTS = wp.constant(_closed_form.PROMPT_REFINEMENTS)
+EPSILON = wp.constant(F64(_closed_form.EPSILON))
+EXACT_EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EXACT_EQUALITY_TOLERANCE))
 JOINT_FREE = wp.constant(int(mujoco.mjtJoint.mjJNT_FREE))
 JOINT_BALL = wp.constant(int(mujoco.mjtJoint.mjJNT_BALL))
 
@@ -401,6 +404,90 @@ def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, toleranc
 
 
 @wp.func
+def _backward_error(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int,
+                    arrays: DampedLeastSquaresArrays) -> F64:
+    """``DampedLeastSquares._backward_error``: max_i |miss_i| / (|R_i||x| + |z_i| + |rhs_i|),
+    the miss in ``fit`` (0 where it is 0; NaN if any is)."""
+    largest = F64(0.0)
+    for i in range(rhs.shape[1]):
+        miss = arrays.fit[w, i]
+        if miss != F64(0.0):
+            terms = F64(0.0)
+            for j in range(R.shape[2]):
+                terms = terms + wp.abs(R[w, i, j]) * wp.abs(arrays.x[w, j])
+            if i < arrays.soft_rows:
+                terms = terms + wp.abs(arrays.z[w, i])
+            terms = terms + wp.abs(rhs[w, i])
+            error = wp.abs(miss) / terms
+            if wp.isnan(error):
+                return error
+            if error > largest:
+                largest = error
+    return largest
+
+
+@wp.func
+def _within_rounding(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int,
+                     arrays: DampedLeastSquaresArrays) -> int:
+    """``DampedLeastSquares._within_rounding``: 1 where each soft row's miss (in ``fit``)
+    is within ``EQUALITY_TOLERANCE`` (1 + |r_i|) + nv·ε (|R_i||x| + |z_i|), every such term
+    finite, and the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each or together
+    within ``EXACT_EQUALITY_TOLERANCE`` (1 + |b|)."""
+    nv = R.shape[2]
+    for i in range(arrays.soft_rows):
+        terms = F64(0.0)
+        for j in range(nv):
+            terms = terms + wp.abs(R[w, i, j]) * wp.abs(arrays.x[w, j])
+        terms = terms + wp.abs(arrays.z[w, i])
+        if not wp.isfinite(terms):
+            return 0
+        allowed = EQUALITY_TOLERANCE * (F64(1.0) + wp.abs(rhs[w, i])) + F64(nv) * EPSILON * terms
+        if not (wp.abs(arrays.fit[w, i]) <= allowed):
+            return 0
+    each = int(1)
+    miss = F64(0.0)
+    size = F64(0.0)
+    for i in range(arrays.soft_rows, rhs.shape[1]):
+        if not (wp.abs(arrays.fit[w, i]) <= EQUALITY_TOLERANCE * (F64(1.0) + wp.abs(rhs[w, i]))):
+            each = 0
+        miss = miss + arrays.fit[w, i] * arrays.fit[w, i]
+        size = size + rhs[w, i] * rhs[w, i]
+    if each != 0 or miss <= EXACT_EQUALITY_TOLERANCE * EXACT_EQUALITY_TOLERANCE * (F64(1.0) + size):
+        return 1
+    return 0
+
+
+@wp.func
+def _refined(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, met: int,
+             arrays: DampedLeastSquaresArrays) -> int:
+    """``DampedLeastSquares._refined``: up to ``REFINEMENTS`` steps of iterative refinement
+    while the residual misses ``REFINE_TOLERANCE`` (past ``PROMPT_REFINEMENTS``, while the
+    backward error is above ε and halved by the last step), K as factored by the solve;
+    then 1 where the residual is within ``EQUALITY_TOLERANCE`` or what a float x can meet
+    (:func:`_within_rounding`)."""
+    stop = met
+    last = F64(0.0)
+    for step in range(REFINEMENTS):
+        if stop == 0 and step >= PROMPT_REFINEMENTS:
+            error = _backward_error(R, rhs, w, arrays)
+            if error <= EPSILON or (step > PROMPT_REFINEMENTS and error > F64(0.5) * last):
+                stop = 1
+            last = error
+        if stop == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
+            cholesky_substitute(arrays.factor, arrays.fit_column, w)
+            _add(arrays.z, arrays.fit, w, F64(-1.0))
+            vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
+            _add(arrays.x, arrays.Rz, w, F64(-1.0))
+            met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
+            stop = met
+    if met == 0:
+        met = _fits(R, rhs, w, EQUALITY_TOLERANCE, arrays)
+    if met == 0:
+        met = _within_rounding(R, rhs, w, arrays)
+    return met
+
+
+@wp.func
 def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64),
                                c: wp.array2d(dtype=F64), fixed: wp.array2d(dtype=int), values: wp.array2d(dtype=F64),
                                linear: int, held: int, w: int, arrays: DampedLeastSquaresArrays) -> int:
@@ -408,9 +495,10 @@ def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=
     ``arrays.x[w]`` and z, (R D⁻¹ Rᵀ + diag(I, 0)) z = rhs + R D⁻¹ c, into ``arrays.z[w]``,
     c read where ``linear`` (else zero), the dofs ``fixed`` held at ``values`` where
     ``held`` (D⁻¹ = 0 there, rhs − R values); then iterative refinement, ``REFINEMENTS``
-    steps at most while the residual misses ``REFINE_TOLERANCE``. Returns 1 where the
+    steps at most while the residual misses ``REFINE_TOLERANCE`` (past
+    ``PROMPT_REFINEMENTS``, while the backward error is above ε and halved by the last). Returns 1 where the
     system is solved (within ``SINGULAR_RATIO``), x is finite and the residual is within
-    ``EQUALITY_TOLERANCE``, else 0."""
+    ``EQUALITY_TOLERANCE``, or within what a float x can meet (:func:`_within_rounding`), else 0."""
     for j in range(dinv.shape[1]):
         arrays.dinv[w, j] = dinv[w, j]
         if held != 0 and fixed[w, j] != 0:
@@ -437,16 +525,7 @@ def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=
         arrays.x[w, j] = arrays.x[w, j] * arrays.dinv[w, j]
     if held != 0:
         _add(arrays.x, values, w, F64(1.0))
-    met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
-    for _ in range(REFINEMENTS):
-        if met == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
-            cholesky_substitute(arrays.factor, arrays.fit_column, w)  # K as factored above
-            _add(arrays.z, arrays.fit, w, F64(-1.0))
-            vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
-            _add(arrays.x, arrays.Rz, w, F64(-1.0))
-            met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
-    if met == 0:
-        met = _fits(R, rhs, w, EQUALITY_TOLERANCE, arrays)
+    met = _refined(R, rhs, w, _fits(R, rhs, w, REFINE_TOLERANCE, arrays), arrays)
     if solved != 0 and all_finite(arrays.x, w) != 0 and met != 0:
         return 1
     return 0
