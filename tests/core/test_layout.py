@@ -57,7 +57,7 @@ def _imports(path: Path, top_level_only: bool, run_time: bool = False) -> set[st
 
 # The core: the robot, the engine (tasks, limits, the step's problem, controllers and
 # their numerics primitives), solvers, the batched robot and what they stand on. Above it: the bundled robots, the rollouts, the app.
-CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.numerics", "qpik.extras", "qpik.io", "qpik.scenes",
+CORE = ("qpik.robot", "qpik.actuation", "qpik.errors", "qpik.numerics", "qpik.extras", "qpik.scenes",
         "qpik.equalities", "qpik.tasks", "qpik.limits", "qpik.problem", "qpik.controllers", "qpik.solvers",
         "qpik.batch")
 ABOVE_THE_CORE = ("qpik.robots", "qpik.rollout", "qpik.app", "qpik.scenario")

@@ -24,15 +24,14 @@ from qpik.errors import WorldsFailed
 # compared to the end), every world failing at step 0 (1), an invalid parameter
 # refused at the same step of every world's build (3), the guard's capped ladder
 # (8160: it stopped at cap 1e3 in one run, on a hard-row check that rounding decided, and
-# at 1 in the other, q̇ 1.0 apart), and closed forms whose residual sits at its rounding,
-# one run's kept and the other's sent to a solver that did worse (3870, 8850:
-# tests/core/test_closed_form.py holds their steps).
+# at 1 in the other, q̇ 1.0 apart), and a closed form whose residual sits at its rounding,
+# one run's kept and the other's sent to a solver that did worse (8850:
+# tests/core/test_closed_form.py holds its step).
 CASES = {5: "sns", 9: "qp/quadprog", 12: "pinv, ball_in_cup", 21: "hqp/daqp", 120: "qp/daqp, humanoid",
          137: "qp/daqp, κ ~ 1e12", 55: "pinv, κ ~ 5e6", 67: "qp/osqp, world 1 infeasible at step 5",
          1: "pinv, DivergenceError everywhere", 3: "sns, an invalid parameter refused",
          110: "hqp/quadprog, level 1's rows above dependent on its free dofs (κ inf)",
          8160: "qp/proxqp, the capped ladder",
-         3870: "qp/daqp, K of condition 1e24, hard rows of terms 1e7 times their targets",
          8850: "qp/quadprog, a soft row of terms 6e6 times its target"}
 
 

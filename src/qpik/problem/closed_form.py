@@ -46,12 +46,8 @@ EPSILON = float(np.finfo(float).eps)
 HELD_TRIES = 3
 # Steps of iterative refinement a closed form may take while its residual is above
 # REFINE_TOLERANCE (relative to 1 + |rhs|; a few roundings): a tiny ε on dofs the rows
-# constrain loses digits in x = D⁻¹(...), which the residual shows. Past the first
-# PROMPT_REFINEMENTS (a floating base that only ε weighs needs one or two each step),
-# a step is taken only while the backward error is above ε and halved by the last one,
-# up to REFINEMENTS in all (LAPACK's xPORFS: ITMAX 5): on K of condition 1e24, a step
-# gains 1e-4 and the residual reached its rounding at the fourth (any-robot case 3870).
-REFINEMENTS, PROMPT_REFINEMENTS, REFINE_TOLERANCE = 5, 2, 1e-13
+# constrain loses digits in x = D⁻¹(...), which the residual shows.
+REFINEMENTS, REFINE_TOLERANCE = 2, 1e-13
 # A bound is active at a solver's answer within this (relative to 1 + |bound|).
 ACTIVE_TOLERANCE = 1e-9
 
@@ -137,19 +133,11 @@ class DampedLeastSquares:
         residual is above ``REFINE_TOLERANCE``, with the solve's factor of K (``solved``
         where it was accepted); whether each world's residual is then within
         ``EQUALITY_TOLERANCE``, or within what a float x can meet (:meth:`_within_rounding`)."""
-        last = np.full(len(met), np.inf)
-        for step in range(REFINEMENTS):
+        for _ in range(REFINEMENTS):
             if met.all():
                 return self._everywhere
-            stop = met
-            if step >= PROMPT_REFINEMENTS:  # a slow one goes on while it gains (LAPACK's xPORFS)
-                error = self._backward_error(R, rhs)
-                stop = met | (error <= EPSILON) | (error > 0.5 * last)
-                if stop.all():
-                    break
-                last = error
             correction = cholesky_substitute(self._factor, self._fit, solved)  # K δz = −residual
-            correction[stop] = 0.0  # only where the residual asks: each world's answer its own
+            correction[met] = 0.0  # only where the residual asks: each world's answer its own
             self.z -= correction
             self.x -= vecmat(correction, self.scaled, self._Rz)
             met = self._fits(R, rhs, REFINE_TOLERANCE)
@@ -158,38 +146,16 @@ class DampedLeastSquares:
         met = self._fits(R, rhs, EQUALITY_TOLERANCE)
         return met if met.all() else self._within_rounding(R, rhs, met)
 
-    def _backward_error(self, R, rhs) -> np.ndarray:
-        """(N,) max_i |miss_i| / (|R_i||x| + |z_i| + |rhs_i|), the miss in ``_fit``."""
-        m = self.soft_rows
-        terms = matvec(np.abs(R), np.abs(self.x), np.empty_like(self._fit))
-        terms[:, :m] += np.abs(self.z[:, :m])
-        terms += np.abs(rhs)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            error = np.abs(self._fit) / terms
-        error[self._fit == 0.0] = 0.0
-        return error.max(axis=1)
-
     def _within_rounding(self, R, rhs, met) -> np.ndarray:
-        """``met``, or where the miss (left in ``_fit`` by :meth:`_fits`) is within what can
-        be asked of a float x, a world with a non-finite term failing:
-
-        - a soft row's within ``EQUALITY_TOLERANCE`` (1 + |r_i|) plus the rounding of
-          computing it, nv·ε (|R_i||x| + |z_i|) (an nv-term sum's, x's own included). Its
-          residual only says whether x solves the system; where a large x cancels to a
-          small r_i that rounding is the most any float x meets, and the tolerance alone
-          would leave the verdict to it: any-robot case 8850, a soft row of terms 2.3e8
-          for a target of 39, missed by 3.7e-9 in one run and 1.7e-8 in the other (the
-          answers 9e-15 apart), both within ε (|R_i||x| + |z_i|) = 5e-8;
-        - the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each, or together within
-          the promise every solver's answer is held to, ``EXACT_EQUALITY_TOLERANCE``
-          (1 + |b|) (:func:`~qpik.solvers.base.equalities_met`): where a row's terms dwarf
-          its b_i the first is below its rounding (any-robot case 3870: |A_i||x| 2.2e7
-          |b_i|), and the solver, this world's alternative, meets no more than the second."""
+        """``met``, or where the miss (in ``_fit``) is what a float x can meet: each soft
+        row's within ``EQUALITY_TOLERANCE`` (1 + |r_i|) plus its rounding, nv·ε (|R_i||x| +
+        |z_i|) (a large x cancelling to a small target: any-robot case 8850), a non-finite
+        term failing; the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each, or
+        together within the promise a solver's answer is held to,
+        ``EXACT_EQUALITY_TOLERANCE`` (1 + |b|) (:func:`~qpik.solvers.base.equalities_met`)."""
         m = self.soft_rows
-        allowed = EQUALITY_TOLERANCE * (1.0 + np.abs(rhs[:, :m]))
-        terms = matvec(np.abs(R[:, :m]), np.abs(self.x), np.empty((len(R), m)))
-        terms += np.abs(self.z[:, :m])
-        allowed += R.shape[2] * EPSILON * terms
+        terms = matvec(np.abs(R[:, :m]), np.abs(self.x), np.empty((len(R), m))) + np.abs(self.z[:, :m])
+        allowed = EQUALITY_TOLERANCE * (1.0 + np.abs(rhs[:, :m])) + R.shape[2] * EPSILON * terms
         soft = (np.abs(self._fit[:, :m]) <= allowed).all(axis=1) & np.isfinite(terms).all(axis=1)
         miss, b = self._fit[:, m:], rhs[:, m:]
         each = (np.abs(miss) <= EQUALITY_TOLERANCE * (1.0 + np.abs(b))).all(axis=1)

@@ -69,7 +69,6 @@ EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EQUALITY_TOLERANCE))
 REFINE_TOLERANCE = wp.constant(F64(_closed_form.REFINE_TOLERANCE))
 SINGULAR_RATIO = wp.constant(F64(_closed_form.SINGULAR_RATIO))
 REFINEMENTS = wp.constant(_closed_form.REFINEMENTS)
-PROMPT_REFINEMENTS = wp.constant(_closed_form.PROMPT_REFINEMENTS)
 EPSILON = wp.constant(F64(_closed_form.EPSILON))
 EXACT_EQUALITY_TOLERANCE = wp.constant(F64(_closed_form.EXACT_EQUALITY_TOLERANCE))
 JOINT_FREE = wp.constant(int(mujoco.mjtJoint.mjJNT_FREE))
@@ -404,29 +403,6 @@ def _fits(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, toleranc
 
 
 @wp.func
-def _backward_error(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int,
-                    arrays: DampedLeastSquaresArrays) -> F64:
-    """``DampedLeastSquares._backward_error``: max_i |miss_i| / (|R_i||x| + |z_i| + |rhs_i|),
-    the miss in ``fit`` (0 where it is 0; NaN if any is)."""
-    largest = F64(0.0)
-    for i in range(rhs.shape[1]):
-        miss = arrays.fit[w, i]
-        if miss != F64(0.0):
-            terms = F64(0.0)
-            for j in range(R.shape[2]):
-                terms = terms + wp.abs(R[w, i, j]) * wp.abs(arrays.x[w, j])
-            if i < arrays.soft_rows:
-                terms = terms + wp.abs(arrays.z[w, i])
-            terms = terms + wp.abs(rhs[w, i])
-            error = wp.abs(miss) / terms
-            if wp.isnan(error):
-                return error
-            if error > largest:
-                largest = error
-    return largest
-
-
-@wp.func
 def _within_rounding(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int,
                      arrays: DampedLeastSquaresArrays) -> int:
     """``DampedLeastSquares._within_rounding``: 1 where each soft row's miss (in ``fit``)
@@ -461,25 +437,16 @@ def _within_rounding(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: in
 def _refined(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: int, met: int,
              arrays: DampedLeastSquaresArrays) -> int:
     """``DampedLeastSquares._refined``: up to ``REFINEMENTS`` steps of iterative refinement
-    while the residual misses ``REFINE_TOLERANCE`` (past ``PROMPT_REFINEMENTS``, while the
-    backward error is above ε and halved by the last step), K as factored by the solve;
-    then 1 where the residual is within ``EQUALITY_TOLERANCE`` or what a float x can meet
+    while the residual misses ``REFINE_TOLERANCE``, K as factored by the solve; then 1
+    where the residual is within ``EQUALITY_TOLERANCE`` or what a float x can meet
     (:func:`_within_rounding`)."""
-    stop = met
-    last = F64(0.0)
-    for step in range(REFINEMENTS):
-        if stop == 0 and step >= PROMPT_REFINEMENTS:
-            error = _backward_error(R, rhs, w, arrays)
-            if error <= EPSILON or (step > PROMPT_REFINEMENTS and error > F64(0.5) * last):
-                stop = 1
-            last = error
-        if stop == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
+    for _ in range(REFINEMENTS):
+        if met == 0:  # K δz = residual; z −= δz, x −= (R D⁻¹)ᵀ δz
             cholesky_substitute(arrays.factor, arrays.fit_column, w)
             _add(arrays.z, arrays.fit, w, F64(-1.0))
             vecmat(arrays.fit, arrays.scaled, w, arrays.Rz)
             _add(arrays.x, arrays.Rz, w, F64(-1.0))
             met = _fits(R, rhs, w, REFINE_TOLERANCE, arrays)
-            stop = met
     if met == 0:
         met = _fits(R, rhs, w, EQUALITY_TOLERANCE, arrays)
     if met == 0:
@@ -495,8 +462,7 @@ def damped_least_squares_solve(dinv: wp.array2d(dtype=F64), R: wp.array3d(dtype=
     ``arrays.x[w]`` and z, (R D⁻¹ Rᵀ + diag(I, 0)) z = rhs + R D⁻¹ c, into ``arrays.z[w]``,
     c read where ``linear`` (else zero), the dofs ``fixed`` held at ``values`` where
     ``held`` (D⁻¹ = 0 there, rhs − R values); then iterative refinement, ``REFINEMENTS``
-    steps at most while the residual misses ``REFINE_TOLERANCE`` (past
-    ``PROMPT_REFINEMENTS``, while the backward error is above ε and halved by the last). Returns 1 where the
+    steps at most while the residual misses ``REFINE_TOLERANCE``. Returns 1 where the
     system is solved (within ``SINGULAR_RATIO``), x is finite and the residual is within
     ``EQUALITY_TOLERANCE``, or within what a float x can meet (:func:`_within_rounding`), else 0."""
     for j in range(dinv.shape[1]):
