@@ -312,7 +312,7 @@ def main_inside(args) -> None:
     results["machine"]["load_after"] = bt.load()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from qpik.app.io import write_text
+    from qpik.rollout.io import write_text
 
     write_text(out / "batch_gpu.json", json.dumps(results, indent=1))
     write_text(out / "batch_gpu.md", markdown(results))

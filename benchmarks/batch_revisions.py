@@ -129,7 +129,7 @@ def main() -> None:
             results["rows"].append(measure(libs, robot, n, args.repeats))
             print(json.dumps(results["rows"][-1]), file=sys.stderr, flush=True)
     results["load_after"] = load()
-    from qpik.app.io import write_text
+    from qpik.rollout.io import write_text
 
     out = Path(args.out)
     write_text(out / "batch_revisions.json", json.dumps(results, indent=1))

@@ -483,7 +483,7 @@ def figure(results: dict, path: Path) -> None:
     fig.suptitle(f"qpik.batch throughput, robot-steps/s ({results['machine']['cpus']} CPUs; load average "
                  f"{results['machine']['load_before']} before, {results['machine']['load_after']} after)")
     fig.tight_layout(rect=(0, 0.14, 1, 1))
-    from qpik.app.io import save_figure
+    from qpik.rollout.io import save_figure
 
     save_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -571,7 +571,7 @@ def main_inside(args) -> None:
     results["machine"]["load_after"] = load()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from qpik.app.io import write_text
+    from qpik.rollout.io import write_text
 
     write_text(out / "batch_throughput.json", json.dumps(results, indent=1))
     write_text(out / "batch_throughput.md", markdown(results))

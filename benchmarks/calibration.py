@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the tables and the page: the package tools
 
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from tools.results import refresh  # noqa: E402
 from tools.tables import calibration_markdown, calibration_rows  # noqa: E402
 

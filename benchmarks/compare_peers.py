@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: 
 
 from qpik.app.peers import PEERS, PLACO_SOLVER, PeerUnsupported, peer_controller, peer_installed, peer_solvers  # noqa: E402
 from qpik.app.runs import run_label  # noqa: E402
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from qpik.rollout import RunSummary  # noqa: E402
 from qpik.scenario import build_scenario, scenarios  # noqa: E402
 from qpik.solvers import available_solvers  # noqa: E402

@@ -28,7 +28,7 @@ from qpik.app.plotting import plot_logs  # noqa: E402
 from qpik.app.progress import StepBars, iterate, wanted  # noqa: E402
 from qpik.app.runs import compare  # noqa: E402
 from qpik.app.video import render_comparison  # noqa: E402
-from qpik.app.io import save_figure, write_text  # noqa: E402
+from qpik.rollout.io import save_figure, write_text  # noqa: E402
 from qpik.robots.hexapod.calibration import calibrate  # noqa: E402
 from qpik.scenario import scenarios  # noqa: E402
 

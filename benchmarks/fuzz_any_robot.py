@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))  # the fuzz harness (benchmarks.fuzz) and the resu
 
 from benchmarks.fuzz.cases import DEFECTS, run_case  # noqa: E402
 from benchmarks.fuzz.sweep import batched, summarise, sweep, to_markdown  # noqa: E402
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from tools.results import refresh  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"

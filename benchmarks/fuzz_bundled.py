@@ -88,7 +88,7 @@ def main(argv=None) -> int:
                        + f" --seed {args.seed}"}
     md = to_markdown(summary, meta)
     print(md)
-    from qpik.app.io import write_json, write_text
+    from qpik.rollout.io import write_json, write_text
 
     everything = {"results": sorted(results.values(), key=lambda r: r["case"])} if args.all_results else {}
     write_json(args.out / "fuzz.json", jsonable({"meta": meta, **summary, **everything}))

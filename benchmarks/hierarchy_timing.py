@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 from qpik.scenario import build_scenario
 from timing import Contestant, interleave, scenario_run
 

@@ -46,7 +46,7 @@ from tqdm import tqdm
 from qpik.app.progress import wanted
 
 from qpik.robots.hexapod.calibration import sample_poses
-from qpik.app.io import save_figure, write_json, write_npz, write_text
+from qpik.rollout.io import save_figure, write_json, write_npz, write_text
 from qpik.robots.hexapod.kinematics import HexapodGeometry
 from qpik.robots.hexapod.scenarios import hexapod_setup
 from qpik.app.peers import PEERS, PLACO_SOLVER, peer_installed

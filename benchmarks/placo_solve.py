@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from qpik.app.peers import peer_installed
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 from timing import Contestant, MethodTimer, interleave, scenario_run, spread
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from timing import Contestant, import_revision, interleave
 
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
 

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the rows, the tables and the page: the package tools
 
 from qpik.app.progress import wanted  # noqa: E402
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from tools.results import refresh  # noqa: E402
 from tools.scenarios_table import CHAOTIC, compute_rows, load_chaotic, record_chaotic, to_markdown  # noqa: E402
 from tools.tables import compare, scenarios_table  # noqa: E402

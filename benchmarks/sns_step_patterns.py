@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from hierarchy_timing import RESULTS
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 from timing import Contestant, interleave, scenario_run
 
 

@@ -24,7 +24,7 @@ from timing import P99_BOUND, Contestant, interleave, logged_run, scenario_run, 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: tools (the results page)
 
 from qpik.app.runs import run_label  # noqa: E402
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from qpik.scenario import scenarios  # noqa: E402
 from qpik.solvers import available_solvers  # noqa: E402
 from tools.results import refresh  # noqa: E402

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNNERS = {"in-process": [], "ray, 1 worker": ["--ray", "auto", "--workers", "1"],

@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from qpik import EqualityTask, Robot, Yoshikawa
-from qpik.app.io import write_json, write_text
+from qpik.rollout.io import write_json, write_text
 from timing import Contestant, ControllerRun, import_revision, interleave
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -76,7 +76,7 @@ from benchmarks.peers.equivalence import (PAIR, SOLVER, equivalence as side_by_s
                                           qpik_controller, without_damper)
 from benchmarks.peers.mink_mirror import MinkMirror, MinkRun  # noqa: E402
 from qpik.errors import QpikError  # noqa: E402
-from qpik.app.io import write_json, write_text  # noqa: E402
+from qpik.rollout.io import write_json, write_text  # noqa: E402
 from tools.results import refresh  # noqa: E402
 from tools.tables import ratio_cell  # noqa: E402
 

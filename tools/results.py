@@ -27,7 +27,7 @@ if str(ROOT) not in sys.path:  # run as a script: the repository's packages (too
     sys.path.insert(0, str(ROOT))
 
 from tools import tables  # noqa: E402
-from qpik.app.io import write_text  # noqa: E402
+from qpik.rollout.io import write_text  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 PAGE = ROOT / "docs" / "results.md"

@@ -20,7 +20,7 @@ from typing import Sequence
 
 from qpik.app.progress import iterate
 from qpik.app.runs import compare, run, run_label
-from qpik.app.io import write_json
+from qpik.rollout.io import write_json
 from qpik.rollout.log import RunSummary
 from qpik.scenario import build_scenario, scenarios
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qpik.app.io import write_json
+from qpik.rollout.io import write_json
 
 from .cases import ALL_SOLVERS, CLASSES, DEFECTS, run_case
 from .pool import run_cases

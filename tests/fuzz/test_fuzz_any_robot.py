@@ -20,7 +20,7 @@ import pytest
 from benchmarks.fuzz.cases import CLASSES, DEFECTS, run_case
 from benchmarks.fuzz.checks import lp_feasible
 from benchmarks.fuzz.sweep import PROXQP_COST_TOLERANCE, run_workers, same_run, summarise, sweep
-from qpik.app.io import write_json
+from qpik.rollout.io import write_json
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InvalidInput
-from .io import save_figure, write_json
+from ..rollout.io import save_figure, write_json
 
 if TYPE_CHECKING:
     from ..robots.hexapod.calibration import Calibration

@@ -29,7 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .io import save_figure  # noqa: E402
+from ..rollout.io import save_figure  # noqa: E402
 from ..rollout import RolloutLog  # noqa: E402
 from ..scenario import JointPlotSpec  # noqa: E402
 from .palette import LIMIT_GREY, controller_colour, solver_linestyle  # noqa: E402

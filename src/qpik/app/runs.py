@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ..errors import InvalidInput, UnknownName
-from .io import write_json
+from ..rollout.io import write_json
 from ..rollout import MODES, Rollout, RolloutLog
 from ..rollout.log import RunSummary
 from ..scenario import Setup, build_scenario, check_solver

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InvalidInput, QpikError
 from ..extras import require
-from .io import atomic_path
+from ..rollout.io import atomic_path
 from .palette import controller_colour, lighten
 
 FFMPEG_SUFFIXES = (".mp4", ".mkv", ".webm", ".avi", ".mov")

@@ -14,7 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..app.io import write_json, write_npz
+from .io import write_json, write_npz
 
 # Report series where small is bad (a task slowed down): summarised by their minimum.
 _LOWER_IS_WORSE = ("task_scale",)

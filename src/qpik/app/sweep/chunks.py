@@ -8,7 +8,7 @@ the file holds
 that key too, checked on reading: a sweep run again with the same arguments finds its
 finished chunks and computes only the rest; a changed parameter names other files, so an
 old result is never taken for a new one. Files are written to a temporary name and
-renamed (:mod:`qpik.app.io`): a chunk is on disk whole or not at all.
+renamed (:mod:`qpik.rollout.io`): a chunk is on disk whole or not at all.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_path
+from ...rollout.io import atomic_path
 from .rollout import REACH_TOLERANCE
 from .studies import DT, GAIN_RANGE, HOLD, MOVE, SAMPLE_BLOCK, steps_of
 

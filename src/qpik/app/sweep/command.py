@@ -228,7 +228,7 @@ class Log:
 def finish(folder: Path, args, chunks, timing: dict) -> list[Path]:
     """Write the summary, table, timing and maps together (staged, then moved in shielded)."""
     from ...extras import installed
-    from ..io import write_json, write_text
+    from ...rollout.io import write_json, write_text
     from .report import gather, summarize, to_markdown
     from .runners import _study
 

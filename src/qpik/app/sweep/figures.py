@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import save_figure
+from ...rollout.io import save_figure
 from .report import outcomes, pairs
 
 GRID = 40  # hexagons across the x range
