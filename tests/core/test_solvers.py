@@ -8,6 +8,7 @@ import pytest
 
 from qpik.errors import InfeasibleProblem, SolverError, UnknownName
 from qpik.solvers import available_solvers, make_backend
+from qpik.solvers.base import equalities_met
 
 SOLVERS = [s for s in ("daqp", "osqp", "proxqp", "quadprog") if s in available_solvers()]
 
@@ -200,3 +201,12 @@ def test_the_capped_ladder_stops_where_its_answers_hard_rows_can_be_checked(seed
         x = GuardedSolve(backend, "daqp").solve(H, c)
         assert checkable(x) and np.abs(A @ x - b).max() <= 1e-9 * (1 + np.linalg.norm(b))
         assert np.linalg.norm(x - expected) <= 1e-8 * np.linalg.norm(expected)
+
+
+def test_a_far_equality_row_does_not_excuse_a_near_rows_miss():
+    """Every solver's answer is held to each hard row at its own scale as well as to the
+    norm-wise 1e-9 (1 + |b|): any-robot case 4966, a hierarchy level's rows above it, a
+    position 6e7 away beside pose rows of about 9, which DAQP met 6e-4 off."""
+    A, b = np.eye(2), np.array([6e7, 9.0])
+    assert not equalities_met(A, b + np.array([0.0, 6e-4]), b, 1e-9)  # norm-wise alone: within 0.06
+    assert equalities_met(A, b + np.array([1e-3, 1e-9]), b, 1e-9)  # each row within 1e-9 (1 + |b_i| + |A_i||x|)

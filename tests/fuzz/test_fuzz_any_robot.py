@@ -62,14 +62,16 @@ def test_the_lp_asks_of_a_point_what_a_controller_promises():
 
 
 @pytest.mark.parametrize("seed, classes", [(661, ["ok"]), (2728, ["ok"]), (7431, ["ok"]), (9123, ["typed"]),
-                                           (5579, ["typed"]), (7286, ["typed"])])
+                                           (5579, ["typed"]), (7286, ["typed"]), (4966, ["ok"])])
 def test_the_steps_the_solvers_called_infeasible_on_a_stretched_robot(tmp_path, seed, classes):
     """The last full sweep's typed errors on steps an LP found feasible: hard rows of
     1e6–1e10 beside joint ranges 1e-3 wide. Three are solved in the hard rows' null
     space; the fourth (a row of entries 1e6 that only points 3e6 rad/s away meet) cannot
     be met to the promised 1e-9 in floating point, and its typed error stands. 5579 and
     7286: dependent hard rows of |b| ~ 1e9 that disagree by 3e-9–7e-9 relative, a
-    SolverError that says so, neither feasible to the promise nor infeasible to phase 1."""
+    SolverError that says so, neither feasible to the promise nor infeasible to phase 1.
+    4966: a hierarchy's lowest level, whose rows above mix a far position and a near pose,
+    met the pose rows 9e-6 off their scale, which a norm-wise check alone let pass."""
     assert run_case(seed, tmp_path)["classes"] == classes
 
 
