@@ -41,7 +41,7 @@ from ..controllers.labels import task_label
 from ..errors import InfeasibleProblem, InvalidInput, SolverError, WorldsFailed
 from ..limits import Limit
 from ..numerics import everywhere
-from ..problem import Cost, DampedLeastSquares, HeldBounds, Problem, Stack, active_bounds, check_dt, group_levels, inside
+from ..problem import Cost, HeldBounds, Problem, Stack, check_dt, group_levels
 from ..tasks import Task
 from ..tasks.inputs import positive_scalar
 from .worlds import WorldQP, WorldSolver, check_finite_velocities, solve_each
@@ -49,11 +49,6 @@ from .worlds import WorldQP, WorldSolver, check_finite_velocities, solve_each
 # Singular values below this fraction of the largest are dropped when the rows above a
 # level are replaced by a basis of their row space.
 _RANK_TOLERANCE = 1e-10
-# A polished answer whose cost exceeds the solver's answer's by less than this fraction of
-# it is as cheap: along the directions only ε weighs the cost is flat to rounding, and a
-# polished point exact on its active set lost the comparison to a solver's answer 1e-9
-# off by 4e-16 relative (measured).
-_COST_ROUNDING = 1e-12
 
 
 def _level_regularization(nv: int, soft: Sequence[Task], regularization: float) -> float:
@@ -95,8 +90,6 @@ class _Level:
                                   **controller._solver_settings)
         self.reduced: dict[int, WorldSolver] = {}  # for rows replaced by a basis, by its rank
         self.held = HeldBounds(n, nv, self.cost.soft_rows, self.rows, hold=self.solver.exact)
-        # One world's closed form, to polish its solver's answer (see _polish).
-        self.polisher = DampedLeastSquares(1, nv, self.cost.soft_rows, self.rows) if self.general else None
 
 
 class HierarchicalController:
@@ -269,30 +262,14 @@ class HierarchicalController:
         return previous[w]
 
     def _polish(self, level: _Level, w: int, x: np.ndarray) -> np.ndarray:
-        """The solver's answer made exact on its active set (a least-squares level whose
-        Hessian only ε makes definite is met loosely by solvers): with the bounds it found
-        active held, the rest in closed form, kept if it meets every limit and costs no more
-        (to rounding: ``_COST_ROUNDING``)."""
+        """The solver's answer made exact on its active set where the level weighs general
+        tasks (a least-squares level whose Hessian only ε makes definite is met loosely by
+        solvers): :meth:`~qpik.problem.HeldBounds.polish`."""
+        if not level.general:
+            return x
         problem = self.problem
-        if not level.general or (problem.rows and not (problem.G[w] @ x < problem.h[w]).all()):
-            return x  # a general row on its bound: left to the solver
-        lb, ub = problem.lower[w], problem.upper[w]
-        at_lower, at_upper = active_bounds(x, lb, ub)
-        fixed = at_lower | at_upper
-        if fixed.all():
-            return x
-        one, cost = slice(w, w + 1), level.cost
-        bound = np.where(at_lower, lb, np.where(at_upper, ub, 0.0))
-        R, rhs, damping = cost.R[one], cost.rhs[one], cost.damping[one]
-        c = None if cost.linear is None else cost.linear[one]
-        polished, _, ok = level.polisher.solve(cost.dinv[one], R, rhs, c, fixed[None], bound[None])
-        G, h = (problem.G[one], problem.h[one]) if problem.rows else (None, None)
-        if not ok[0] or not inside(polished, problem.box[one], G, h)[0]:
-            return x
-        objective = level.polisher.objective
-        solver_cost = objective(x[None], damping, R, rhs, c)[0]
-        kept = objective(polished, damping, R, rhs, c)[0] <= solver_cost + _COST_ROUNDING * abs(solver_cost)
-        return polished[0].copy() if kept else x
+        G, h = (problem.G, problem.h) if problem.rows else (None, None)
+        return level.held.polish(level.cost, problem.box, G, h, w, x)
 
     @staticmethod
     def _named(level: _Level, exc: Exception) -> Exception:

@@ -50,6 +50,11 @@ HELD_TRIES = 3
 REFINEMENTS, REFINE_TOLERANCE = 2, 1e-13
 # A bound is active at a solver's answer within this (relative to 1 + |bound|).
 ACTIVE_TOLERANCE = 1e-9
+# A polished answer whose cost exceeds the solver's answer's by less than this fraction of
+# it is as cheap: along the directions only ε weighs the cost is flat to rounding, and a
+# polished point exact on its active set lost the comparison to a solver's answer 1e-9
+# off by 4e-16 relative (measured).
+COST_ROUNDING = 1e-12
 
 
 class DampedLeastSquares:
@@ -298,6 +303,30 @@ class HeldBounds:
         self._held(data, ids, start, x, solved)
         self.holding = bool(self.lower.any() or self.upper.any())
         return x, solved
+
+    def polish(self, cost, box, G, h, w: int, x: np.ndarray) -> np.ndarray:
+        """A solver's answer x (nv,) of world ``w`` made exact on its active set: with the
+        bounds active at x held, the rest in closed form, kept if it meets every limit and
+        costs no more (to rounding: ``COST_ROUNDING``); else x, as x is where a general row
+        is on its bound (a hierarchy's level: a cost that only ε makes definite is met
+        loosely by solvers)."""
+        if G is not None and G.shape[1] and not (G[w] @ x < h[w]).all():
+            return x
+        lower, upper = box[w]
+        at_lower, at_upper = active_bounds(x, lower, upper)
+        fixed = at_lower | at_upper
+        if fixed.all():
+            return x
+        one, form = slice(w, w + 1), self._form(1)
+        values = np.where(at_lower, lower, np.where(at_upper, upper, 0.0))
+        R, rhs, damping = cost.R[one], cost.rhs[one], cost.damping[one]
+        c = None if cost.linear is None else cost.linear[one]
+        polished, _, ok = form.solve(cost.dinv[one], R, rhs, c, fixed[None], values[None])
+        if not ok[0] or not inside(polished, box[one], None if G is None else G[one], None if h is None else h[one])[0]:
+            return x
+        before = form.objective(x[None], damping, R, rhs, c)[0]
+        kept = form.objective(polished, damping, R, rhs, c)[0] <= before + COST_ROUNDING * abs(before)
+        return polished[0].copy() if kept else x
 
     def _form(self, count: int) -> DampedLeastSquares:
         """The closed form's buffers for ``count`` worlds."""
