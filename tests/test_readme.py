@@ -97,7 +97,7 @@ def _fuzz() -> str:
 
     counts = _recorded("fuzz_any_robot.json")["counts"]
     defects = sum(counts.get(key, 0) for key in DEFECTS)
-    return f"{counts['cases']} cases, {defects} defects"
+    return f"{counts['cases']} cases, {defects} defect{'' if defects == 1 else 's'}"
 
 
 # A headline's table (its anchor on docs/results.md) -> its number as the recording gives it.
