@@ -127,3 +127,12 @@ def test_no_gl_back_end_is_one_clear_line(tmp_path):
     assert done.returncode == 2
     assert len(done.stderr.strip().splitlines()) == 1 and "no OpenGL back-end" in done.stderr, done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_importing_the_video_module_leaves_mujoco_unimported():
+    """prefer_headless_gl can choose EGL only before MuJoCo is imported, and the command
+    imports the video module first for --video: that import must not bring MuJoCo in (a
+    module-level import of the rollout package once did, and the GL tests only skipped)."""
+    done = subprocess.run([sys.executable, "-c", "import sys, qpik.app.video; assert 'mujoco' not in sys.modules"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr

@@ -24,7 +24,6 @@ import numpy as np
 
 from ..errors import InvalidInput, QpikError
 from ..extras import require
-from ..rollout.io import atomic_path
 from .palette import controller_colour, lighten
 
 FFMPEG_SUFFIXES = (".mp4", ".mkv", ".webm", ".avi", ".mov")
@@ -278,6 +277,8 @@ def render_logs(model, logs: Sequence, path: str | Path, *, labels: Sequence[str
                 progress(n + 1, len(steps))
     finally:
         scene.close()
+    from ..rollout.io import atomic_path  # here: the rollout package imports MuJoCo (see prefer_headless_gl)
+
     with atomic_path(path) as partial:  # written whole or not at all
         _encode(frames, partial, fps, colours)
     return path
