@@ -151,6 +151,13 @@ def all_finite_worlds(a: wp.array2d(dtype=F64), ok: wp.array(dtype=int)):
 
 
 @wp.kernel
+def within_rounding_worlds(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), arrays: DampedLeastSquaresArrays,
+                           met: wp.array(dtype=int)):
+    w = wp.tid()
+    met[w] = mirror._within_rounding(R, rhs, w, arrays)
+
+
+@wp.kernel
 def rows_met_worlds(Ax: wp.array2d(dtype=F64), b: wp.array2d(dtype=F64), tolerance: F64, met: wp.array(dtype=int)):
     w = wp.tid()
     met[w] = mirror.rows_met(Ax, b, w, tolerance)
@@ -486,3 +493,23 @@ def test_a_miss_at_its_rounding_decides_as_the_engine(monkeypatch):
          int(linear), 1, arrays, g, ok)
     assert ok.numpy().astype(bool).all()
     np.testing.assert_allclose(arrays.x.numpy(), expected_x, rtol=0, atol=1e-9 * np.abs(expected_x).max())
+
+
+def test_the_hard_rows_miss_passes_together_only_row_by_row_too_as_the_engines():
+    """A miss past 1e-10 per row passes "together" only under the solvers' rule, norm-wise
+    and each row at its own scale (1 + |b_i| + |R_i||x|), on the device as in the engine:
+    a row 1e8 away lets its neighbour miss by 1e-6 norm-wise (world 0: refused), its own
+    miss of 1e-2 is 5e-11 of its scale (world 1: kept), and a miss past both (world 2)."""
+    n, nv = 3, 2
+    R, rhs = np.tile(np.eye(nv), (n, 1, 1)), np.tile([1e8, 1.0], (n, 1))
+    x = np.array([[1e8, 1.0 + 1e-6], [1e8 + 1e-2, 1.0], [1e8 + 1.0, 1.0]])
+    form = DampedLeastSquares(n, nv, 0, nv)
+    form.x[...] = x
+    form._fit[...] = np.einsum("nij,nj->ni", R, x) - rhs
+    expected = form._within_rounding(R, rhs, np.zeros(n, dtype=bool))
+    assert expected.tolist() == [False, True, False]
+    arrays = mirror.damped_least_squares_arrays(n, nv, 0, nv, DEVICE)
+    arrays.x, arrays.fit = _device(x), _device(form._fit)
+    met = _output(n, wp.int32)
+    _run(within_rounding_worlds, n, _device(R), _device(rhs), arrays, met)
+    assert met.numpy().astype(bool).tolist() == expected.tolist()

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ..solvers.base import EXACT_EQUALITY_TOLERANCE
+from ..solvers.base import EXACT_EQUALITY_TOLERANCE, misses_met
 from ..numerics import (all_finite, both, cholesky_factor, cholesky_substitute, everywhere, lu_solve, matvec, nowhere,
                         outer_product, norm, vecmat, worlds_first)
 
@@ -156,15 +156,15 @@ class DampedLeastSquares:
         row's within ``EQUALITY_TOLERANCE`` (1 + |r_i|) plus its rounding, nv·ε (|R_i||x| +
         |z_i|) (a large x cancelling to a small target: any-robot case 8850), a non-finite
         term failing; the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each, or
-        together within the promise a solver's answer is held to,
-        ``EXACT_EQUALITY_TOLERANCE`` (1 + |b|) (:func:`~qpik.solvers.base.equalities_met`)."""
+        together within the promise a solver's answer is held to (its rule,
+        :func:`~qpik.solvers.base.misses_met`, at ``EXACT_EQUALITY_TOLERANCE``)."""
         m = self.soft_rows
         terms = matvec(np.abs(R[:, :m]), np.abs(self.x), np.empty((len(R), m))) + np.abs(self.z[:, :m])
         allowed = EQUALITY_TOLERANCE * (1.0 + np.abs(rhs[:, :m])) + R.shape[2] * EPSILON * terms
         soft = (np.abs(self._fit[:, :m]) <= allowed).all(axis=1) & np.isfinite(terms).all(axis=1)
         miss, b = self._fit[:, m:], rhs[:, m:]
         each = (np.abs(miss) <= EQUALITY_TOLERANCE * (1.0 + np.abs(b))).all(axis=1)
-        together = np.einsum("ni,ni->n", miss, miss) <= EXACT_EQUALITY_TOLERANCE**2 * (1.0 + np.einsum("ni,ni->n", b, b))
+        together = misses_met(miss, R[:, m:], self.x, b, EXACT_EQUALITY_TOLERANCE)
         return met | (soft & (each | together))
 
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:

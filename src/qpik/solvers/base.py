@@ -80,17 +80,18 @@ ROUNDOFF = 0.5 * float(np.finfo(float).eps)  # the unit roundoff u
 def equalities_met(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
     """Whether |Ax − b| <= tolerance (1 + |b|) (Euclidean norms) and every row at its own
     scale, |A_i x − b_i| <= tolerance (1 + |b_i| + |A_i||x|): the check every solver's
-    answer that promises to meet hard rows goes through. Row by row too, or a far row's
-    scale excuses a near row's miss (any-robot case 4966: a hierarchy's level below a
-    position target 6e7 away met the pose rows above it 6e-4 off)."""
-    residual = A.dot(x)  # array methods: NumPy's functions cost more on arrays this small
-    residual -= b
-    if not residual.dot(residual) <= tolerance * tolerance * (1.0 + b.dot(b)):
-        return False
-    scale = np.abs(A).dot(np.abs(x))
-    scale += np.abs(b)
-    scale += 1.0
-    return bool((np.abs(residual) <= tolerance * scale).all())
+    answer that promises to meet hard rows goes through (:func:`misses_met` of one world)."""
+    return bool(misses_met((A.dot(x) - b)[None], A[None], x[None], b[None], tolerance)[0])
+
+
+def misses_met(miss: np.ndarray, A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
+    """(N,) the rule of :func:`equalities_met` in every world, from the miss A x − b (N, m),
+    A (N, m, nv), x (N, nv) and b (N, m). Row by row too, or a far row's scale excuses a
+    near row's miss (any-robot case 4966: a hierarchy's level below a position target 6e7
+    away met the pose rows above it 6e-4 off)."""
+    normwise = np.einsum("ni,ni->n", miss, miss) <= tolerance * tolerance * (1.0 + np.einsum("ni,ni->n", b, b))
+    scale = np.einsum("nij,nj->ni", np.abs(A), np.abs(x)) + np.abs(b) + 1.0
+    return normwise & (np.abs(miss) <= tolerance * scale).all(axis=1)
 
 
 def equalities_checkable(A: np.ndarray, x: np.ndarray, b: np.ndarray, tolerance: float) -> bool:

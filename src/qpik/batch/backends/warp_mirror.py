@@ -408,7 +408,7 @@ def _within_rounding(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: in
     """``DampedLeastSquares._within_rounding``: 1 where each soft row's miss (in ``fit``)
     is within ``EQUALITY_TOLERANCE`` (1 + |r_i|) + nv·ε (|R_i||x| + |z_i|), every such term
     finite, and the hard rows' within ``EQUALITY_TOLERANCE`` (1 + |b_i|) each or together
-    within ``EXACT_EQUALITY_TOLERANCE`` (1 + |b|)."""
+    within ``EXACT_EQUALITY_TOLERANCE`` (1 + |b|) and each within it (1 + |b_i| + |R_i||x|)."""
     nv = R.shape[2]
     for i in range(arrays.soft_rows):
         terms = F64(0.0)
@@ -421,14 +421,22 @@ def _within_rounding(R: wp.array3d(dtype=F64), rhs: wp.array2d(dtype=F64), w: in
         if not (wp.abs(arrays.fit[w, i]) <= allowed):
             return 0
     each = int(1)
+    rowwise = int(1)
     miss = F64(0.0)
     size = F64(0.0)
     for i in range(arrays.soft_rows, rhs.shape[1]):
         if not (wp.abs(arrays.fit[w, i]) <= EQUALITY_TOLERANCE * (F64(1.0) + wp.abs(rhs[w, i]))):
             each = 0
+        scale = F64(1.0) + wp.abs(rhs[w, i])
+        for j in range(nv):
+            scale = scale + wp.abs(R[w, i, j]) * wp.abs(arrays.x[w, j])
+        if not (wp.abs(arrays.fit[w, i]) <= EXACT_EQUALITY_TOLERANCE * scale):
+            rowwise = 0
         miss = miss + arrays.fit[w, i] * arrays.fit[w, i]
         size = size + rhs[w, i] * rhs[w, i]
-    if each != 0 or miss <= EXACT_EQUALITY_TOLERANCE * EXACT_EQUALITY_TOLERANCE * (F64(1.0) + size):
+    if each != 0:
+        return 1
+    if rowwise != 0 and miss <= EXACT_EQUALITY_TOLERANCE * EXACT_EQUALITY_TOLERANCE * (F64(1.0) + size):
         return 1
     return 0
 
