@@ -55,8 +55,8 @@ class JointPositionLimit(Limit):
             margin
         n, k = robot.n, len(self.limits.names)
         # Worlds last (NumPy's loops run along the worlds, not along a few joints): the lower
-        # then upper bound, pulled in by the margin, and the step to each (2, k, N).
-        self._bounds = np.stack([self.limits.lower + margin, self.limits.upper - margin])[:, :, None]
+        # and upper bounds (k, 1), pulled in by the margin, and the step to each (2, k, N).
+        self._bounds = (self.limits.lower + margin)[:, None], (self.limits.upper - margin)[:, None]
         self._qpos, self._dofs = as_index(self.limits.qpos_index), as_index(self.limits.dof_index)
         self._steps, self._factor = np.empty((2, k, n)), np.empty((2, k, n))
         self._rate, self._rate_value = np.empty((2, k, n)), None  # gain/dt at full shape (a same-shape product)
@@ -65,9 +65,11 @@ class JointPositionLimit(Limit):
 
     def apply(self, dt: float, lower: np.ndarray, upper: np.ndarray, G=None, h=None) -> None:
         """Tighten the velocity box [lower, upper] (N, nv) in place."""
-        steps = self._steps  # the step to each bound, row 0 <= 0, row 1 >= 0 inside the range
+        steps, (low, high) = self._steps, self._rows  # the step to each bound, low <= 0 <= high inside the range
         q, speed_lower, speed_upper = self._views(lower, upper)
-        np.subtract(self._bounds, q, steps)  # q is finite: the kinematics update refuses it otherwise
+        lower_bound, upper_bound = self._bounds  # q is finite: the kinematics update refuses it otherwise
+        np.subtract(lower_bound, q, low)  # (two same-shape calls cost less than one broadcast)
+        np.subtract(upper_bound, q, high)
         rate = self.gain / dt
         if self.influence > 0.0:
             # Within the influence of a bound: rate x distance, never more than the step bound.
@@ -80,7 +82,6 @@ class JointPositionLimit(Limit):
                 self._rate.fill(rate)
                 self._rate_value = rate
             np.multiply(steps, self._rate, steps)
-        low, high = self._rows
         # Recovery from outside the range never asks for more than the speed box.
         np.minimum(low, speed_upper, low)
         np.maximum(high, speed_lower, high)
