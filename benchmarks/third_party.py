@@ -267,6 +267,9 @@ def checks(case: Case, result: dict) -> list[dict]:
               collision_avoidance.MINIMUM_DISTANCE - runs["qpik"]["distance_min"], 1e-6)
         check("qpik (no damper): d_min − closest distance [m]",
               collision_avoidance.MINIMUM_DISTANCE - runs["qpik (no damper)"]["distance_min"], 1e-6)
+    if "timing" in result:  # a timed run that stops early times only the steps before (both contenders')
+        stopped = [row["label"] for row in result["timing"]["rows"] if row["failure"]]
+        check("timed runs stopped before the end", len(stopped), 0)
     if case.ratio_bound is not None and "timing" in result:
         ratio = result["timing"]["ratio"]
         check("step median qpik / mink (median over repeats)", ratio["median"], case.ratio_bound)
