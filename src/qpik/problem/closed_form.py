@@ -69,6 +69,7 @@ class DampedLeastSquares:
         self.scaled, self.K = np.empty((n, m, nv)), worlds_first(np.empty((m, m, n)))
         self._soft_diagonal = np.einsum("nii->ni", self.K)[:, :soft_rows]  # a writable view
         self.z, self._Rv, self._fit = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
+        self._soft_fit, self._soft_z = self._fit[:, :soft_rows], self.z[:, :soft_rows]
         self.x, self._held_inverse = np.empty((n, nv)), np.empty((n, nv))
         self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
@@ -139,10 +140,11 @@ class DampedLeastSquares:
         where it was accepted); whether each world's residual is then within
         ``EQUALITY_TOLERANCE``, or within what a float x can meet (:meth:`_within_rounding`)."""
         for _ in range(REFINEMENTS):
-            if met.all():
+            if met is not nowhere(len(met)) and met.all():
                 return self._everywhere
             correction = cholesky_substitute(self._factor, self._fit, solved)  # K δz = −residual
-            correction[met] = 0.0  # only where the residual asks: each world's answer its own
+            if len(met) > 1:  # only where the residual asks: each world's answer its own (one world's is not met)
+                correction[met] = 0.0
             self.z -= correction
             self.x -= vecmat(correction, self.scaled, self._Rz)
             met = self._fits(R, rhs, REFINE_TOLERANCE)
@@ -170,9 +172,9 @@ class DampedLeastSquares:
     def _fits(self, R, rhs, tolerance: float) -> np.ndarray:
         """(N,) whether R x + [z₁; 0] meets rhs to ``tolerance`` row by row (the system's
         residual, :func:`rows_met`), leaving the miss in ``_fit``."""
-        fit, m = matvec(R, self.x, self._fit), self.soft_rows
-        if m:
-            fit[:, :m] += self.z[:, :m]
+        fit = matvec(R, self.x, self._fit)
+        if self.soft_rows:
+            self._soft_fit += self._soft_z
         return rows_met(fit, rhs, tolerance)
 
     def gradient(self, damping, R, c) -> np.ndarray:
@@ -212,8 +214,13 @@ def rows_met(Ax: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
     soft target 1e9 away) must not excuse a near row's miss, which a norm-wise test lets
     hide the digits a closed form loses (refinement would not start)."""
     np.subtract(Ax, b, Ax)
-    if norm(Ax) <= tolerance:  # every row's miss is below the least bound
+    miss = norm(Ax)
+    if miss <= tolerance:  # every row's miss is below the least bound
         return everywhere(len(b))
+    # One world's rows all within their bounds miss by at most tolerance |1 + |b|| <=
+    # tolerance (√m + |b|): past that, one row is out (a refinement's usual first check).
+    if len(b) == 1 and miss > tolerance * (math.sqrt(b.size) + norm(b)):
+        return nowhere(1)
     return (np.abs(Ax) <= tolerance * (1.0 + np.abs(b))).all(axis=1)
 
 
