@@ -54,6 +54,8 @@ from qpik.scenario import build_scenario
 from qpik.solvers import available_solvers
 from qpik.trajectories import PoseTrajectory
 
+from .checks import box_and_rows, lp_feasible
+
 KINDS = ("arm", "hexapod", "physics", "model")
 KIND_CODE = {kind: i + 1 for i, kind in enumerate(KINDS)}
 ALL_SOLVERS = ("daqp", "osqp", "proxqp", "quadprog")
@@ -431,7 +433,7 @@ def _run_case(kind: str, seed: int, folder: Path) -> dict:
     except QpikError as exc:
         classes.append("typed")
         details["error"] = f"{type(exc).__name__}: {exc}"
-        if case.soft_unreachable:
+        if case.soft_unreachable and not _hard_part_infeasible(case, details):
             classes.append("soft_raised")
         return result
     except Exception as exc:  # noqa: BLE001
@@ -439,6 +441,18 @@ def _run_case(kind: str, seed: int, folder: Path) -> dict:
         return result
     _classify(case, log, classes, details)
     return result
+
+
+def _hard_part_infeasible(case: Case, details: dict) -> bool:
+    """Whether the step the rollout stopped on has no point that meets its hard rows and
+    limits, by an independent LP (:func:`~.checks.lp_feasible`, no margin): a raise there
+    is the promise, whatever the soft task asks (a hexapod slider started outside the range
+    the case gives it, its loops closed: hexapod:1803 and 1827)."""
+    controller = case.rollout.controller
+    hard = [task for task in controller.tasks if task.hard]
+    A, b, lb, ub, G, h = box_and_rows(controller.robot, hard, controller.limits, controller.dt)
+    details["hard_part_infeasible"] = infeasible = not lp_feasible(A, b, lb, ub, G, h, margin=False)
+    return infeasible
 
 
 def _untyped(details: dict, classes: list, exc: Exception) -> None:
@@ -475,6 +489,9 @@ def _classify(case: Case, log, classes: list, details: dict) -> None:
         if residual > LOOP_TOL:
             classes.append("loop")
     if case.soft_unreachable:  # (its speeds are checked above, as every run's)
-        classes.append("soft_bounded" if log.completed and np.all(np.isfinite(log.qdot)) else "soft_raised")
+        if log.completed and np.all(np.isfinite(log.qdot)):
+            classes.append("soft_bounded")
+        elif not _hard_part_infeasible(case, details):
+            classes.append("soft_raised")
     if not any(c in DEFECTS or c == "typed" for c in classes):
         classes.append("ok")

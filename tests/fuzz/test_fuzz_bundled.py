@@ -121,8 +121,10 @@ def test_a_far_soft_hexapod_target_is_not_declared_infeasible(seed, tmp_path):
 
 def test_an_infeasible_start_still_names_the_binding_limits(tmp_path):
     """A slider started outside the range the case gives it: loops and limits have no
-    common point (an exact solver confirms it), so the error stands and names them."""
+    common point (an exact solver confirms it, and the fuzz's LP), so the error stands,
+    names them, and is the promise, not a soft task that raised instead of degrading."""
     result = _case("hexapod", 1803, tmp_path)
     assert not result["params"]["start_inside"]
     assert "InfeasibleProblem" in result["details"]["error"]
     assert "at its upper position limit" in result["details"]["error"]
+    assert result["details"]["hard_part_infeasible"] and result["classes"] == ["typed"]
