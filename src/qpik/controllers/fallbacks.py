@@ -8,7 +8,9 @@
   puts ~1e29 in c against ~1 in H, leaving no digit for a solver to find the vertex of
   the limits it points at; c scaled down to ``COST_SCALE_CAP`` times H's scale keeps its
   direction, and the minimiser stays the same vertex up to 1e-9 relative;
-- a solver failure gets a second try with a little damping (exact solvers) and then the
+- an exact solver's failure gets a second try on the same QP in its row form (the soft
+  rows as equalities on slack variables, :meth:`GuardedSolve._row_form`), then one with a
+  little damping, and then the
   exact solvers DAQP and quadprog, and DAQP on the problem reduced to the hard rows' null
   space (:class:`~qpik.solvers.nullspace.NullSpaceBackend`: hard rows whose entries span
   1e-2 to 1e6, as on a robot stretched a million metres, are beyond the dual solvers);
@@ -151,7 +153,7 @@ class GuardedSolve:
         self.backend = backend
         self.solver = solver
         self.fallbacks = 0  # steps a fallback solved (the solver failed, or sat out after failing)
-        self._spares = {}
+        self._spares = {}  # by solver name; the row form's by its number of soft rows
         # A solver that failed on a step most likely fails on the next (the problem changes
         # little): it sits out the next few steps, which go to the fallbacks directly, as
         # the closed form does after a limit binds (8 steps, doubled while it keeps
@@ -159,8 +161,9 @@ class GuardedSolve:
         # every step (ProxQP: 35 ms a step on a 48-dof tree).
         self._pause = Backoff()
 
-    def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True) -> np.ndarray:
-        """The checked minimiser.
+    def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True, rows=None) -> np.ndarray:
+        """The checked minimiser; ``rows``: the cost as rows (R₁, r₁, D, c₀; H = D + R₁ᵀR₁,
+        c = c₀ − R₁ᵀr₁), for the retry, or None.
 
         Raises:
             InfeasibleProblem: no point meets the constraints (the phase-1 problem agrees), or the box
@@ -169,7 +172,7 @@ class GuardedSolve:
         """
         if not self._pause.ready():
             return self._retry(SolverError(f"QP solver {self.solver} sat out this step (it failed on a recent one)"),
-                               H, c)
+                               H, c, rows)
         try:
             x = self.backend.solve(H, tame(c, _scale(H)), hessian_changed=hessian_changed)
         except InfeasibleProblem as exc:
@@ -178,14 +181,19 @@ class GuardedSolve:
             return self._confirm_infeasible(exc, H, c, self.solver)
         except SolverError as exc:
             self._pause.failed()
-            return self._retry(exc, H, c)
+            return self._retry(exc, H, c, rows)
         self._pause.succeeded()
         return x
 
-    def _retry(self, failure: SolverError, H: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """An exact active-set solver (DAQP, quadprog: cycling) gets one more try with a
+    def _retry(self, failure: SolverError, H: np.ndarray, c: np.ndarray, rows) -> np.ndarray:
+        """An exact active-set solver (DAQP, quadprog: cycling) gets one more try on the
+        same QP in its row form where c is as the cost wrote it (untamed), then one with a
         little damping on every dof; an iterative one that ran out of iterations (OSQP,
         ProxQP) would only run out again, so it goes straight to the exact solvers."""
+        if self.backend.exact and rows is not None and len(rows[1]) and tame(c, _scale(H)) is c:
+            x = self._row_form(*rows)
+            if x is not None:
+                return x
         nv = H.shape[0]
         damping = 1e-9 * max(1.0, float(np.trace(H)) / nv)
         H = H.copy()  # the caller's Hessian must not keep the damping
@@ -222,6 +230,26 @@ class GuardedSolve:
         raise SolverError(f"{failure}{also}: " + (_hard_rows_unmet(self.backend) or (
             "the cost is nearly singular or badly scaled; add a DampingTask (weight 1e-6 or more), lower the "
             "task gains or try another solver"))) from None
+
+    def _row_form(self, R1: np.ndarray, r1: np.ndarray, D: np.ndarray, c0: np.ndarray) -> np.ndarray | None:
+        """The step's QP with its soft rows as equalities on slack s = R₁x − r₁: min ½sᵀs +
+        ½xᵀDx + c₀ᵀx under R₁x − s = r₁ and the step's constraints, solved by the solver;
+        None if that fails. Its Hessian is diagonal: the solver factors D and not
+        D + R₁ᵀR₁, whose condition is D's squared; past 1/ε (a robot 1e6 m out) the latter
+        has negative eigenvalues in floats and DAQP calls the step unbounded (any-robot
+        case 3870), where the closed form, which reads the rows, finds the minimiser."""
+        backend, (m, nv) = self.backend, R1.shape
+        if m not in self._spares:
+            lifted = self._spares[m] = make_backend(self.solver, nv + m, m + backend.meq, backend.mineq)
+            lifted.A[:m, nv:] = -np.eye(m)
+            lifted.lb[nv:], lifted.ub[nv:] = -np.inf, np.inf
+        lifted = self._spares[m]
+        lifted.A[:m, :nv], lifted.A[m:, :nv], lifted.b[:m], lifted.b[m:] = R1, backend.A, r1, backend.b
+        lifted.G[:, :nv], lifted.h[:], lifted.lb[:nv], lifted.ub[:nv] = backend.G, backend.h, backend.lb, backend.ub
+        try:
+            return lifted.solve(np.diag(np.concatenate([D, np.ones(m)])), np.concatenate([c0, np.zeros(m)]))[:nv]
+        except (InfeasibleProblem, SolverError):
+            return None
 
     def _confirm_infeasible(self, report: InfeasibleProblem, H: np.ndarray, c: np.ndarray,
                             solvers: str) -> np.ndarray:

@@ -232,7 +232,8 @@ class HierarchicalController:
     # -- stage 2: the worlds left, one by one ------------------------------------------------
     def _world_qp(self, level: _Level, w: int, A: np.ndarray, b: np.ndarray) -> WorldQP:
         p, cost = self.problem, level.cost
-        return WorldQP(cost.world_hessian(w), cost.c[w], A, b, p.lower[w], p.upper[w], p.G[w], p.h[w])
+        return WorldQP(cost.world_hessian(w), cost.c[w], A, b, p.lower[w], p.upper[w], p.G[w], p.h[w],
+                       cost.world_rows(w))
 
     def _solve_world(self, level: _Level, w: int, previous: np.ndarray | None) -> np.ndarray:
         """World ``w``'s level by the solver (see the module's description)."""

@@ -20,8 +20,9 @@ from ..solvers import make_backend
 from ..controllers.fallbacks import GuardedSolve, copy_constraints
 
 
-WorldQP = namedtuple("WorldQP", "H c A b lb ub G h")
-WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h (views of the controller's arrays)."
+WorldQP = namedtuple("WorldQP", "H c A b lb ub G h rows", defaults=(None,))
+WorldQP.__doc__ = ("One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h (views of the controller's arrays); "
+                   "rows: its cost as rows (R₁, r₁, D, c₀) for a failed solve's retry, or None.")
 
 
 class WorldSolver:
@@ -46,7 +47,7 @@ class WorldSolver:
         """The checked minimiser of ``qp`` (typed errors as GuardedSolve raises them)."""
         guard = self.guard(world)
         copy_constraints(qp, guard.backend)
-        return guard.solve(qp.H, qp.c, hessian_changed=hessian_changed)
+        return guard.solve(qp.H, qp.c, hessian_changed=hessian_changed, rows=qp.rows)
 
     @property
     def fallbacks(self) -> int:

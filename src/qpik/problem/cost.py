@@ -152,6 +152,12 @@ class Cost:
         small = np.einsum("ni,ni->n", c, c) <= COST_SCALE_CAP * COST_SCALE_CAP
         return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale()))
 
+    def world_rows(self, w: int) -> tuple:
+        """World ``w``'s cost as rows: (R₁, r₁, D, c₀), views but c₀ (unscaled: H and c
+        divided by the solver's factor)."""
+        linear = np.zeros(self.R.shape[2]) if self.linear is None else self.linear[w]
+        return self._soft[0][w], self._soft[1][w], self.damping[w], linear
+
     def world_hessian(self, w: int) -> np.ndarray:
         """World ``w``'s H as the solver sees it (a new matrix)."""
         R1 = self.R[w, :self.soft_rows]
