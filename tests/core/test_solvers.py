@@ -3,6 +3,8 @@ against an independent reference: the KKT conditions solved on the active set.""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -210,3 +212,56 @@ def test_a_far_equality_row_does_not_excuse_a_near_rows_miss():
     A, b = np.eye(2), np.array([6e7, 9.0])
     assert not equalities_met(A, b + np.array([0.0, 6e-4]), b, 1e-9)  # norm-wise alone: within 0.06
     assert equalities_met(A, b + np.array([1e-3, 1e-9]), b, 1e-9)  # each row within 1e-9 (1 + |b_i| + |A_i||x|)
+
+
+def _stationarity(step, x):
+    """How far x is from a KKT point of min ½‖R₁x − r₁‖² + ½xᵀDx + c₀ᵀx under the step's
+    rows and box: the gradient's least-squares remainder after multipliers of the hard rows
+    (free) and of the bounds and row x is on (with their signs; BVLS), relative to the size
+    of the gradient's terms."""
+    from scipy.optimize import lsq_linear
+
+    R1, r1, D, c0, A, lb, ub, G, h = (step[k] for k in ("R1", "r1", "D", "c0", "A", "lb", "ub", "G", "h"))
+    gradient = R1.T @ (R1 @ x - r1) + D * x + c0
+    terms = np.abs(R1.T) @ (np.abs(R1) @ np.abs(x) + np.abs(r1)) + np.abs(D * x) + np.abs(c0)
+    near = 1e-9  # a bound DAQP holds is met exactly; one it does not is far from this
+    at_lower = np.isfinite(lb) & (x - lb <= near * (1 + np.abs(lb)))
+    at_upper = np.isfinite(ub) & (ub - x <= near * (1 + np.abs(ub)))
+    at_row = np.isfinite(h) & (h - G @ x <= near * (1 + np.abs(h)))
+    eye = np.eye(len(x))
+    columns = np.hstack([A.T, -eye[:, at_lower], eye[:, at_upper], G[at_row].T])
+    columns /= np.linalg.norm(columns, axis=0)
+    free = np.zeros(columns.shape[1])
+    free[: len(A)] = -np.inf
+    fit = lsq_linear(columns, -gradient, bounds=(free, np.inf), method="bvls")
+    return np.linalg.norm(columns @ fit.x + gradient) / np.linalg.norm(terms)
+
+
+def test_a_step_whose_hessian_is_indefinite_in_floats_is_solved_in_its_row_form():
+    """Any-robot case 3870, step 3, a robot 1e6 m out: 8 soft rows with entries up to 1e5
+    on 46 dofs that ε = 1e-12 alone weighs otherwise, 6 hard rows, a box and a collision
+    row. H = D + R₁ᵀR₁ formed in floats has eigenvalues down to −3e-6 (its rounding, ε‖H‖,
+    is 2e-6): DAQP called the step unbounded, and the retry with 1e-9 of H's scale as
+    damping answered another QP. The guard's retry now solves the same QP in its row form
+    (a diagonal Hessian): its answer is a KKT point of the step to a few roundings of the
+    gradient's terms (backward stable: nv·ε is 1e-14; 1e-12 allowed) and meets the hard
+    rows, where the damped QP's answer is neither stationary nor as cheap."""
+    from qpik.controllers.fallbacks import GuardedSolve
+
+    step = dict(np.load(Path(__file__).resolve().parents[1] / "data" / "row_form_step.npz"))
+    R1, r1, D, c0, A, b = (step[k] for k in ("R1", "r1", "D", "c0", "A", "b"))
+    nv = len(D)
+    backend = make_backend("daqp", nv, len(A), len(step["h"]))
+    for name in ("A", "b", "G", "h", "lb", "ub"):
+        getattr(backend, name)[:] = step[name]
+    x = GuardedSolve(backend, "daqp")._row_form(R1, r1, D, c0)
+    assert x is not None and _stationarity(step, x) <= 1e-12
+    assert equalities_met(A, x, b, 1e-9) and np.all((step["lb"] <= x) & (x <= step["ub"]))
+    H = R1.T @ R1 + np.diag(D)
+    damped = backend.solve(H + 1e-9 * np.trace(H) / nv * np.eye(nv), c0 - R1.T @ r1)
+    assert _stationarity(step, damped) > 1e-12
+
+    def cost(v):
+        return 0.5 * np.sum((R1 @ v - r1) ** 2) + 0.5 * v @ (D * v) + c0 @ v
+
+    assert cost(x) < cost(damped)

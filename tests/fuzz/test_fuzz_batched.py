@@ -26,13 +26,16 @@ from qpik.errors import WorldsFailed
 # (8160: it stopped at cap 1e3 in one run, on a hard-row check that rounding decided, and
 # at 1 in the other, q̇ 1.0 apart), and a closed form whose residual sits at its rounding,
 # one run's kept and the other's sent to a solver that did worse (8850:
-# tests/core/test_closed_form.py holds its step).
+# tests/core/test_closed_form.py holds its step), and a robot 1e6 m out whose H is
+# indefinite in floats, where DAQP fails and the retry answered a damped QP (3870:
+# tests/core/test_solvers.py holds its step).
 CASES = {5: "sns", 9: "qp/quadprog", 12: "pinv, ball_in_cup", 21: "hqp/daqp", 120: "qp/daqp, humanoid",
          137: "qp/daqp, κ ~ 1e12", 55: "pinv, κ ~ 5e6", 67: "qp/osqp, world 1 infeasible at step 5",
          1: "pinv, DivergenceError everywhere", 3: "sns, an invalid parameter refused",
          110: "hqp/quadprog, level 1's rows above dependent on its free dofs (κ inf)",
          8160: "qp/proxqp, the capped ladder",
-         8850: "qp/quadprog, a soft row of terms 6e6 times its target"}
+         8850: "qp/quadprog, a soft row of terms 6e6 times its target",
+         3870: "qp/daqp, H indefinite in floats: the retry in the row form"}
 
 
 @pytest.mark.parametrize("seed", CASES)

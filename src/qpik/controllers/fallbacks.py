@@ -8,12 +8,10 @@
   puts ~1e29 in c against ~1 in H, leaving no digit for a solver to find the vertex of
   the limits it points at; c scaled down to ``COST_SCALE_CAP`` times H's scale keeps its
   direction, and the minimiser stays the same vertex up to 1e-9 relative;
-- an exact solver's failure gets a second try on the same QP in its row form (the soft
-  rows as equalities on slack variables, :meth:`GuardedSolve._row_form`), then one with a
-  little damping, and then the
-  exact solvers DAQP and quadprog, and DAQP on the problem reduced to the hard rows' null
-  space (:class:`~qpik.solvers.nullspace.NullSpaceBackend`: hard rows whose entries span
-  1e-2 to 1e6, as on a robot stretched a million metres, are beyond the dual solvers);
+- an exact solver's failure is solved again on the same QP in its row form
+  (:meth:`GuardedSolve._row_form`), then with a little damping, then by DAQP, quadprog
+  and DAQP in the hard rows' null space (:class:`~qpik.solvers.nullspace.NullSpaceBackend`:
+  hard rows whose entries span 1e-2 to 1e6 are beyond the dual solvers);
 - a solver's "infeasible", and any failure that no fallback overcomes, is checked by a
   phase-1 problem that has no cost to misjudge (:func:`has_feasible_point`): only a
   problem with no feasible point raises :class:`~qpik.errors.InfeasibleProblem`; a
@@ -232,12 +230,10 @@ class GuardedSolve:
             "task gains or try another solver"))) from None
 
     def _row_form(self, R1: np.ndarray, r1: np.ndarray, D: np.ndarray, c0: np.ndarray) -> np.ndarray | None:
-        """The step's QP with its soft rows as equalities on slack s = R₁x − r₁: min ½sᵀs +
-        ½xᵀDx + c₀ᵀx under R₁x − s = r₁ and the step's constraints, solved by the solver;
-        None if that fails. Its Hessian is diagonal: the solver factors D and not
-        D + R₁ᵀR₁, whose condition is D's squared; past 1/ε (a robot 1e6 m out) the latter
-        has negative eigenvalues in floats and DAQP calls the step unbounded (any-robot
-        case 3870), where the closed form, which reads the rows, finds the minimiser."""
+        """The step's QP with its soft rows as equalities on slack s = R₁x − r₁ (min ½sᵀs +
+        ½xᵀDx + c₀ᵀx), solved by the solver; None if that fails. Its Hessian is diagonal,
+        where D + R₁ᵀR₁ squares the condition: past 1/ε it is indefinite in floats (any-robot
+        case 3870, DAQP: "unbounded"; see docs/controllers.md)."""
         backend, (m, nv) = self.backend, R1.shape
         if m not in self._spares:
             lifted = self._spares[m] = make_backend(self.solver, nv + m, m + backend.meq, backend.mineq)

@@ -150,10 +150,14 @@ class QPController:
         qp = self.world_qp(w)
         check_finite_velocities(self.tasks, qp.c, qp.b, w)
         try:
-            return self._solver.solve(w, qp, hessian_changed=bool(self.cost.general))
+            x = self._solver.solve(w, qp, hessian_changed=bool(self.cost.general))
         except InfeasibleProblem as exc:
             raise InfeasibleProblem(f"QP infeasible ({self.solver}): {explain_infeasibility(self, w, exc.variable)}",
                                     exc.variable) from None
+        if self._solver.exact:
+            return x
+        p = self.problem
+        return self.held.rescued(self.cost, p.box, *self._rows, w, x)
 
     @property
     def fallbacks(self) -> int:

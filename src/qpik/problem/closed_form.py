@@ -335,6 +335,27 @@ class HeldBounds:
         kept = form.objective(polished, damping, R, rhs, c)[0] <= before + COST_ROUNDING * abs(before)
         return polished[0].copy() if kept else x
 
+    def rescued(self, cost, box, G, h, w: int, x: np.ndarray) -> np.ndarray:
+        """A tolerance-based solver's answer x (nv,) of world ``w`` (its bounds not held
+        between steps) replaced by the minimiser the held-bounds iteration finds from the
+        bounds x is on, where it costs no more (``COST_ROUNDING``); x where a general row
+        is on its bound. ProxQP's answer on a cost only ε makes definite in some directions
+        held three wrong bounds and cost 3e-4 more than the minimiser (any-robot case 9190)."""
+        if G is not None and G.shape[1] and not (G[w] @ x < h[w]).all():
+            return x
+        self.lower[w], self.upper[w] = active_bounds(x, *box[w])
+        data = tuple(None if a is None else a[w:w + 1]
+                     for a in (cost.dinv, cost.damping, cost.R, cost.rhs, cost.linear, box, G, h))
+        answer, solved = np.zeros((1, len(x))), np.zeros(1, dtype=bool)
+        self._held(data, np.array([w]), np.arange(1), answer, solved)
+        self.lower[w], self.upper[w] = False, False
+        if not solved[0]:
+            return x
+        form = self._form(1)
+        before = form.objective(x[None], *data[1:4], data[4])[0]
+        return answer[0] if form.objective(answer, *data[1:4], data[4])[0] <= before + COST_ROUNDING * abs(before) \
+            else x
+
     def _form(self, count: int) -> DampedLeastSquares:
         """The closed form's buffers for ``count`` worlds."""
         if count not in self._forms:

@@ -153,8 +153,7 @@ class Cost:
         return small | (np.abs(c).max(axis=1) <= COST_SCALE_CAP * np.maximum(1.0, self.scale()))
 
     def world_rows(self, w: int) -> tuple:
-        """World ``w``'s cost as rows: (R₁, r₁, D, c₀), views but c₀ (unscaled: H and c
-        divided by the solver's factor)."""
+        """World ``w``'s cost as rows (R₁, r₁, D, c₀), unscaled: H and c over the solver's factor."""
         linear = np.zeros(self.R.shape[2]) if self.linear is None else self.linear[w]
         return self._soft[0][w], self._soft[1][w], self.damping[w], linear
 

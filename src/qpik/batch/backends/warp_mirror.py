@@ -3,41 +3,13 @@ r"""The engine's numerical primitives on a Warp device: one ``@wp.func`` per pri
 named after it, in float64, branch for branch and operation for operation as the NumPy
 primitive computes one world (its N > 1 path: the world axis is the thread index here).
 
-=============================================  ================================================
-engine primitive                               device function
-=============================================  ================================================
-``numerics.normalize4``                        :func:`normalize4`
-``numerics.mat2quat``                          :func:`mat2quat`
-``numerics.mul``                               :func:`quat_mul`
-``numerics.quat2vel``                          :func:`quat2vel`
-``numerics.quat_integrate``                    :func:`quat_integrate`
-``numerics.quat2mat``                          :func:`quat2mat`
-``numerics.RotationError``                     :func:`rotation_error`
-``numerics.ConfigurationDifference``           :func:`configuration_difference`
-``numerics.cholesky_factor``                   :func:`cholesky_factor`
-``numerics.cholesky_substitute``               :func:`cholesky_substitute`
-``numerics.all_finite``                        :func:`all_finite`
-``numerics.matvec``                            :func:`matvec`
-``numerics.vecmat``                            :func:`vecmat`
-``numerics.outer_product``                     :func:`outer_product`
-``numerics.skew``                              :func:`skew`
-``closed_form.rows_met``                       :func:`rows_met`
-``closed_form.inside``                         :func:`inside`
-``closed_form.DampedLeastSquares.solve``       :func:`damped_least_squares_solve`
-``closed_form.DampedLeastSquares.gradient``    :func:`damped_least_squares_gradient`
-=============================================  ================================================
+Each says which primitive it mirrors; docs/batch.md lists them and how
+tests/batch/test_warp_mirror.py holds each to its primitive on Warp's CPU device (to
+rounding: where NumPy sums through BLAS or ``einsum`` the device sums in index order).
 
-tests/batch/test_warp_mirror.py maps each function over N worlds by a thin kernel, one
-thread per world, and holds every one to its engine primitive on Warp's CPU device. Where NumPy hands a sum to BLAS or ``einsum`` (a matrix product, a norm) the
-device sums in index order, so the two agree to rounding, not bit for bit; everything
-else (the branches, the order of the arithmetic, what counts as solved) is the engine's.
-
-No step calls them yet. A control step is more than these primitives: the tasks' rows,
-the limits' boxes, the cost's assembly, the closed form's held-bounds iteration
-(``HeldBounds``) and its LU where the hard rows alone fix x (``numerics.lu_solve``) are
-the engine's NumPy code and have no device function, so the warp
-back-end runs the whole step on the host, over the device's kinematics, and says so
-(:class:`~qpik.errors.HostStepWarning`; see :mod:`qpik.batch.backends.warp`).
+No step calls them yet: the tasks' rows, the limits' boxes, the cost, the held-bounds
+iteration and ``numerics.lu_solve`` have no device function, so the warp back-end runs the
+step on the host over the device's kinematics and says so (:class:`~qpik.errors.HostStepWarning`).
 """
 
 from __future__ import annotations
