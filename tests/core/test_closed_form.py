@@ -380,3 +380,34 @@ def test_every_step_of_a_scenario_is_its_qps_minimiser(scenario):
         robot.integrate(qdot, setup.dt)
     if scenario in ("joint-limits", "unreachable"):
         assert 0 < binding < steps and controller.solver_calls < binding
+
+
+def test_a_tolerance_solvers_answer_on_wrong_bounds_is_replaced_by_the_minimiser():
+    """Any-robot case 9190: ½ q̇ᵀDq̇ + c₀ᵀq̇ with D 0.026 on 12 dofs and the 1e-12
+    regulariser alone on 3, 3 hard rows that drive those 3 to 1.5e7, a box and a collision
+    row. ProxQP's answer (stored, from a run in which its workspaces' alignment made it
+    so; the batch's world got the minimiser) holds two bounds the minimiser does not hold
+    and costs 2% more. The held-bounds iteration from its bounds (``HeldBounds.polish``)
+    gives the minimiser: the cost of DAQP's answer on the same QP, an exact solver's, to
+    1e-9 (the cost's terms are of its own size: ½ q̇ᵀDq̇ is 194, c₀ᵀq̇ 0.05), on the same
+    bounds."""
+    from qpik.solvers import make_backend
+
+    step = dict(np.load(Path(__file__).resolve().parents[1] / "data" / "rescued_step.npz"))
+    D, c0, A, b, lb, ub, G, h = (step[k] for k in ("D", "c0", "A", "b", "lb", "ub", "G", "h"))
+    nv, meq = len(D), len(A)
+    exact = make_backend("daqp", nv, meq, len(h))
+    exact.A[:], exact.b[:], exact.G[:], exact.h[:], exact.lb[:], exact.ub[:] = A, b, G, h, lb, ub
+    reference = exact.solve(np.diag(D), c0)
+    cost = SimpleNamespace(dinv=1.0 / D[None], damping=D[None], R=A[None], rhs=b[None], linear=c0[None])
+    held = HeldBounds(1, nv, 0, meq, hold=False)
+    x = held.polish(cost, np.stack([lb, ub])[None], G[None], h[None], 0, step["proxqp"])
+
+    def objective(v):
+        return 0.5 * v @ (D * v) + c0 @ v
+
+    assert objective(step["proxqp"]) > 1.01 * objective(reference)
+    assert abs(objective(x) - objective(reference)) <= 1e-9 * objective(reference)
+    assert all(np.array_equal(a, r) for a, r in zip(closed_form.active_bounds(x, lb, ub),
+                                                    closed_form.active_bounds(reference, lb, ub)))
+    assert np.abs(A @ x - b).max() <= 1e-9 * (1 + np.abs(A) @ np.abs(x)).max() and inside(x[None], np.stack([lb, ub])[None])[0]

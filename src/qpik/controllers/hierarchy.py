@@ -23,7 +23,7 @@ Each level is solved in two stages, as the QP is (docs/controllers.md):
    minimiser.
 2. the worlds left, one by one, by the chosen solver with its fallbacks
    (:class:`~qpik.controllers.worlds.WorldSolver`), a least-squares answer
-   polished on the active set it found, and, where the solver fails with rows above, the
+   polished from the active set it found, and, where the solver fails with rows above, the
    same level again on an SVD basis of those rows. This stage is a loop over worlds: each
    world's solver call, active set and basis are its own.
 
@@ -263,9 +263,9 @@ class HierarchicalController:
         return previous[w]
 
     def _polish(self, level: _Level, w: int, x: np.ndarray) -> np.ndarray:
-        """The solver's answer made exact on its active set where the level weighs general
-        tasks (a least-squares level whose Hessian only ε makes definite is met loosely by
-        solvers): :meth:`~qpik.problem.HeldBounds.polish`."""
+        """The solver's answer polished by the held-bounds iteration from its bounds where the
+        level weighs general tasks (a least-squares level whose Hessian only ε makes definite
+        is met loosely by solvers): :meth:`~qpik.problem.HeldBounds.polish`."""
         if not level.general:
             return x
         problem = self.problem

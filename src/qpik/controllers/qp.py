@@ -157,7 +157,7 @@ class QPController:
         if self._solver.exact:
             return x
         p = self.problem
-        return self.held.rescued(self.cost, p.box, *self._rows, w, x)
+        return self.held.polish(self.cost, p.box, *self._rows, w, x)
 
     @property
     def fallbacks(self) -> int:
