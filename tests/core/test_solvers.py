@@ -265,3 +265,23 @@ def test_a_step_whose_hessian_is_indefinite_in_floats_is_solved_in_its_row_form(
         return 0.5 * np.sum((R1 @ v - r1) ** 2) + 0.5 * v @ (D * v) + c0 @ v
 
     assert cost(x) < cost(damped)
+
+
+def test_a_step_the_solver_sits_out_is_answered_by_a_counted_retry():
+    """After a failure the solver sits out its next steps: the guard answers them by the
+    row form where it has the rows, else by the damped QP (another QP than the step's),
+    and counts each in ``fallbacks``, the number a controller reports."""
+    from qpik.controllers.fallbacks import GuardedSolve
+
+    step = dict(np.load(Path(__file__).resolve().parents[1] / "data" / "row_form_step.npz"))
+    R1, r1, D, c0 = (step[k] for k in ("R1", "r1", "D", "c0"))
+    H, c = R1.T @ R1 + np.diag(D), c0 - R1.T @ r1
+    for rows in ((R1, r1, D, c0), None):
+        backend = make_backend("daqp", len(D), len(step["A"]), len(step["h"]))
+        for name in ("A", "b", "G", "h", "lb", "ub"):
+            getattr(backend, name)[:] = step[name]
+        guard = GuardedSolve(backend, "daqp")
+        guard._pause.failed()
+        x = guard.solve(H, c, rows=rows)
+        assert guard.fallbacks == 1
+        assert (_stationarity(step, x) <= 1e-12) == (rows is not None)

@@ -150,7 +150,7 @@ class GuardedSolve:
     def __init__(self, backend, solver: str):
         self.backend = backend
         self.solver = solver
-        self.fallbacks = 0  # steps a fallback solved (the solver failed, or sat out after failing)
+        self.fallbacks = 0  # steps a retry or a fallback solved (the solver failed, or sat out)
         self._spares = {}  # by solver name; the row form's by its number of soft rows
         # A solver that failed on a step most likely fails on the next (the problem changes
         # little): it sits out the next few steps, which go to the fallbacks directly, as
@@ -191,6 +191,7 @@ class GuardedSolve:
         if self.backend.exact and rows is not None and len(rows[1]) and tame(c, _scale(H)) is c:
             x = self._row_form(*rows)
             if x is not None:
+                self.fallbacks += 1
                 return x
         nv = H.shape[0]
         damping = 1e-9 * max(1.0, float(np.trace(H)) / nv)
@@ -201,7 +202,8 @@ class GuardedSolve:
         if self.backend.exact:
             tried.append(f"{damping:.1g} of damping on every dof")
             try:
-                return self.backend.solve(H, c, hessian_changed=True)
+                x, self.fallbacks = self.backend.solve(H, c, hessian_changed=True), self.fallbacks + 1
+                return x
             except InfeasibleProblem as exc:
                 return self._confirm_infeasible(exc, H, c, self.solver)
             except SolverError:

@@ -161,5 +161,5 @@ class QPController:
 
     @property
     def fallbacks(self) -> int:
-        """World-steps the solver failed on and a fallback solver solved."""
+        """World-steps the solver failed on or sat out, answered by a retry or a fallback."""
         return self._solver.fallbacks
