@@ -276,7 +276,7 @@ def test_a_step_the_solver_sits_out_is_answered_by_a_counted_retry():
     step = dict(np.load(Path(__file__).resolve().parents[1] / "data" / "row_form_step.npz"))
     R1, r1, D, c0 = (step[k] for k in ("R1", "r1", "D", "c0"))
     H, c = R1.T @ R1 + np.diag(D), c0 - R1.T @ r1
-    for rows in ((R1, r1, D, c0), None):
+    for rows in (lambda: (R1, r1, D, c0), None):
         backend = make_backend("daqp", len(D), len(step["A"]), len(step["h"]))
         for name in ("A", "b", "G", "h", "lb", "ub"):
             getattr(backend, name)[:] = step[name]

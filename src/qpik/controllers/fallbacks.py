@@ -160,8 +160,7 @@ class GuardedSolve:
         self._pause = Backoff()
 
     def solve(self, H: np.ndarray, c: np.ndarray, hessian_changed: bool = True, rows=None) -> np.ndarray:
-        """The checked minimiser; ``rows``: the cost as rows (R₁, r₁, D, c₀; H = D + R₁ᵀR₁,
-        c = c₀ − R₁ᵀr₁), for the retry, or None.
+        """The checked minimiser; ``rows``: None or a function giving the cost as (R₁, r₁, D, c₀).
 
         Raises:
             InfeasibleProblem: no point meets the constraints (the phase-1 problem agrees), or the box
@@ -184,15 +183,13 @@ class GuardedSolve:
         return x
 
     def _retry(self, failure: SolverError, H: np.ndarray, c: np.ndarray, rows) -> np.ndarray:
-        """An exact active-set solver (DAQP, quadprog: cycling) gets one more try on the
-        same QP in its row form where c is as the cost wrote it (untamed), then one with a
-        little damping on every dof; an iterative one that ran out of iterations (OSQP,
-        ProxQP) would only run out again, so it goes straight to the exact solvers."""
-        if self.backend.exact and rows is not None and len(rows[1]) and tame(c, _scale(H)) is c:
-            x = self._row_form(*rows)
-            if x is not None:
-                self.fallbacks += 1
-                return x
+        """An exact active-set solver (DAQP, quadprog: cycling) tries the same QP in its row
+        form where c is untamed, then with a little damping on every dof; an iterative one
+        out of iterations (OSQP, ProxQP) would run out again: the exact solvers take it."""
+        x = self._row_form(*rows()) if self.backend.exact and rows is not None and tame(c, _scale(H)) is c else None
+        if x is not None:
+            self.fallbacks += 1
+            return x
         nv = H.shape[0]
         damping = 1e-9 * max(1.0, float(np.trace(H)) / nv)
         H = H.copy()  # the caller's Hessian must not keep the damping
@@ -237,6 +234,8 @@ class GuardedSolve:
         where D + R₁ᵀR₁ squares the condition: past 1/ε it is indefinite in floats (any-robot
         case 3870, DAQP: "unbounded"; see docs/controllers.md)."""
         backend, (m, nv) = self.backend, R1.shape
+        if not m:  # the QP as solved: H = D
+            return None
         if m not in self._spares:
             lifted = self._spares[m] = make_backend(self.solver, nv + m, m + backend.meq, backend.mineq)
             lifted.A[:m, nv:] = -np.eye(m)

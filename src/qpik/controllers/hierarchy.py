@@ -33,6 +33,7 @@ of the other worlds is solved (its velocity zero); one robot's error is raised a
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Sequence
 
 import numpy as np
@@ -233,7 +234,7 @@ class HierarchicalController:
     def _world_qp(self, level: _Level, w: int, A: np.ndarray, b: np.ndarray) -> WorldQP:
         p, cost = self.problem, level.cost
         return WorldQP(cost.world_hessian(w), cost.c[w], A, b, p.lower[w], p.upper[w], p.G[w], p.h[w],
-                       cost.world_rows(w))
+                       partial(cost.world_rows, w))
 
     def _solve_world(self, level: _Level, w: int, previous: np.ndarray | None) -> np.ndarray:
         """World ``w``'s level by the solver (see the module's description)."""

@@ -20,6 +20,7 @@ next step, until an answer leaves every row inactive.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Sequence
 
 import numpy as np
@@ -144,7 +145,7 @@ class QPController:
         """World ``w``'s QP (views)."""
         p = self.problem
         return WorldQP(self.cost.world_hessian(w), self.cost.c[w], self.cost.A[w], self.cost.b[w],
-                       p.lower[w], p.upper[w], p.G[w], p.h[w], self.cost.world_rows(w))
+                       p.lower[w], p.upper[w], p.G[w], p.h[w], partial(self.cost.world_rows, w))
 
     def _solve_world(self, w: int) -> np.ndarray:
         qp = self.world_qp(w)

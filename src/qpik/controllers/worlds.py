@@ -21,7 +21,7 @@ from ..controllers.fallbacks import GuardedSolve, copy_constraints
 
 
 WorldQP = namedtuple("WorldQP", "H c A b lb ub G h rows", defaults=(None,))
-WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h and its cost's rows (or None)."
+WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h and a function giving its cost's rows."
 
 
 class WorldSolver:

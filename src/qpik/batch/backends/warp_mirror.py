@@ -6,7 +6,6 @@ primitive computes one world (its N > 1 path: the world axis is the thread index
 Each says which primitive it mirrors; docs/batch.md lists them and how
 tests/batch/test_warp_mirror.py holds each to its primitive on Warp's CPU device (to
 rounding: where NumPy sums through BLAS or ``einsum`` the device sums in index order).
-
 No step calls them yet: the tasks' rows, the limits' boxes, the cost, the held-bounds
 iteration and ``numerics.lu_solve`` have no device function, so the warp back-end runs the
 step on the host over the device's kinematics and says so (:class:`~qpik.errors.HostStepWarning`).
