@@ -235,7 +235,7 @@ def breakdown(case: Case, at: float = 0.5, number: int = 2000) -> dict:
     for limit, (apply, arguments) in zip(changing, problem._writes):
         parts[type(limit).__name__] = cost(lambda apply=apply, arguments=arguments: apply(*arguments))
     parts["closed form (bounds held)"] = cost(lambda: controller.held.solve(controller.cost, problem.box,
-                                                                              *controller._rows))
+                                                                              *problem.inequalities))
     if needs_solver:
         parts["solver (daqp)"] = cost(lambda: controller._solve_world(0))
     total = cost(lambda: (robot.update_kinematics(), controller.compute_velocity()))

@@ -222,12 +222,11 @@ class HierarchicalController:
         """``(x, solved, worlds)``: the level's closed form in ``worlds`` (None: every world),
         ``solved`` where x is its minimiser inside every limit."""
         problem, cost = self.problem, level.cost
-        G, h = (problem.G, problem.h) if problem.rows else (None, None)
         cost.write()
         cost.A[...] = level.A
         uncapped = cost.uncapped()  # where a solver would see c capped, it decides
         worlds = None if uncapped is everywhere(len(uncapped)) else np.flatnonzero(uncapped)
-        x, solved = level.held.solve(cost, problem.box, G, h, worlds)
+        x, solved = level.held.solve(cost, problem.box, *problem.inequalities, worlds)
         return x, solved, worlds
 
     # -- stage 2: the worlds left, one by one ------------------------------------------------
@@ -269,9 +268,7 @@ class HierarchicalController:
         is met loosely by solvers): :meth:`~qpik.problem.HeldBounds.polish`."""
         if not level.general:
             return x
-        problem = self.problem
-        G, h = (problem.G, problem.h) if problem.rows else (None, None)
-        return level.held.polish(level.cost, problem.box, G, h, w, x)
+        return level.held.polish(level.cost, self.problem.box, *self.problem.inequalities, w, x)
 
     @staticmethod
     def _named(level: _Level, exc: Exception) -> Exception:

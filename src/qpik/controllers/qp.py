@@ -77,7 +77,6 @@ class QPController:
         self.rows_held = np.zeros(robot.n, dtype=bool)
         self._holding_rows = False
         self.qdots = np.zeros((robot.n, robot.nv))
-        self._rows = (self.problem.G, self.problem.h) if self.problem.rows else (None, None)
         self._everywhere = everywhere(robot.n)
         self.qdot = robot.present(self.qdots)
         self.solver_calls = 0  # world-steps that needed the solver
@@ -112,7 +111,7 @@ class QPController:
         if worlds is not None and not len(worlds):
             x, solved = self.qdots[:0], np.zeros(0, dtype=bool)
         else:
-            x, solved = self.held.solve(self.cost, problem.box, *self._rows, worlds)
+            x, solved = self.held.solve(self.cost, problem.box, *problem.inequalities, worlds)
         if worlds is None and (solved is self._everywhere or solved.all()):
             self.qdots[...] = x
             return self.qdot
@@ -158,7 +157,7 @@ class QPController:
         if self._solver.exact:
             return x
         p = self.problem
-        return self.held.polish(self.cost, p.box, *self._rows, w, x)
+        return self.held.polish(self.cost, p.box, *p.inequalities, w, x)
 
     @property
     def fallbacks(self) -> int:

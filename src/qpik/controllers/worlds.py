@@ -20,7 +20,7 @@ from ..solvers import make_backend
 from ..controllers.fallbacks import GuardedSolve, copy_constraints
 
 
-WorldQP = namedtuple("WorldQP", "H c A b lb ub G h rows", defaults=(None,))
+WorldQP = namedtuple("WorldQP", "H c A b lb ub G h rows")
 WorldQP.__doc__ = "One world's QP as a solver sees it: H, c, A, b, lb, ub, G, h and a function giving its cost's rows."
 
 

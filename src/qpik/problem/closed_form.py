@@ -326,10 +326,10 @@ class HeldBounds:
         self.lower[w], self.upper[w] = held
         if not solved[0]:
             return x
-        form = self._form(1)
-        before = form.objective(x[None], *data[1:4], data[4])[0]
-        return answer[0] if form.objective(answer, *data[1:4], data[4])[0] <= before + COST_ROUNDING * abs(before) \
-            else x
+        form, (damping, R, rhs, c) = self._form(1), data[1:5]
+        before = form.objective(x[None], damping, R, rhs, c)[0]
+        kept = form.objective(answer, damping, R, rhs, c)[0] <= before + COST_ROUNDING * abs(before)
+        return answer[0] if kept else x
 
     def _form(self, count: int) -> DampedLeastSquares:
         """The closed form's buffers for ``count`` worlds."""

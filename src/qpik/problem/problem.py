@@ -80,6 +80,7 @@ class Problem:
         sizes = [limit.inequality_rows for limit in changing]
         self.rows = sum(sizes)
         self.G, self.h = np.zeros((n, self.rows, nv)), np.zeros((n, self.rows))
+        self.inequalities = (self.G, self.h) if self.rows else (None, None)  # as the closed form takes them
         self.row_limits = [(limit, rows) for limit, rows in zip(changing, row_slices(sizes)) if limit.inequality_rows]
         self._writes = [(limit.apply, (self.dt, self.lower, self.upper) if not limit.inequality_rows else
                          (self.dt, self.lower, self.upper, self.G[:, rows], self.h[:, rows]))
