@@ -65,11 +65,11 @@ class Frame:
 
     def jacobians(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
         """Fill the (N, 3, nv) translational and/or rotational Jacobians."""
-        if jacp is None or jacr is None:
+        if jacp is None:
             if self._scratch is None:
                 self._scratch = np.empty((len(self.positions), 3, self._backend.model.nv))
-            jacp, jacr = (self._scratch if jacp is None else jacp), (self._scratch if jacr is None else jacr)
-        self._backend.jacobian(self.body, self.positions, jacp, jacr)
+            jacp = self._scratch
+        self._backend.jacobian(self.body, self.positions, jacp, jacr, rotational=jacr is not None)
 
     def jacobians_filler(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None):
         """A call with no arguments that does :meth:`jacobians` into these arrays."""

@@ -72,6 +72,7 @@ class DampedLeastSquares:
         self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
         self._x_row = self.x[:, None, :]
+        self._L = np.zeros((m, m, n)) if n > 1 else None  # the factor of K (worlds last)
         self._everywhere = everywhere(n)
         self._square = not soft_rows and rows == nv  # the hard rows alone fix x (see _point)
 
@@ -107,7 +108,7 @@ class DampedLeastSquares:
             np.copyto(z, right)
         else:
             np.add(right, matvec(scaled, c, z), z)
-        self._factor, solved = cholesky_factor(K, SINGULAR_RATIO)
+        self._factor, solved = cholesky_factor(K, SINGULAR_RATIO, self._L)
         cholesky_substitute(self._factor, z, solved, in_place=True)
         vecmat(z, R, x)
         if c is not None:

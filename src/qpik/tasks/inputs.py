@@ -88,7 +88,8 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
         arr = np.broadcast_to(arr, (robot.n,) + shape)
     if arr.shape != (robot.n,) + shape:
         raise InvalidInput(f"{what} must have shape {shape} or {(robot.n,) + shape}, got {arr.shape}")
-    if np.abs(arr).max(initial=0.0) <= TARGET_MAGNITUDE_LIMIT:  # the usual call: one comparison (NaN fails)
+    # The usual call: two reductions, no temporary (NaN fails both).
+    if -TARGET_MAGNITUDE_LIMIT <= arr.min(initial=0.0) and arr.max(initial=0.0) <= TARGET_MAGNITUDE_LIMIT:
         return arr
     magnitude = np.abs(arr).reshape(robot.n, -1).max(axis=1, initial=0.0)
     bad = np.flatnonzero(~(magnitude <= TARGET_MAGNITUDE_LIMIT))

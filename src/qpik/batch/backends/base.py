@@ -98,7 +98,7 @@ class KinematicsBackend(ABC):
 
     @abstractmethod
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
-                 out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 out_r: np.ndarray | None = None, rotational: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """MuJoCo's ``mj_jac`` in every world: translational and rotational Jacobians
         of a point fixed on ``body``.
 
@@ -107,6 +107,7 @@ class KinematicsBackend(ABC):
             points: ``(N, 3)`` world positions of the point (e.g. a site's position
                 from :meth:`frame_pose`).
             out_p, out_r: optional ``(N, 3, nv)`` arrays to write into.
+            rotational: False: the translational Jacobian only (jacr None, ``out_r`` unread).
 
         Returns:
             ``(jacp (N, 3, nv), jacr (N, 3, nv))``: ``out_p``/``out_r`` when given,
@@ -134,9 +135,9 @@ class KinematicsBackend(ABC):
         xipos = self._field("xipos").reshape(n, -1, 3)
         total = np.zeros((n, 3, m.nv)) if out is None else out
         total.fill(0.0)
-        jacp, jacr = np.empty((n, 3, m.nv)), np.empty((n, 3, m.nv))
+        jacp = np.empty((n, 3, m.nv))
         for b in self._subtrees[body]:
-            self.jacobian(b, xipos[:, b], jacp, jacr)
+            self.jacobian(b, xipos[:, b], jacp, rotational=False)
             jacp *= m.body_mass[b]
             total += jacp
         total *= 1.0 / m.body_subtreemass[body]

@@ -126,7 +126,10 @@ class CpuBackend(KinematicsBackend):
         self._subtree_com = self._batch.bind("subtree_com").reshape(self.nworld, model.nbody, 3)
         self._fields: dict[str, np.ndarray] = {}
         self._geoms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._cdof_components = None
+        self._cdof_components = np.empty((8, model.nv, self.nworld))  # see _cdof_by_component
+        self._cdof_current = False
+        # _chain_jacobian's scratch, made once (a fresh large array each step costs page faults)
+        self._chain_scratch = [(np.empty((5, self.nworld)), np.empty((2, 3, model.nv, self.nworld))) for _ in range(2)]
         self._difference = np.zeros((3, model.nv, self.nworld))  # a connect's rows, worlds last
         self._chains: dict[int, np.ndarray] = {}
         self._subtrees: dict[int, list[int]] = {}
@@ -137,7 +140,7 @@ class CpuBackend(KinematicsBackend):
     def forward(self) -> None:
         with profiling_timers_off():
             self._batch.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
-        self._cdof_components = None
+        self._cdof_current = False
         for geom, pose in self._geoms.items():
             self._geom_pose(geom, *pose)
 
@@ -204,35 +207,39 @@ class CpuBackend(KinematicsBackend):
         """``cdof`` as (8, nv, N), worlds last: v, ω, then ω₀ and ω₁ again (ω turned by one or
         two components is a slice; each operation below is one pass over contiguous
         memory): made once per forward and shared by every Jacobian of the step."""
-        if self._cdof_components is None:
+        components = self._cdof_components
+        if not self._cdof_current:
             cdof = self._cdof.transpose(2, 1, 0)  # (6, nv, N): ω, v
-            components = self._cdof_components = np.empty((8,) + cdof.shape[1:])
             components[:3], components[3:6] = cdof[3:], cdof[:3]
             components[6:] = components[3:5]
-        return self._cdof_components
+            self._cdof_current = True
+        return components
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
-                 out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 out_r: np.ndarray | None = None, rotational: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         n, nv = self.nworld, self.model.nv
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
-        jacr = np.empty((n, 3, nv)) if out_r is None else out_r
-        columns, chain_p, chain_r = self._chain_jacobian(body, points)
+        jacr = None if not rotational else np.empty((n, 3, nv)) if out_r is None else out_r
+        columns, chain_p, chain_r = self._chain_jacobian(body, points, rotational)
         if columns is not ALL:  # zeros off the chain
             jacp.fill(0.0)
-            jacr.fill(0.0)
-        jacp[:, :, columns], jacr[:, :, columns] = chain_p, chain_r
+        jacp[:, :, columns] = chain_p
+        if rotational:
+            if columns is not ALL:
+                jacr.fill(0.0)
+            jacr[:, :, columns] = chain_r
         return jacp, jacr
 
-    def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
+    def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True, slot: int = 0):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
         on ``body``'s chain (``columns`` as :meth:`chain` gives them; jacr None unless
-        ``rotational``)."""
+        ``rotational``); jacp is scratch ``slot`` (0 or 1), valid until that slot's next call."""
         columns = self.chain(body)
-        offset = np.empty((5, self.nworld))  # o = points − com, then o₀ and o₁ again
+        offset, products = self._chain_scratch[slot]  # o = points − com, then o₀ and o₁ again
         np.subtract(points.T, self._subtree_com[:, int(self.model.body_rootid[body])].T, offset[:3])
         offset[3:] = offset[:2]
         cdof = self._cdof_by_component()[:, columns]
-        jacp, cross = np.empty((2, 3) + cdof.shape[1:])
+        jacp, cross = products[:, :, :cdof.shape[1]]
         o = offset[:, None, :]
         # v + mju_cross(ω, o), every component at once: ω_a o_b − ω_b o_a, (a, b) = (i + 1, i + 2) mod 3
         np.multiply(cdof[4:7], o[2:5], jacp)
@@ -288,8 +295,9 @@ class CpuBackend(KinematicsBackend):
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
         np.subtract(point0, point1, out=residual)
-        (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, rotational=False)
-                                                      for body, point in ((body0, point0), (body1, point1))]
+        (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, False, slot)
+                                                      for slot, (body, point) in enumerate(((body0, point0),
+                                                                                            (body1, point1)))]
         difference = self._difference  # J0 − J1 (3, nv, N) on the chains' columns
         difference[:, columns1] = 0.0
         difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave

@@ -147,14 +147,16 @@ class WarpBackend(KinematicsBackend):
         return self._field(position)[:, frame_id], self._field(rotation)[:, frame_id]
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
-                 out_r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 out_r: np.ndarray | None = None, rotational: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         with wp.ScopedDevice(self.device):
             self._body_ids.fill_(int(body))
             self._points.assign(np.ascontiguousarray(points, dtype=np.float32))
             mjw.jac(self._m, self._d, self._jacp, self._jacr, self._points, self._body_ids)
         jacp = np.empty((self.nworld, 3, self.model.nv)) if out_p is None else out_p
-        jacr = np.empty((self.nworld, 3, self.model.nv)) if out_r is None else out_r
         jacp[:] = self._jacp.numpy()
+        if not rotational:
+            return jacp, None
+        jacr = np.empty((self.nworld, 3, self.model.nv)) if out_r is None else out_r
         jacr[:] = self._jacr.numpy()
         return jacp, jacr
 
