@@ -94,8 +94,8 @@ def cholesky_factor(M: np.ndarray, ratio: float = np.inf, out: np.ndarray | None
         Lt = _cholesky_factor_last(Mt, np.zeros_like(Mt) if out is None else out)
         # Every pivot within ratio (NaN fails; a zero pivot fails against the least positive M_jj).
         pivots = np.einsum("iin->in", Lt)  # (k, N), NaN (or 0) from the first non-positive one on
-        ok = (ratio * ratio * pivots * pivots >= np.maximum(np.einsum("iin->in", Mt), _TINY)).all(axis=0)
-    return Lt, (everywhere(len(ok)) if ok.all() else ok)
+        met = ratio * ratio * pivots * pivots >= np.maximum(np.einsum("iin->in", Mt), _TINY)
+    return Lt, (everywhere(Mt.shape[2]) if met.all() else met.all(axis=0))
 
 
 def cholesky_substitute(factor: np.ndarray, B: np.ndarray, ok: np.ndarray, in_place: bool = False) -> np.ndarray:
@@ -193,11 +193,11 @@ def _substitute(Lt: np.ndarray, Xt: np.ndarray) -> None:
     n = Lt.shape[0]
     for j in range(n):  # L Y = B
         if j:
-            Xt[j] -= (Lt[j, :j, None] * Xt[:j]).sum(axis=0)
+            Xt[j] -= np.einsum("in,imn->mn", Lt[j, :j], Xt[:j])
         Xt[j] /= Lt[j, j]
     for j in range(n - 1, -1, -1):  # Lᵀ X = Y, from the last row up
         if j < n - 1:
-            Xt[j] -= (Lt[j + 1:, j, None] * Xt[j + 1:]).sum(axis=0)
+            Xt[j] -= np.einsum("in,imn->mn", Lt[j + 1:, j], Xt[j + 1:])
         Xt[j] /= Lt[j, j]
 
 

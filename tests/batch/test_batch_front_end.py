@@ -179,6 +179,47 @@ def test_bad_input_is_a_typed_error_naming_the_worlds():
         robots.integrate(np.zeros((3, 4)), -1.0)
 
 
+def test_a_target_is_checked_entry_by_entry_where_all_its_entries_together_pass_the_limit():
+    """The check's one pass is the norm of every world's entries: targets each far within
+    TARGET_MAGNITUDE_LIMIT (1e150) whose norm is past it are taken, a strided view as an
+    array; one entry past it in one world names that world."""
+    from qpik.tasks.inputs import TARGET_MAGNITUDE_LIMIT
+
+    robots = batch.Robot.load("arm", 3)
+    task = batch.PositionTask(robots, "end_effector", axes="xy", gain=10.0)
+    large = np.full((3, 2), 0.9 * TARGET_MAGNITUDE_LIMIT)  # norm 2.2e150
+    task.set_target(large)
+    np.testing.assert_array_equal(task.target, large)
+    wide = np.arange(9.0).reshape(3, 3)
+    task.set_target(wide[:, :2], wide[:, 1:])  # strided views of one array
+    np.testing.assert_array_equal(task.target, wide[:, :2])
+    large[1, 0] = 1.1 * TARGET_MAGNITUDE_LIMIT
+    with pytest.raises(batch.InvalidWorlds, match="worlds 1") as caught:
+        task.set_target(large)
+    assert caught.value.worlds.tolist() == [1]
+    np.testing.assert_array_equal(task.target, wide[:, :2])  # a refused target leaves the last one
+
+
+def test_a_frames_rotations_are_read_at_the_configuration_of_their_first_read():
+    """A position task binds no rotation (MuJoCo copies out only what is read); the first
+    read of a frame's rotations, before or after the worlds moved, gives each world's own."""
+    robots = batch.Robot.load("arm", 3)
+    frame = robots.frame("end_effector")
+    robots.set_q(robots.q + np.array([[0.1, 0.0, 0.0, 0.0], [0.0, -0.2, 0.1, 0.0], [0.3, 0.1, 0.0, 0.2]]))
+    robots.ensure_kinematics()
+    for w in range(3):
+        one = robots.world(w).frame("end_effector")
+        np.testing.assert_allclose(frame.positions[w], one.position, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(frame.rotations[w], one.rotation, rtol=0, atol=1e-12)
+    robots.integrate(np.tile([1.0, -1.0, 0.5, 0.1], (3, 1)), DT)
+    robots.ensure_kinematics()
+    later = batch.Robot.load("arm", 3)
+    later.set_q(robots.q)
+    fresh = later.frame("end_effector")
+    later.ensure_kinematics()
+    np.testing.assert_array_equal(fresh.rotations, frame.rotations)
+
+
 def test_a_task_or_limit_of_another_robot_is_refused_with_a_clear_message():
     robots, twin, one = batch.Robot.load("arm", 2), batch.Robot.load("arm", 2), qpik.Robot.load("arm")
     mine = batch.PositionTask(robots, "end_effector", axes="xy", gain=10.0)

@@ -48,20 +48,28 @@ def make_backend(name: str, model: mujoco.MjModel, n: int, **options):
 class Frame:
     """A site, body or geom in every world: ``positions`` (N, 3) and ``rotations``
     (N, 3, 3) are the back-end's arrays (current after each kinematics update, read-only;
-    ``position``, ``rotation``: the same arrays); :meth:`jacobians` fills the (N, 3, nv)
-    Jacobians of the frame's origin."""
+    ``position``, ``rotation``: the same arrays; the rotations are copied out of MuJoCo
+    from their first read on); :meth:`jacobians` fills the (N, 3, nv) Jacobians of the
+    frame's origin."""
 
-    __slots__ = ("name", "type", "id", "body", "positions", "rotations", "position", "rotation", "_backend",
-                 "_scratch")
+    __slots__ = ("name", "type", "id", "body", "positions", "position", "_rotations", "_backend", "_scratch")
 
     def __init__(self, robots: Robot, name: str, frame_type: str = "site"):
         serial = robots.template.frame(name, frame_type)  # checks the type and the name
         self.name, self.type, self.id, self.body = name, frame_type, serial.id, serial.body
-        self.positions, self.rotations = robots.backend.frame_pose(frame_type, self.id)
-        self.position, self.rotation = self.positions, self.rotations
+        self.positions, self._rotations = robots.backend.frame_pose(frame_type, self.id, rotation=False)
+        self.position = self.positions
         self._backend = robots.backend
         self._scratch = None
         robots.kinematics_stale()
+
+    @property
+    def rotations(self) -> np.ndarray:
+        if self._rotations is None:  # bound now, and filled at the current configuration
+            self._rotations = self._backend.frame_pose(self.type, self.id)[1]
+        return self._rotations
+
+    rotation = rotations
 
     def jacobians(self, jacp: np.ndarray | None, jacr: np.ndarray | None = None) -> None:
         """Fill the (N, 3, nv) translational and/or rotational Jacobians."""

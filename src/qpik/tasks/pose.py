@@ -53,7 +53,7 @@ class PoseRows:
         self._rotation_error = RotationError(n)
         self._rotated = np.zeros((n, width, nv)) if local else None
         self._rotated_blocks = [self._rotated[:, b] for b in blocks] if local else None
-        self._transposed = frame.rotations.transpose(0, 2, 1)  # Rᵀ of every world (a view)
+        self._transposed = frame.rotations.transpose(0, 2, 1) if local else None  # Rᵀ of every world (a view)
         self._fill = frame.jacobians_filler(self._position[0] if self._position else None,
                                             self._orientation[0] if self._orientation else None)
 

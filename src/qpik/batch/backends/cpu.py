@@ -152,7 +152,7 @@ class CpuBackend(KinematicsBackend):
             self.forward()
         return self._fields[name]
 
-    def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
+    def frame_pose(self, frame_type: str, frame_id: int, rotation: bool = True) -> tuple[np.ndarray, np.ndarray]:
         if frame_type == "geom":
             if frame_id not in self._geoms:
                 for name in ("xpos", "xmat", "xquat", "xipos", "ximat"):
@@ -161,10 +161,9 @@ class CpuBackend(KinematicsBackend):
                 self._geom_pose(frame_id, *pose)
                 self._geoms[frame_id] = pose
             return self._geoms[frame_id]
-        position, rotation = FRAMES[frame_type][1:3]
-        xpos = self._field(position).reshape(self.nworld, -1, 3)
-        xmat = self._field(rotation).reshape(self.nworld, -1, 3, 3)
-        return xpos[:, frame_id], xmat[:, frame_id]
+        positions, rotations = FRAMES[frame_type][1:3]
+        xpos = self._field(positions).reshape(self.nworld, -1, 3)[:, frame_id]
+        return xpos, self._field(rotations).reshape(self.nworld, -1, 3, 3)[:, frame_id] if rotation else None
 
     def _geom_pose(self, geom: int, position: np.ndarray, rotation: np.ndarray) -> None:
         """``mj_local2Global`` of a geom across worlds, into ``position``, ``rotation``."""

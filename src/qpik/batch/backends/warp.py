@@ -142,9 +142,9 @@ class WarpBackend(KinematicsBackend):
             self.forward()
         return self._host[name]
 
-    def frame_pose(self, frame_type: str, frame_id: int) -> tuple[np.ndarray, np.ndarray]:
-        position, rotation = FRAMES[frame_type][1:3]
-        return self._field(position)[:, frame_id], self._field(rotation)[:, frame_id]
+    def frame_pose(self, frame_type: str, frame_id: int, rotation: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        positions, rotations = FRAMES[frame_type][1:3]
+        return self._field(positions)[:, frame_id], self._field(rotations)[:, frame_id] if rotation else None
 
     def jacobian(self, body: int, points: np.ndarray, out_p: np.ndarray | None = None,
                  out_r: np.ndarray | None = None, rotational: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
