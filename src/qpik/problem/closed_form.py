@@ -194,10 +194,10 @@ class DampedLeastSquares:
         value = 0.5 * np.einsum("ni,ni->n", residual, residual) + 0.5 * np.einsum("ni,ni,ni->n", x, damping, x)
         return value if c is None else value + np.einsum("ni,ni->n", c, x)
 
-    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None, finite: bool = False) -> np.ndarray:
-        """(N,) whether the last x is in the box and under the rows (:func:`inside`); ``finite``:
-        x is known to be (the solve was ``ok`` everywhere)."""
-        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides, finite)
+    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None, ok=None) -> np.ndarray:
+        """(N,) whether the last x is in the box and under the rows (:func:`inside`); ``ok``:
+        the solve's (everywhere: x is finite, not tested again)."""
+        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides, ok is self._everywhere)
 
 
 def active_bounds(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -293,7 +293,7 @@ class HeldBounds:
         if not self.holding:  # the plain closed form first: most steps end here
             form = self._form(len(box) if worlds is None else len(worlds))
             x, _, ok = form.solve(data[0], data[2], data[3], data[4])
-            inside_box = form.admits(data[5], data[6], data[7], finite=ok is everywhere(len(x)))
+            inside_box = form.admits(data[5], data[6], data[7], ok)
             if ok is inside_box:  # both everywhere: every world settled
                 return x, ok
             solved = both(ok, inside_box)

@@ -1,10 +1,10 @@
 """What tasks and limits accept from their users, checked once, with errors that name the
 culprit: masks, gains, weights, rotations, targets (one for every world, or one per world).
 
-A target is written every step, so its check is cheap: the norm of all its entries, one
-pass (NaN, inf and anything beyond :data:`TARGET_MAGNITUDE_LIMIT` fail one comparison);
-past it, the entries are checked one by one, and for N worlds the culprit worlds are
-named (:class:`~qpik.errors.InvalidWorlds`).
+A target is written every step, so its check is cheap: the norm of its entries, one
+``math.hypot`` call for one world, one pass for N (NaN, inf and anything beyond
+:data:`TARGET_MAGNITUDE_LIMIT` fail one comparison); for N worlds past it, the entries are
+checked one by one and the culprit worlds named (:class:`~qpik.errors.InvalidWorlds`).
 """
 
 from __future__ import annotations
@@ -74,19 +74,23 @@ def world_values(robot, value, shape: tuple, what: str) -> np.ndarray:
         InvalidInput: a wrong shape, or (one world) a bad entry.
         InvalidWorlds: (N worlds) the worlds whose value is not finite or too large.
     """
-    arr = as_floats(value, what)
-    one = arr.shape == shape
-    if not one and (not robot.batched or arr.shape != (robot.n,) + shape):
-        allowed = f"{shape} or {(robot.n,) + shape}" if robot.batched else f"{shape}"
-        raise InvalidInput(f"{what} must have shape {allowed}, got {arr.shape}")
-    arr = np.ascontiguousarray(arr)  # a strided view copied once: the check and the caller's copy read it
-    if norm(arr) <= TARGET_MAGNITUDE_LIMIT:  # the usual call: one pass (NaN, inf and overflow fail it)
-        return arr if not one else np.broadcast_to(arr, (robot.n,) + shape) if robot.batched else arr[None]
     if not robot.batched:
+        arr = as_floats(value, what)
+        if arr.shape != shape:
+            raise InvalidInput(f"{what} must have shape {shape}, got {arr.shape}")
+        if math.hypot(*(arr.tolist() if arr.ndim == 1 else arr.ravel().tolist())) <= TARGET_MAGNITUDE_LIMIT:
+            return arr[None]
         if not np.isfinite(arr).all():
             raise InvalidInput(f"{what} contains NaN or inf: {arr}")
-        raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and "
-                           "its square) would overflow; give a target the robot could reach")
+        raise InvalidInput(f"{what} {arr} is beyond {TARGET_MAGNITUDE_LIMIT:g} in magnitude: the feedback K·e (and its "
+                           "square) would overflow; give a target the robot could reach")
+    arr = as_floats(value, what)
+    one = arr.shape == shape
+    if not one and arr.shape != (robot.n,) + shape:
+        raise InvalidInput(f"{what} must have shape {shape} or {(robot.n,) + shape}, got {arr.shape}")
+    arr = np.ascontiguousarray(arr)  # a strided view copied once: the check and the caller's copy read it
+    if norm(arr) <= TARGET_MAGNITUDE_LIMIT:  # the usual call: one pass (NaN, inf and overflow fail it)
+        return np.broadcast_to(arr, (robot.n,) + shape) if one else arr
     worlds = np.broadcast_to(arr, (robot.n,) + shape)
     magnitude = np.abs(worlds).reshape(robot.n, -1).max(axis=1, initial=0.0)
     bad = np.flatnonzero(~(magnitude <= TARGET_MAGNITUDE_LIMIT))
