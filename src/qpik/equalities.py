@@ -18,12 +18,8 @@ import numpy as np
 from .errors import ModelError
 
 # The equality types whose rows qpik takes from MuJoCo, and their row counts.
-SUPPORTED = {
-    int(mujoco.mjtEq.mjEQ_CONNECT): ("connect", 3),
-    int(mujoco.mjtEq.mjEQ_WELD): ("weld", 6),
-    int(mujoco.mjtEq.mjEQ_JOINT): ("joint", 1),
-    int(mujoco.mjtEq.mjEQ_TENDON): ("tendon", 1),
-}
+SUPPORTED = {int(getattr(mujoco.mjtEq, f"mjEQ_{name.upper()}")): (name, rows)
+             for name, rows in (("connect", 3), ("weld", 6), ("joint", 1), ("tendon", 1))}
 _D = mujoco.mjtDisableBit
 # While the rows are made: no contact, limit or friction-loss rows; equalities on.
 _DISABLE = int(_D.mjDSBL_CONTACT) | int(_D.mjDSBL_LIMIT) | int(_D.mjDSBL_FRICTIONLOSS)

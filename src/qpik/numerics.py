@@ -66,7 +66,7 @@ def worlds_first(a: np.ndarray) -> np.ndarray:
 
 
 # -- Cholesky solves ------------------------------------------------------------------
-def cholesky_factor(M: np.ndarray, ratio: float = np.inf, out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def cholesky_factor(M: np.ndarray, ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Every world's Cholesky factor L (L Lᵀ = M_k; only M's lower triangle is read, M is
     not written), kept for :func:`cholesky_substitute` (a refinement solves again with it).
 
@@ -76,8 +76,6 @@ def cholesky_factor(M: np.ndarray, ratio: float = np.inf, out: np.ndarray | None
             M's rows are orthogonal, growing as a row depends on those before it (whatever
             the rows' scales; a refused M scaled to a unit diagonal has a condition number
             past ratio², an accepted one may too: a lower bound, not an estimate).
-        out: (k, k, N) zeros, or a factor this function wrote before, to write N worlds'
-            factor into (a new array each step costs more).
 
     Returns:
         ``(factor, ok (N,))``: ``ok`` where M is numerically positive definite (every pivot
@@ -91,7 +89,7 @@ def cholesky_factor(M: np.ndarray, ratio: float = np.inf, out: np.ndarray | None
     # A world not positive definite runs to NaN, one that overflows to inf or NaN, silently,
     # as LAPACK gives one robot (its caller refuses it): no warning its one-world run lacks.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        Lt = _cholesky_factor_last(Mt, np.zeros_like(Mt) if out is None else out)
+        Lt = _cholesky_factor_last(Mt)
         # Every pivot within ratio (NaN fails; a zero pivot fails against the least positive M_jj).
         pivots = np.einsum("iin->in", Lt)  # (k, N), NaN (or 0) from the first non-positive one on
         met = ratio * ratio * pivots * pivots >= np.maximum(np.einsum("iin->in", Mt), _TINY)
@@ -169,14 +167,15 @@ def _cholesky_substitute_one(factor: np.ndarray, b: np.ndarray, in_place: bool) 
     return X
 
 
-def _cholesky_factor_last(Mt: np.ndarray, L: np.ndarray) -> np.ndarray:
+def _cholesky_factor_last(Mt: np.ndarray) -> np.ndarray:
     """L (lower, L Lᵀ = M) of every world with the worlds along the last axis, Mt (k, k, N),
     one vector operation over the worlds per column (NumPy's stacked LAPACK call costs more
     on a step's small systems, and stops at the first world that is not positive
     definite). Where a Schur complement is not positive the pivot is NaN (or 0), and so is
     the rest of that world's L (the caller refuses it, under ``errstate``, and zeroes its
-    answer). L: zeros above the diagonal, written on and below it."""
+    answer)."""
     n = Mt.shape[0]
+    L = np.zeros_like(Mt)
     for j in range(n):
         d = Mt[j, j] - np.einsum("jn,jn->n", L[j, :j], L[j, :j]) if j else Mt[j, j]
         root = np.sqrt(d, out=L[j, j])

@@ -93,16 +93,10 @@ FRAMES = {
     "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_xpos", "geom_xmat", mujoco.mj_jacGeom, "geom_bodyid"),
 }
 # object type -> (label in messages, MjModel attribute counting them)
-_COUNTS = {
-    mujoco.mjtObj.mjOBJ_SITE: ("site", "nsite"),
-    mujoco.mjtObj.mjOBJ_BODY: ("body", "nbody"),
-    mujoco.mjtObj.mjOBJ_GEOM: ("geom", "ngeom"),
-    mujoco.mjtObj.mjOBJ_JOINT: ("joint", "njnt"),
-    mujoco.mjtObj.mjOBJ_KEY: ("keyframe", "nkey"),
-    mujoco.mjtObj.mjOBJ_EQUALITY: ("equality", "neq"),
-    mujoco.mjtObj.mjOBJ_TENDON: ("tendon", "ntendon"),
-    mujoco.mjtObj.mjOBJ_ACTUATOR: ("actuator", "nu"),
-}
+_COUNTS = {getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}"): (label, count) for kind, label, count in (
+    ("site", "site", "nsite"), ("body", "body", "nbody"), ("geom", "geom", "ngeom"), ("joint", "joint", "njnt"),
+    ("key", "keyframe", "nkey"), ("equality", "equality", "neq"), ("tendon", "tendon", "ntendon"),
+    ("actuator", "actuator", "nu"))}
 
 
 class _BundledDefault:
@@ -694,13 +688,9 @@ class Robot:
         ids = [j for j in range(m.njnt) if m.jnt_limited[j] and int(m.jnt_type[j]) in _SCALAR_JOINTS]
         names = tuple(joint_name(m, j) for j in ids)
         rng = m.jnt_range[ids] if ids else np.zeros((0, 2))
-        return JointLimits(
-            names=names,
-            qpos_index=np.asarray(m.jnt_qposadr[ids], dtype=int),
-            dof_index=np.asarray(m.jnt_dofadr[ids], dtype=int),
-            lower=np.array(rng[:, 0], dtype=float),
-            upper=np.array(rng[:, 1], dtype=float),
-        )
+        return JointLimits(names=names, qpos_index=np.asarray(m.jnt_qposadr[ids], dtype=int),
+                           dof_index=np.asarray(m.jnt_dofadr[ids], dtype=int), lower=np.array(rng[:, 0], dtype=float),
+                           upper=np.array(rng[:, 1], dtype=float))
 
     def _read_velocity_limits(self) -> np.ndarray:
         """Per-dof velocity bound (inf where the scene declares none)."""

@@ -72,7 +72,6 @@ class DampedLeastSquares:
         self._gradient, self._Rz = np.empty((n, nv)), np.empty((n, nv))
         self._gap, self._sides = np.empty((n, 2, nv)), np.tile(_SIDES, (n, 1, nv))
         self._x_row = self.x[:, None, :]
-        self._L = np.zeros((m, m, n)) if n > 1 else None  # the factor of K (worlds last)
         self._everywhere = everywhere(n)
         self._square = not soft_rows and rows == nv  # the hard rows alone fix x (see _point)
 
@@ -108,7 +107,7 @@ class DampedLeastSquares:
             np.copyto(z, right)
         else:
             np.add(right, matvec(scaled, c, z), z)
-        self._factor, solved = cholesky_factor(K, SINGULAR_RATIO, self._L)
+        self._factor, solved = cholesky_factor(K, SINGULAR_RATIO)
         cholesky_substitute(self._factor, z, solved, in_place=True)
         vecmat(z, R, x)
         if c is not None:
@@ -194,10 +193,9 @@ class DampedLeastSquares:
         value = 0.5 * np.einsum("ni,ni->n", residual, residual) + 0.5 * np.einsum("ni,ni,ni->n", x, damping, x)
         return value if c is None else value + np.einsum("ni,ni->n", c, x)
 
-    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None, ok=None) -> np.ndarray:
-        """(N,) whether the last x is in the box and under the rows (:func:`inside`); ``ok``:
-        the solve's (everywhere: x is finite, not tested again)."""
-        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides, ok is self._everywhere)
+    def admits(self, box: np.ndarray, G: np.ndarray | None, h: np.ndarray | None) -> np.ndarray:
+        """(N,) whether the last x is in the box and under the rows (:func:`inside`)."""
+        return inside(self.x, box, G, h, self._gap, self._x_row, self._sides)
 
 
 def active_bounds(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -228,12 +226,10 @@ _SIDES = np.array([1.0, -1.0])[None, :, None]  # x − lower >= 0, upper − x >
 
 
 def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.ndarray | None = None,
-           gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES,
-           finite: bool = False) -> np.ndarray:
+           gap: np.ndarray | None = None, x_row: np.ndarray | None = None, sides: np.ndarray = _SIDES) -> np.ndarray:
     """(N,) whether x is finite, in the box (N, 2, nv) and under the rows (exact
     comparisons: a point on a bound is inside; NaN and ±inf are not). One comparison
-    decides the usual step where every world is inside; one world's, in floats.
-    ``finite``: x is known to be finite (not tested again)."""
+    decides the usual step where every world is inside; one world's, in floats."""
     if len(x) == 1 and G is None:
         values = x[0].tolist()
         for value, low, high in zip(values, *box[0].tolist()):
@@ -241,7 +237,7 @@ def inside(x: np.ndarray, box: np.ndarray, G: np.ndarray | None = None, h: np.nd
                 return nowhere(1)
         finite = math.isfinite(sum(values)) or all(map(math.isfinite, values))  # (the sum may overflow)
         return everywhere(1) if finite else nowhere(1)
-    if not finite and not all_finite(x):  # decided on the finite worlds alone (inf − inf would be NaN)
+    if not all_finite(x):  # decided on the finite worlds alone (inf − inf would be NaN)
         finite = np.isfinite(x).all(axis=1)
         if not finite.all():
             if finite.any():
@@ -293,7 +289,7 @@ class HeldBounds:
         if not self.holding:  # the plain closed form first: most steps end here
             form = self._form(len(box) if worlds is None else len(worlds))
             x, _, ok = form.solve(data[0], data[2], data[3], data[4])
-            inside_box = form.admits(data[5], data[6], data[7], ok)
+            inside_box = form.admits(data[5], data[6], data[7])
             if ok is inside_box:  # both everywhere: every world settled
                 return x, ok
             solved = both(ok, inside_box)

@@ -4,15 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .inputs import (
-    axis_rows,
-    check_axes_frame,
-    feedback_gain,
-    homogeneous_transform,
-    mocap_pose,
-    world_rotations,
-    world_values,
-)
+from .inputs import (axis_rows, check_axes_frame, feedback_gain, homogeneous_transform, mocap_pose, world_rotations,
+                     world_values)
 from .pose import PoseRows
 from .task import Task
 

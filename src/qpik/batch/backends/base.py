@@ -84,14 +84,14 @@ class KinematicsBackend(ABC):
         unaffected."""
 
     @abstractmethod
-    def frame_pose(self, frame_type: str, frame_id: int, rotation: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def frame_pose(self, frame_type: str, frame_id: int,
+                   rotation: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """World pose of a site, body (its origin) or geom in every world.
 
         Args:
             frame_type: ``"site"``, ``"body"`` or ``"geom"``.
             frame_id: the object's id in the model.
-            rotation: False: the position only (rotation None, unless a geom's), so that
-                a kinematics update copies out no rotation nobody reads.
+            rotation: False: the position only (rotation None, except a geom's): no field copied out unread.
 
         Returns:
             ``(position (N, 3), rotation (N, 3, 3))``, owned by the back-end (current

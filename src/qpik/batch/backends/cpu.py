@@ -129,7 +129,7 @@ class CpuBackend(KinematicsBackend):
         self._cdof_components = np.empty((8, model.nv, self.nworld))  # see _cdof_by_component
         self._cdof_current = False
         # _chain_jacobian's scratch, made once (a fresh large array each step costs page faults)
-        self._chain_scratch = [(np.empty((5, self.nworld)), np.empty((2, 3, model.nv, self.nworld))) for _ in range(2)]
+        self._chain_scratch = np.empty((5, self.nworld)), np.empty((2, 3, model.nv, self.nworld))
         self._difference = np.zeros((3, model.nv, self.nworld))  # a connect's rows, worlds last
         self._chains: dict[int, np.ndarray] = {}
         self._subtrees: dict[int, list[int]] = {}
@@ -152,7 +152,8 @@ class CpuBackend(KinematicsBackend):
             self.forward()
         return self._fields[name]
 
-    def frame_pose(self, frame_type: str, frame_id: int, rotation: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def frame_pose(self, frame_type: str, frame_id: int,
+                   rotation: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         if frame_type == "geom":
             if frame_id not in self._geoms:
                 for name in ("xpos", "xmat", "xquat", "xipos", "ximat"):
@@ -220,21 +221,18 @@ class CpuBackend(KinematicsBackend):
         jacp = np.empty((n, 3, nv)) if out_p is None else out_p
         jacr = None if not rotational else np.empty((n, 3, nv)) if out_r is None else out_r
         columns, chain_p, chain_r = self._chain_jacobian(body, points, rotational)
-        if columns is not ALL:  # zeros off the chain
-            jacp.fill(0.0)
-        jacp[:, :, columns] = chain_p
-        if rotational:
-            if columns is not ALL:
-                jacr.fill(0.0)
-            jacr[:, :, columns] = chain_r
+        for jac, chain in [(jacp, chain_p)] + ([(jacr, chain_r)] if rotational else []):
+            if columns is not ALL:  # zeros off the chain
+                jac.fill(0.0)
+            jac[:, :, columns] = chain
         return jacp, jacr
 
-    def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True, slot: int = 0):
+    def _chain_jacobian(self, body: int, points: np.ndarray, rotational: bool = True):
         """(columns, jacp (N, 3, k), jacr (N, 3, k)): ``mj_jac``'s columns of the k dofs
         on ``body``'s chain (``columns`` as :meth:`chain` gives them; jacr None unless
-        ``rotational``); jacp is scratch ``slot`` (0 or 1), valid until that slot's next call."""
+        ``rotational``); jacp is scratch, valid until the next call."""
         columns = self.chain(body)
-        offset, products = self._chain_scratch[slot]  # o = points − com, then o₀ and o₁ again
+        offset, products = self._chain_scratch  # o = points − com, then o₀ and o₁ again
         np.subtract(points.T, self._subtree_com[:, int(self.model.body_rootid[body])].T, offset[:3])
         offset[3:] = offset[:2]
         cdof = self._cdof_by_component()[:, columns]
@@ -294,13 +292,11 @@ class CpuBackend(KinematicsBackend):
         body0, point0 = self._anchor(eq, 0)
         body1, point1 = self._anchor(eq, 1)
         np.subtract(point0, point1, out=residual)
-        (columns0, jacp0, _), (columns1, jacp1, _) = [self._chain_jacobian(body, point, False, slot)
-                                                      for slot, (body, point) in enumerate(((body0, point0),
-                                                                                            (body1, point1)))]
-        difference = self._difference  # J0 − J1 (3, nv, N) on the chains' columns
+        difference, columns1 = self._difference, self.chain(body1)  # J0 − J1 (3, nv, N) on the chains' columns
         difference[:, columns1] = 0.0
+        columns0, jacp0, _ = self._chain_jacobian(body0, point0, False)
         difference[:, columns0] = jacp0.transpose(1, 2, 0) + 0.0  # 0 + J0, as the rows' own zeros gave
-        difference[:, columns1] -= jacp1.transpose(1, 2, 0)
+        difference[:, columns1] -= self._chain_jacobian(body1, point1, False)[1].transpose(1, 2, 0)
         for columns in (columns0, columns1):
             jacobian[:, :, columns] = difference[:, columns].transpose(2, 0, 1)
 

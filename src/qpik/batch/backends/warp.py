@@ -142,7 +142,8 @@ class WarpBackend(KinematicsBackend):
             self.forward()
         return self._host[name]
 
-    def frame_pose(self, frame_type: str, frame_id: int, rotation: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def frame_pose(self, frame_type: str, frame_id: int,
+                   rotation: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         positions, rotations = FRAMES[frame_type][1:3]
         return self._field(positions)[:, frame_id], self._field(rotations)[:, frame_id] if rotation else None
 
